@@ -1,0 +1,24 @@
+#!/usr/bin/env bash
+# Sets up a fresh Debian bookworm machine: system packages, a virtualenv in .venv, the C++ core.
+# Safe to run again: every step is skipped or incremental when already done.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+need=()
+for pkg in libembree-dev g++ cmake; do
+  dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
+done
+if ((${#need[@]})); then
+  echo "setup: installing ${need[*]}"
+  apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need[@]}" >/dev/null
+fi
+
+python=${PYTHON:-python3.11}
+command -v "$python" >/dev/null || python=python3
+[[ -x .venv/bin/python ]] || "$python" -m venv .venv
+.venv/bin/pip install -q --disable-pip-version-check -r requirements.txt
+# The core is compiled by CMake through scikit-build-core; the editable install keeps the Python
+# sources live and rebuilds the extension incrementally in build/.
+.venv/bin/pip install -q --disable-pip-version-check --no-build-isolation -e .
+echo "setup: ready ($(.venv/bin/python -c 'import thurston_addon._core as c; print(c.__name__)'))"
