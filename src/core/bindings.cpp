@@ -1,0 +1,355 @@
+// Python bindings: argument validation, numpy outputs, and the GIL around traces.
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+
+#include <cmath>
+#include <exception>
+#include <string>
+#include <utility>
+
+#include "tracer.hpp"
+
+namespace nb = nanobind;
+using namespace thurston;
+
+namespace {
+
+// Any CPU array; dtype and shape are checked by hand to raise ValueError with a clear message.
+using Array = nb::ndarray<nb::ro, nb::device::cpu>;
+
+std::string dtype_name(nb::dlpack::dtype dt) {
+  const char* kind = "unknown";
+  switch (nb::dlpack::dtype_code(dt.code)) {
+    case nb::dlpack::dtype_code::Int: kind = "int"; break;
+    case nb::dlpack::dtype_code::UInt: kind = "uint"; break;
+    case nb::dlpack::dtype_code::Float: kind = "float"; break;
+    case nb::dlpack::dtype_code::Bool: return "bool";
+    default: break;
+  }
+  return kind + std::to_string(int(dt.bits));
+}
+
+template <class T> const char* type_name();
+template <> const char* type_name<double>() { return "float64"; }
+template <> const char* type_name<float>() { return "float32"; }
+template <> const char* type_name<std::int32_t>() { return "int32"; }
+
+std::string shape_text(const Array& a) {
+  std::string s = "(";
+  for (std::size_t d = 0; d < a.ndim(); ++d) s += (d ? ", " : "") + std::to_string(a.shape(d));
+  return s + (a.ndim() == 1 ? ",)" : ")");
+}
+
+// Checks dtype and shape; -1 in `shape` matches any length. `expected` names the shape for errors.
+template <class T>
+void check(const Array& a, const char* name, std::initializer_list<std::int64_t> shape,
+           const char* expected) {
+  if (a.dtype() != nb::dtype<T>())
+    throw nb::value_error((std::string(name) + " must have dtype " + type_name<T>() + ", got " +
+                           dtype_name(a.dtype())).c_str());
+  bool ok = a.ndim() == shape.size();
+  std::size_t d = 0;
+  for (std::int64_t n : shape) {
+    if (ok && n >= 0 && std::int64_t(a.shape(d)) != n) ok = false;
+    ++d;
+  }
+  if (!ok)
+    throw nb::value_error((std::string(name) + " must have shape " + expected + ", got " +
+                           shape_text(a)).c_str());
+}
+
+template <class T>
+Strided2<T> view2(const Array& a) {
+  return {static_cast<const T*>(a.data()), a.stride(0), a.ndim() > 1 ? a.stride(1) : 0};
+}
+
+template <class T, std::size_t C>
+std::vector<std::array<T, C>> rows(const Array& a) {
+  const Strided2<T> v = view2<T>(a);
+  std::vector<std::array<T, C>> out(a.shape(0));
+  for (std::size_t i = 0; i < out.size(); ++i)
+    for (std::size_t j = 0; j < C; ++j) out[i][j] = v(i, j);
+  return out;
+}
+
+std::vector<std::int32_t> indices(const Array& a, std::int64_t bound, const char* name,
+                                  const char* bound_name) {
+  const Strided2<std::int32_t> v = view2<std::int32_t>(a);
+  std::vector<std::int32_t> out(a.shape(0));
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    out[i] = v(i, 0);
+    if (out[i] < 0 || out[i] >= bound)
+      throw nb::value_error((std::string(name) + " has index " + std::to_string(out[i]) +
+                             " at row " + std::to_string(i) + ", outside [0, " + bound_name +
+                             " = " + std::to_string(bound) + ")").c_str());
+  }
+  return out;
+}
+
+template <class T, std::size_t C>
+void require_finite(const std::vector<std::array<T, C>>& rows, const char* name) {
+  for (std::size_t i = 0; i < rows.size(); ++i)
+    for (T x : rows[i])
+      if (!std::isfinite(x))
+        throw nb::value_error((std::string(name) + " contain NaN or inf at row " +
+                               std::to_string(i)).c_str());
+}
+
+// Scales a light position onto the model of the space (E3: w = 1; S3: unit; H3: upper sheet).
+bool normalise_point(const Space& space, Vec4& X) {
+  double s;
+  if (space.k == 0) {
+    s = 1.0 / X[3];
+  } else if (space.k > 0) {
+    s = 1.0 / std::sqrt(dot4(X, X));
+  } else {
+    const double q = -space.inner(X, X);
+    if (!(q > 0.0)) return false;
+    s = std::copysign(1.0 / std::sqrt(q), X[3]);
+  }
+  X = lin4(s, X, 0.0, X);
+  return finite4(X);
+}
+
+SceneData make_scene(int curvature, const Array& face_covectors, const Array& face_maps,
+                     const Array& vertices, const Array& triangles, const Array& triangle_object,
+                     const Array& object_color, const Array& object_emission,
+                     const Array& light_lifts, const Array& light_of_lift,
+                     const Array& light_radiance) {
+  if (curvature < -1 || curvature > 1)
+    throw nb::value_error("curvature must be -1 (H3), 0 (E3) or +1 (S3)");
+  SceneData scene;
+  scene.curvature = curvature;
+
+  check<double>(face_covectors, "face_covectors", {-1, 4}, "(F,4)");
+  const std::int64_t F = face_covectors.shape(0);
+  check<double>(face_maps, "face_maps", {F, 4, 4}, "(F,4,4) with F = len(face_covectors)");
+  scene.face_covectors = rows<double, 4>(face_covectors);
+  require_finite(scene.face_covectors, "face_covectors");
+  scene.face_maps.resize(F);
+  {
+    const auto* m = static_cast<const double*>(face_maps.data());
+    for (std::int64_t f = 0; f < F; ++f)
+      for (int r = 0; r < 4; ++r)
+        for (int c = 0; c < 4; ++c)
+          scene.face_maps[f][4 * r + c] =
+              m[f * face_maps.stride(0) + r * face_maps.stride(1) + c * face_maps.stride(2)];
+  }
+  require_finite(scene.face_maps, "face_maps");
+
+  check<double>(vertices, "vertices", {-1, 3}, "(NV,3)");
+  const auto vertex_rows = rows<double, 3>(vertices);
+  require_finite(vertex_rows, "vertices");
+  for (std::size_t i = 0; i < vertex_rows.size(); ++i) {
+    if (curvature < 0 && dot3(vertex_rows[i], vertex_rows[i]) >= 1.0)
+      throw nb::value_error(("vertices must lie inside the unit ball (the Klein model) for "
+                             "curvature -1; row " + std::to_string(i) + " does not").c_str());
+    scene.vertices.push_back(vertex_rows[i]);
+  }
+
+  check<std::int32_t>(triangles, "triangles", {-1, 3}, "(NT,3)");
+  const std::int64_t NT = triangles.shape(0);
+  check<std::int32_t>(triangle_object, "triangle_object", {NT}, "(NT,) with NT = len(triangles)");
+  check<float>(object_color, "object_color", {-1, 3}, "(NO,3)");
+  const std::int64_t NO = object_color.shape(0);
+  check<float>(object_emission, "object_emission", {NO, 3},
+               "(NO,3) with NO = len(object_color)");
+  const std::int64_t NV = vertex_rows.size();
+  for (const auto& tri : rows<std::int32_t, 3>(triangles)) {
+    for (std::int32_t v : tri)
+      if (v < 0 || v >= NV)
+        throw nb::value_error(("triangles has vertex index " + std::to_string(v) +
+                               ", outside [0, NV = " + std::to_string(NV) + ")").c_str());
+    scene.triangles.push_back({std::uint32_t(tri[0]), std::uint32_t(tri[1]), std::uint32_t(tri[2])});
+  }
+  scene.triangle_object = indices(triangle_object, NO, "triangle_object", "NO");
+  scene.object_color = rows<float, 3>(object_color);
+  scene.object_emission = rows<float, 3>(object_emission);
+  require_finite(scene.object_color, "object_color");
+  require_finite(scene.object_emission, "object_emission");
+
+  check<double>(light_lifts, "light_lifts", {-1, 4}, "(K,4)");
+  const std::int64_t K = light_lifts.shape(0);
+  check<std::int32_t>(light_of_lift, "light_of_lift", {K}, "(K,) with K = len(light_lifts)");
+  check<float>(light_radiance, "light_radiance", {-1, 3}, "(NL,3)");
+  scene.light_radiance = rows<float, 3>(light_radiance);
+  require_finite(scene.light_radiance, "light_radiance");
+  scene.light_of_lift = indices(light_of_lift, light_radiance.shape(0), "light_of_lift", "NL");
+  scene.light_lifts = rows<double, 4>(light_lifts);
+  const Space space{curvature};
+  for (std::size_t i = 0; i < scene.light_lifts.size(); ++i)
+    if (!finite4(scene.light_lifts[i]) || !normalise_point(space, scene.light_lifts[i]))
+      throw nb::value_error(("light_lifts row " + std::to_string(i) +
+                             " is not a point of the model of this curvature").c_str());
+  return scene;
+}
+
+// A numpy array that owns `data` (allocated with new[]).
+template <class T>
+nb::object to_numpy(std::unique_ptr<T[]> data, std::initializer_list<std::size_t> shape) {
+  T* raw = data.get();
+  nb::capsule owner(raw, [](void* p) noexcept { delete[] static_cast<T*>(p); });
+  data.release();
+  return nb::cast(nb::ndarray<nb::numpy, T>(raw, shape, owner));
+}
+
+void check_rays(const Array& a, const Array& b, const char* a_name, const char* b_name,
+                std::int64_t width, const char* what) {
+  const std::string shape = width == 4 ? "(N,4)" : "(N,3)";
+  check<double>(a, a_name, {-1, width}, shape.c_str());
+  check<double>(b, b_name, {std::int64_t(a.shape(0)), width},
+                (shape + " with N = len(" + a_name + ")").c_str());
+  const Strided2<double> va = view2<double>(a), vb = view2<double>(b);
+  for (std::size_t i = 0; i < a.shape(0); ++i)
+    for (std::int64_t j = 0; j < width; ++j)
+      if (!std::isfinite(va(i, j)) || !std::isfinite(vb(i, j)))
+        throw nb::value_error((std::string(what) + " " + std::to_string(i) + " has a non-finite " +
+                               (width == 4 ? "origin or direction" : "start or end")).c_str());
+}
+
+nb::dict trace(Tracer& tracer, const Array& origins, const Array& directions, double max_distance,
+               int max_crossings, bool shade, nb::object progress, bool record_segments) {
+  check_rays(origins, directions, "origins", "directions", 4, "ray");
+  if (std::isnan(max_distance) || max_distance < 0.0)
+    throw nb::value_error("max_distance must be >= 0 (inf allowed)");
+  if (max_crossings < 0) throw nb::value_error("max_crossings must be >= 0");
+  const std::size_t n = origins.shape(0);
+
+  std::unique_ptr<float[]> color(new float[3 * n]), normal(new float[3 * n]);
+  std::unique_ptr<double[]> depth(new double[n]), position(new double[3 * n]),
+      distance(new double[n]);
+  std::unique_ptr<std::int32_t[]> object(new std::int32_t[n]), crossings(new std::int32_t[n]);
+  std::unique_ptr<std::uint8_t[]> stop(new std::uint8_t[n]);
+  const TraceOutputs out{color.get(),  depth.get(),     position.get(), normal.get(),
+                         object.get(), crossings.get(), stop.get(),     distance.get()};
+  const TraceOptions options{max_distance, max_crossings, shade, record_segments};
+
+  // The callback runs on this thread with the GIL re-acquired; its exception is kept until the
+  // workers have stopped.
+  std::exception_ptr callback_error;
+  Tracer::Poll poll;
+  if (!progress.is_none())
+    poll = [&](std::size_t done) {
+      nb::gil_scoped_acquire gil;
+      try {
+        const nb::object result = progress(done, n);
+        if (result.is_none()) return true;
+        const int truth = PyObject_IsTrue(result.ptr());
+        if (truth < 0) throw nb::python_error();
+        return truth == 1;
+      } catch (...) {
+        callback_error = std::current_exception();
+        return false;
+      }
+    };
+
+  TraceStats stats;
+  {
+    nb::gil_scoped_release release;
+    stats = tracer.trace(n, view2<double>(origins), view2<double>(directions), options, out, poll);
+  }
+  if (callback_error) std::rethrow_exception(callback_error);
+
+  nb::dict result;
+  result["color"] = to_numpy(std::move(color), {n, 3});
+  result["depth"] = to_numpy(std::move(depth), {n});
+  result["position"] = to_numpy(std::move(position), {n, 3});
+  result["normal"] = to_numpy(std::move(normal), {n, 3});
+  result["object"] = to_numpy(std::move(object), {n});
+  result["crossings"] = to_numpy(std::move(crossings), {n});
+  result["stop"] = to_numpy(std::move(stop), {n});
+  result["distance"] = to_numpy(std::move(distance), {n});
+  std::unique_ptr<std::int64_t[]> chords(new std::int64_t[1]{std::int64_t(stats.chords)});
+  result["chords"] = to_numpy(std::move(chords), {});
+  if (record_segments) {
+    const std::size_t s = stats.segments.size() / 6;
+    std::unique_ptr<double[]> starts(new double[3 * s]), ends(new double[3 * s]);
+    for (std::size_t i = 0; i < s; ++i)
+      for (int a = 0; a < 3; ++a) {
+        starts[3 * i + a] = stats.segments[6 * i + a];
+        ends[3 * i + a] = stats.segments[6 * i + 3 + a];
+      }
+    result["segment_starts"] = to_numpy(std::move(starts), {s, 3});
+    result["segment_ends"] = to_numpy(std::move(ends), {s, 3});
+  }
+  return result;
+}
+
+nb::tuple query_segments(Tracer& tracer, const Array& starts, const Array& ends) {
+  check_rays(starts, ends, "starts", "ends", 3, "segment");
+  const std::size_t n = starts.shape(0);
+  std::unique_ptr<float[]> t(new float[n]);
+  std::unique_ptr<std::int32_t[]> prim(new std::int32_t[n]);
+  {
+    nb::gil_scoped_release release;
+    tracer.query_segments(n, view2<double>(starts), view2<double>(ends), t.get(), prim.get());
+  }
+  return nb::make_tuple(to_numpy(std::move(t), {n}), to_numpy(std::move(prim), {n}));
+}
+
+const char* const kTracerDoc = R"(Ray tracer for inside views of E3, S3 and H3 quotient manifolds.
+
+Tracer(curvature, face_covectors, face_maps, vertices, triangles, triangle_object,
+       object_color, object_emission, light_lifts, light_of_lift, light_radiance, threads=0)
+
+curvature: +1 (S3, gnomonic chart), 0 (E3), -1 (H3, Klein chart). Points are model 4-vectors
+whose chart point is X[:3] / X[3].
+face_covectors: float64 (F,4); the fundamental domain is {X : c_f . X <= 0 for all f}.
+face_maps: float64 (F,4,4); a ray leaving through face f continues from M_f X.
+vertices: float64 (NV,3) chart coordinates; triangles: int32 (NT,3); triangle_object: int32 (NT,).
+object_color, object_emission: float32 (NO,3). Emissive objects cast no shadows.
+light_lifts: float64 (K,4) model points (lifts of the point lights near the domain);
+light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3).
+threads: worker threads, 0 for one per hardware thread.
+All arrays are taken as they are (no conversion); wrong dtypes or shapes raise ValueError.)";
+
+const char* const kTraceDoc = R"(trace(origins, directions, max_distance, max_crossings, shade=True, progress=None, record_segments=False) -> dict
+
+origins: float64 (N,4) model points; directions: float64 (N,4) unit tangent vectors there.
+Rays stop at the first hit, after max_distance of geodesic length, or when they would make
+more than max_crossings face crossings. progress(done, total) is called about every 0.1 s (and
+at the start and end); returning False stops the trace like cancel(). Returns a dict of:
+color float32 (N,3), depth float64 (N,) (inf: no hit), position float64 (N,3) chart point of the
+hit (NaN: none), normal float32 (N,3) unit chart normal facing the ray (NaN: none), object int32
+(N,) (-1: none), crossings int32 (N,), stop uint8 (N,) (0 hit, 1 distance limit, 2 crossing
+limit, 3 cancelled), distance float64 (N,) geodesic length travelled, chords int64 () number of
+Embree queries of primary rays, and with record_segments segment_starts / segment_ends float64
+(S,3), the chart endpoints of those queries.)";
+
+}  // namespace
+
+NB_MODULE(_core, m) {
+  m.doc() = "C++ core of Thurston: the ray tracer through fundamental domains (Embree).";
+  m.attr("EMBREE_VERSION") = RTC_VERSION_STRING;
+
+  nb::class_<Tracer>(m, "Tracer", kTracerDoc)
+      .def(
+          "__init__",
+          [](Tracer* self, int curvature, const Array& face_covectors, const Array& face_maps,
+             const Array& vertices, const Array& triangles, const Array& triangle_object,
+             const Array& object_color, const Array& object_emission, const Array& light_lifts,
+             const Array& light_of_lift, const Array& light_radiance, int threads) {
+            if (threads < 0) throw nb::value_error("threads must be >= 0 (0: all hardware threads)");
+            SceneData scene = make_scene(curvature, face_covectors, face_maps, vertices, triangles,
+                                         triangle_object, object_color, object_emission,
+                                         light_lifts, light_of_lift, light_radiance);
+            new (self) Tracer(std::move(scene), unsigned(threads));
+          },
+          nb::arg("curvature"), nb::arg("face_covectors").noconvert(),
+          nb::arg("face_maps").noconvert(), nb::arg("vertices").noconvert(),
+          nb::arg("triangles").noconvert(), nb::arg("triangle_object").noconvert(),
+          nb::arg("object_color").noconvert(), nb::arg("object_emission").noconvert(),
+          nb::arg("light_lifts").noconvert(), nb::arg("light_of_lift").noconvert(),
+          nb::arg("light_radiance").noconvert(), nb::arg("threads") = 0)
+      .def("trace", &trace, nb::arg("origins").noconvert(), nb::arg("directions").noconvert(),
+           nb::arg("max_distance"), nb::arg("max_crossings"), nb::arg("shade") = true,
+           nb::arg("progress").none() = nb::none(), nb::arg("record_segments") = false, kTraceDoc)
+      .def("cancel", &Tracer::cancel, "Stops a running trace(); callable from any Python thread.")
+      .def("query_segments", &query_segments, nb::arg("starts").noconvert(),
+           nb::arg("ends").noconvert(),
+           "query_segments(starts, ends) -> (t, prim)\n\nBare Embree first hit of the chart "
+           "segments (float64 (N,3) each) on the same BVH and threads: chord parameter t float32 "
+           "(N,) in [0, 1] (inf: none) and triangle prim int32 (N,) (-1: none).")
+      .def_prop_ro("num_threads", &Tracer::num_threads)
+      .def_prop_ro("num_triangles", &Tracer::num_triangles);
+}

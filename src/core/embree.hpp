@@ -1,0 +1,67 @@
+// The one place that knows about Embree 3 versus Embree 4.
+#pragma once
+
+#if THURSTON_EMBREE_MAJOR >= 4
+#include <embree4/rtcore.h>
+#else
+#include <embree3/rtcore.h>
+#endif
+
+#include <limits>
+
+namespace thurston::embree {
+
+// A ray over the chord org + u * dir, u in [tnear, tfar].
+inline RTCRay make_ray(const float org[3], const float dir[3], float tnear, float tfar) {
+  RTCRay ray{};
+  ray.org_x = org[0];
+  ray.org_y = org[1];
+  ray.org_z = org[2];
+  ray.dir_x = dir[0];
+  ray.dir_y = dir[1];
+  ray.dir_z = dir[2];
+  ray.tnear = tnear;
+  ray.tfar = tfar;
+  ray.time = 0.0f;
+  ray.mask = 0xFFFFFFFFu;
+  ray.id = 0;
+  ray.flags = 0;
+  return ray;
+}
+
+// First hit on the chord: returns the primitive index (or -1) and its chord parameter in `u`.
+inline int intersect(RTCScene scene, const RTCRay& ray, float& u) {
+  RTCRayHit rayhit{};
+  rayhit.ray = ray;
+  rayhit.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  rayhit.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+#if RTC_VERSION_MAJOR >= 4
+  RTCIntersectArguments args;
+  rtcInitIntersectArguments(&args);
+  rtcIntersect1(scene, &rayhit, &args);
+#else
+  RTCIntersectContext context;
+  rtcInitIntersectContext(&context);
+  rtcIntersect1(scene, &context, &rayhit);
+#endif
+  if (rayhit.hit.geomID == RTC_INVALID_GEOMETRY_ID) return -1;
+  u = rayhit.ray.tfar;
+  return static_cast<int>(rayhit.hit.primID);
+}
+
+// Whether anything lies on the chord.
+inline bool occluded(RTCScene scene, RTCRay ray) {
+#if RTC_VERSION_MAJOR >= 4
+  RTCOccludedArguments args;
+  rtcInitOccludedArguments(&args);
+  rtcOccluded1(scene, &ray, &args);
+#else
+  RTCIntersectContext context;
+  rtcInitIntersectContext(&context);
+  rtcOccluded1(scene, &context, &ray);
+#endif
+  // Embree marks an occluded ray by setting tfar to -inf.
+  return ray.tfar < 0.0f;
+}
+
+}  // namespace thurston::embree

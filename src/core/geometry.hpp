@@ -1,0 +1,169 @@
+// Geodesics of the three constant-curvature spaces in their homogeneous models.
+//
+// Points are model 4-vectors X; the projective chart is x = X[:3] / X[3] (Euclidean: affine,
+// spherical: gnomonic, hyperbolic: Klein), in which geodesics are straight lines.
+#pragma once
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+
+namespace thurston {
+
+using Vec3 = std::array<double, 3>;
+using Vec4 = std::array<double, 4>;
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr double kPi = 3.14159265358979323846;
+
+inline double dot3(const Vec3& a, const Vec3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+inline double dot4(const Vec4& a, const Vec4& b) {
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3];
+}
+inline Vec3 sub3(const Vec3& a, const Vec3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+inline Vec3 cross3(const Vec3& a, const Vec3& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+inline Vec4 lin4(double s, const Vec4& a, double t, const Vec4& b) {
+  return {s * a[0] + t * b[0], s * a[1] + t * b[1], s * a[2] + t * b[2], s * a[3] + t * b[3]};
+}
+inline bool finite4(const Vec4& a) {
+  return std::isfinite(a[0]) && std::isfinite(a[1]) && std::isfinite(a[2]) && std::isfinite(a[3]);
+}
+
+// Curvature k in {+1, 0, -1} fixes the model: S3 (unit sphere in R^4), E3 (w = 1 affine space),
+// H3 (upper hyperboloid <X,X> = -1 of the Lorentz form).
+struct Space {
+  int k;
+
+  // Metric on tangent vectors (and the form the model is a unit sphere of, for k != 0).
+  double inner(const Vec4& a, const Vec4& b) const {
+    const double s = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    return k == 0 ? s : k > 0 ? s + a[3] * b[3] : s - a[3] * b[3];
+  }
+
+  // Unit-speed geodesic X(t) from P with velocity V, and its velocity X'(t).
+  Vec4 point(const Vec4& P, const Vec4& V, double t) const {
+    if (k == 0) return lin4(1.0, P, t, V);
+    if (k > 0) return lin4(std::cos(t), P, std::sin(t), V);
+    return lin4(std::cosh(t), P, std::sinh(t), V);
+  }
+  Vec4 velocity(const Vec4& P, const Vec4& V, double t) const {
+    if (k == 0) return V;
+    if (k > 0) return lin4(-std::sin(t), P, std::cos(t), V);
+    return lin4(std::sinh(t), P, std::cosh(t), V);
+  }
+
+  static Vec3 chart(const Vec4& X) { return {X[0] / X[3], X[1] / X[3], X[2] / X[3]}; }
+
+  // Chart point of X(t); in H3 the projectively equal P + tanh(t) V never overflows.
+  Vec3 chart_at(const Vec4& P, const Vec4& V, double t) const {
+    return chart(k < 0 ? lin4(1.0, P, std::tanh(t), V) : point(P, V, t));
+  }
+
+  Vec4 model(const Vec3& x) const {
+    const Vec4 Y{x[0], x[1], x[2], 1.0};
+    if (k == 0) return Y;
+    const double q = dot3(x, x);
+    const double s = k > 0 ? 1.0 / std::sqrt(1.0 + q) : 1.0 / std::sqrt(std::max(1.0 - q, 1e-300));
+    return lin4(s, Y, 0.0, Y);
+  }
+
+  // First t >= 0 at which c . X(t) crosses zero upwards (leaves the half-space c . X <= 0), given
+  // a = c . P and b = c . V. A point already (numerically) outside and heading out leaves at t = 0,
+  // which is what carries rays across edges and vertices without leaking.
+  double exit_time(double a, double b) const {
+    if (k == 0) return b > 0.0 ? std::max(0.0, -a / b) : kInf;
+    if (k > 0) {
+      if (a == 0.0 && b == 0.0) return kInf;  // the whole great circle lies in the face plane
+      const double t = std::atan2(-a, b);
+      return t >= 0.0 ? t : t < -0.5 * kPi ? t + 2.0 * kPi : 0.0;
+    }
+    if (a > 0.0) return b > 0.0 ? 0.0 : kInf;
+    return b + a > 0.0 ? 0.5 * std::log((b - a) / (b + a)) : kInf;
+  }
+
+  // Project (P, V) back onto the model: P a point, V a unit tangent at P. False if degenerate.
+  bool renormalise(Vec4& P, Vec4& V) const {
+    if (k == 0) {
+      if (P[3] == 0.0) return false;
+      P = lin4(1.0 / P[3], P, 0.0, P);
+      V[3] = 0.0;
+    } else if (k > 0) {
+      const double n = std::sqrt(dot4(P, P));
+      if (!(n > 0.0)) return false;
+      P = lin4(1.0 / n, P, 0.0, P);
+      V = lin4(1.0, V, -dot4(V, P), P);
+    } else {
+      const double q = -inner(P, P);
+      if (!(q > 0.0) || P[3] <= 0.0) return false;
+      P = lin4(1.0 / std::sqrt(q), P, 0.0, P);
+      V = lin4(1.0, V, inner(V, P), P);
+    }
+    return normalise(V) && finite4(P);
+  }
+
+  // Scale a tangent vector to unit length; false if it has none.
+  bool normalise(Vec4& v) const {
+    const double q = inner(v, v);
+    if (!(q > 0.0) || !std::isfinite(q)) return false;
+    v = lin4(1.0 / std::sqrt(q), v, 0.0, v);
+    return true;
+  }
+
+  // Make v tangent at the point X by removing its normal component.
+  Vec4 tangent_part(const Vec4& X, const Vec4& v) const {
+    if (k == 0) return {v[0], v[1], v[2], 0.0};
+    return lin4(1.0, v, k > 0 ? -dot4(v, X) : inner(v, X), X);
+  }
+
+  // Tangent vector at H pointing along the geodesic towards the point L (not normalised).
+  Vec4 toward(const Vec4& H, const Vec4& L) const {
+    return k == 0 ? sub4(L, H) : tangent_part(H, L);
+  }
+
+  double distance(const Vec4& A, const Vec4& B) const {
+    if (k == 0) return std::sqrt(inner(sub4(A, B), sub4(A, B)));
+    if (k > 0) return std::acos(std::clamp(dot4(A, B), -1.0, 1.0));
+    return std::acosh(std::max(1.0, -inner(A, B)));
+  }
+
+  // Arclength from P to the point X of the geodesic (P, V).
+  double arclength(const Vec4& P, const Vec4& V, const Vec4& X) const {
+    if (k == 0) return distance(P, X);
+    if (k > 0) return std::atan2(dot4(X, V), dot4(X, P));
+    return std::atanh(std::clamp(inner(X, V) / -inner(X, P), -1.0, 1.0));
+  }
+
+  // Intensity falloff of a point light at distance r: the inverse area of the geodesic sphere,
+  // floored so that lights touching a surface stay finite.
+  double falloff(double r) const {
+    const double rho = k == 0 ? r : k > 0 ? std::sin(r) : std::sinh(r);
+    const double floor = 1e-4;
+    return 1.0 / std::max(rho * rho, floor * floor);
+  }
+
+  // Model normal vector at a point of the chart plane with covector c (c . X = 0 on the plane):
+  // the tangent vector N with <N, Y> = c . Y for all Y.
+  Vec4 plane_normal(const Vec4& c) const {
+    if (k == 0) return {c[0], c[1], c[2], 0.0};
+    if (k > 0) return c;
+    return {c[0], c[1], c[2], -c[3]};
+  }
+
+  // Chart image of the tangent vector dX at the point X, unit length in the chart.
+  static Vec3 chart_vector(const Vec4& X, const Vec4& dX) {
+    const Vec3 x = chart(X);
+    Vec3 d{(dX[0] - x[0] * dX[3]) / X[3], (dX[1] - x[1] * dX[3]) / X[3],
+           (dX[2] - x[2] * dX[3]) / X[3]};
+    const double n = std::sqrt(dot3(d, d));
+    if (n > 0.0) d = {d[0] / n, d[1] / n, d[2] / n};
+    return d;
+  }
+
+ private:
+  static Vec4 sub4(const Vec4& a, const Vec4& b) { return lin4(1.0, a, -1.0, b); }
+};
+
+}  // namespace thurston

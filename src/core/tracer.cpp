@@ -1,0 +1,386 @@
+#include "tracer.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace thurston {
+namespace {
+
+constexpr std::size_t kChunk = 1024;                          // rays per unit of work
+constexpr std::chrono::milliseconds kPollInterval{100};
+constexpr double kH3Reach = 40.0;  // beyond this a Klein chart point is within e^-80 of the sphere
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+Vec4 apply(const Mat4& M, const Vec4& x) {
+  Vec4 y;
+  for (int r = 0; r < 4; ++r)
+    y[r] = M[4 * r] * x[0] + M[4 * r + 1] * x[1] + M[4 * r + 2] * x[2] + M[4 * r + 3] * x[3];
+  return y;
+}
+
+RTCRay chord_ray(const Vec3& x0, const Vec3& x1, float tnear) {
+  const float org[3] = {float(x0[0]), float(x0[1]), float(x0[2])};
+  const float dir[3] = {float(x1[0] - x0[0]), float(x1[1] - x0[1]), float(x1[2] - x0[2])};
+  return embree::make_ray(org, dir, tnear, 1.0f);
+}
+
+void check_device(RTCDevice device, const char* what) {
+  const RTCError error = rtcGetDeviceError(device);
+  if (error != RTC_ERROR_NONE)
+    throw std::runtime_error(std::string("Embree failed to ") + what + " (error " +
+                             std::to_string(int(error)) + ")");
+}
+
+}  // namespace
+
+Tracer::Tracer(SceneData scene, unsigned threads)
+    : space_{scene.curvature},
+      face_covectors_(std::move(scene.face_covectors)),
+      face_maps_(std::move(scene.face_maps)),
+      vertices_(std::move(scene.vertices)),
+      triangles_(std::move(scene.triangles)),
+      triangle_object_(std::move(scene.triangle_object)),
+      object_color_(std::move(scene.object_color)),
+      object_emission_(std::move(scene.object_emission)),
+      light_radiance_(std::move(scene.light_radiance)),
+      pool_(threads) {
+  bounds_lo_ = {kInf, kInf, kInf};
+  bounds_hi_ = {-kInf, -kInf, -kInf};
+  triangle_planes_.reserve(triangles_.size());
+  for (const auto& tri : triangles_) {
+    const Vec3& p0 = vertices_[tri[0]];
+    const Vec3 n = cross3(sub3(vertices_[tri[1]], p0), sub3(vertices_[tri[2]], p0));
+    triangle_planes_.push_back({n[0], n[1], n[2], -dot3(n, p0)});
+    for (std::uint32_t v : tri)
+      for (int a = 0; a < 3; ++a) {
+        bounds_lo_[a] = std::min(bounds_lo_[a], vertices_[v][a]);
+        bounds_hi_[a] = std::max(bounds_hi_[a], vertices_[v][a]);
+      }
+  }
+  for (int a = 0; a < 3 && !triangles_.empty(); ++a)
+    scale_ = std::max({scale_, std::abs(bounds_lo_[a]), std::abs(bounds_hi_[a]),
+                       bounds_hi_[a] - bounds_lo_[a]});
+
+  light_lifts_.resize(light_radiance_.size());
+  for (std::size_t k = 0; k < scene.light_lifts.size(); ++k)
+    light_lifts_[scene.light_of_lift[k]].push_back(scene.light_lifts[k]);
+
+  device_.reset(rtcNewDevice(nullptr));
+  if (!device_) throw std::runtime_error("Embree could not create a device");
+  std::vector<std::uint32_t> all(triangles_.size()), casting;
+  for (std::uint32_t t = 0; t < all.size(); ++t) {
+    all[t] = t;
+    const Rgb& e = object_emission_[triangle_object_[t]];
+    if (e[0] <= 0.0f && e[1] <= 0.0f && e[2] <= 0.0f) casting.push_back(t);
+  }
+  scene_ = build_scene(all);
+  if (casting.size() == all.size()) {
+    occluders_ = scene_.get();
+  } else {
+    occluder_scene_ = build_scene(casting);
+    occluders_ = occluder_scene_.get();
+  }
+}
+
+Tracer::~Tracer() = default;
+
+// A scene of the given triangles; primitive j of its geometry is triangle_ids[j].
+Tracer::SceneHandle Tracer::build_scene(const std::vector<std::uint32_t>& triangle_ids) const {
+  RTCDevice device = device_.get();
+  SceneHandle scene(rtcNewScene(device));
+  check_device(device, "create a scene");
+  rtcSetSceneFlags(scene.get(), RTC_SCENE_FLAG_ROBUST);
+  rtcSetSceneBuildQuality(scene.get(), RTC_BUILD_QUALITY_HIGH);
+  if (!triangle_ids.empty()) {
+    RTCGeometry geometry = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(
+        geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), vertices_.size()));
+    auto* indices = static_cast<std::uint32_t*>(
+        rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                3 * sizeof(std::uint32_t), triangle_ids.size()));
+    if (!vertices || !indices) {
+      rtcReleaseGeometry(geometry);
+      check_device(device, "allocate geometry buffers");
+      throw std::runtime_error("Embree failed to allocate geometry buffers");
+    }
+    for (std::size_t v = 0; v < vertices_.size(); ++v)
+      for (int a = 0; a < 3; ++a) vertices[3 * v + a] = float(vertices_[v][a]);
+    for (std::size_t j = 0; j < triangle_ids.size(); ++j)
+      for (int a = 0; a < 3; ++a) indices[3 * j + a] = triangles_[triangle_ids[j]][a];
+    rtcSetGeometryBuildQuality(geometry, RTC_BUILD_QUALITY_HIGH);
+    rtcCommitGeometry(geometry);
+    rtcAttachGeometry(scene.get(), geometry);
+    rtcReleaseGeometry(geometry);
+  }
+  rtcCommitScene(scene.get());
+  check_device(device, "build the scene");
+  return scene;
+}
+
+// The face through which the geodesic leaves the domain first (lowest index on ties).
+Tracer::Exit Tracer::find_exit(const Vec4& P, const Vec4& V) const {
+  Exit exit{kInf, -1};
+  for (std::size_t f = 0; f < face_covectors_.size(); ++f) {
+    const double t = space_.exit_time(dot4(face_covectors_[f], P), dot4(face_covectors_[f], V));
+    if (t < exit.t) exit = {t, int(f)};
+  }
+  return exit;
+}
+
+// How far the geodesic can be followed in the chart: S3 up to (just short of) the hemisphere
+// X[3] > 0 where the gnomonic chart is valid, H3 until it is indistinguishable from the ideal
+// boundary. A valid domain is left through a face before that.
+double Tracer::chart_reach(const Vec4& P, const Vec4& V) const {
+  if (space_.k > 0) return space_.exit_time(-P[3], -V[3]) * (1.0 - 1e-6);
+  return space_.k < 0 ? kH3Reach : kInf;
+}
+
+// E3 only: a chord from x0 longer than this leaves the scene's bounding ball for good.
+double Tracer::scene_escape(const Vec3& x0) const {
+  if (space_.k != 0) return kInf;
+  if (triangles_.empty()) return 0.0;
+  Vec3 centre, half;
+  for (int a = 0; a < 3; ++a) {
+    centre[a] = 0.5 * (bounds_lo_[a] + bounds_hi_[a]);
+    half[a] = 0.5 * (bounds_hi_[a] - bounds_lo_[a]);
+  }
+  const Vec3 d = sub3(x0, centre);
+  return (std::sqrt(dot3(d, d)) + std::sqrt(dot3(half, half))) * 1.001;
+}
+
+// Whether the chord's bounding box meets the scene's; also keeps non-finite or float-overflowing
+// chords away from Embree.
+bool Tracer::may_hit(const Segment& seg) const {
+  const double margin = 1e-6 * scale_;
+  for (int a = 0; a < 3; ++a) {
+    const double u = seg.x0[a], v = seg.x1[a];
+    if (!(std::abs(u) < 1e30 && std::abs(v) < 1e30)) return false;
+    if (std::max(u, v) < bounds_lo_[a] - margin || std::min(u, v) > bounds_hi_[a] + margin)
+      return false;
+  }
+  return !triangles_.empty();
+}
+
+// Follows the geodesic (P, V) for `length` through the domain and its face pairings, calling
+// query(segment, tnear) on each chart chord that may meet the scene until it reports a hit. The
+// first chord skips its first `first_skip` of chart length (shadow rays leaving a surface).
+template <class Query>
+Tracer::WalkEnd Tracer::walk(Vec4 P, Vec4 V, double length, int max_crossings,
+                             double first_skip, Query&& query) const {
+  double dist = 0.0;
+  int crossings = 0;
+  for (bool first = true;; first = false) {
+    const Exit exit = find_exit(P, V);
+    const double reach = std::min(length - dist, chart_reach(P, V));
+    const bool crosses = exit.face >= 0 && exit.t <= reach;
+    const Vec3 x0 = Space::chart(P);
+    // A ray that leaves no face ends in this copy; nothing lies beyond the scene's extent.
+    const double t = crosses ? exit.t : std::min(reach, scene_escape(x0));
+    if (t > 0.0) {
+      const Segment seg{P, V, x0, space_.chart_at(P, V, t), t};
+      const Vec3 d = sub3(seg.x1, seg.x0);
+      const double tnear = first ? first_skip / std::sqrt(dot3(d, d)) : 0.0;
+      if (tnear < 1.0 && may_hit(seg) && query(seg, float(tnear))) return {kHit, dist, crossings};
+    }
+    if (!crosses) return {kDistanceLimit, length, crossings};
+    dist += exit.t;
+    if (++crossings > max_crossings) return {kCrossingLimit, dist, max_crossings};
+    const Mat4& M = face_maps_[exit.face];
+    const Vec4 X = space_.point(P, V, exit.t), Xv = space_.velocity(P, V, exit.t);
+    P = apply(M, X);
+    V = apply(M, Xv);
+    if (!space_.renormalise(P, V)) return {kDistanceLimit, dist, crossings};
+  }
+}
+
+TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<double> directions,
+                         const TraceOptions& options, const TraceOutputs& out, const Poll& poll) {
+  std::lock_guard<std::mutex> lock(run_mutex_);
+  cancel_.store(false);
+  // Every ray starts out as untraced, which is what rays skipped by a cancel report.
+  for (std::size_t i = 0; i < count; ++i) {
+    for (int a = 0; a < 3; ++a) {
+      out.color[3 * i + a] = 0.0f;
+      out.position[3 * i + a] = kNaN;
+      out.normal[3 * i + a] = float(kNaN);
+    }
+    out.depth[i] = kInf;
+    out.object[i] = -1;
+    out.crossings[i] = 0;
+    out.stop[i] = kCancelled;
+    out.distance[i] = 0.0;
+  }
+
+  const std::size_t chunks = (count + kChunk - 1) / kChunk;
+  std::vector<std::vector<double>> chunk_segments(options.record_segments ? chunks : 0);
+  std::atomic<std::uint64_t> chords{0};
+  run_chunks(
+      count,
+      [&](std::size_t chunk, std::size_t begin, std::size_t end) {
+        std::vector<double>* segments = options.record_segments ? &chunk_segments[chunk] : nullptr;
+        std::uint64_t local_chords = 0;
+        for (std::size_t i = begin; i < end; ++i) {
+          const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
+          const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
+          trace_ray(i, o, d, options, out, segments, local_chords);
+        }
+        chords.fetch_add(local_chords);
+      },
+      poll, true);
+
+  TraceStats stats;
+  stats.chords = chords.load();
+  // Chunk order keeps the recording independent of the thread count.
+  for (auto& segments : chunk_segments)
+    stats.segments.insert(stats.segments.end(), segments.begin(), segments.end());
+  return stats;
+}
+
+void Tracer::trace_ray(std::size_t i, const Vec4& origin, const Vec4& direction,
+                       const TraceOptions& options, const TraceOutputs& out,
+                       std::vector<double>* segments, std::uint64_t& chords) const {
+  Vec4 P = origin, V = direction;
+  if (!space_.renormalise(P, V)) {  // no point or no direction: the ray goes nowhere
+    out.stop[i] = kDistanceLimit;
+    return;
+  }
+  int prim = -1;
+  float hit_u = 0.0f;
+  Segment hit{};
+  const auto query = [&](const Segment& seg, float tnear) {
+    ++chords;
+    if (segments) segments->insert(segments->end(), {seg.x0[0], seg.x0[1], seg.x0[2],
+                                                     seg.x1[0], seg.x1[1], seg.x1[2]});
+    prim = embree::intersect(scene_.get(), chord_ray(seg.x0, seg.x1, tnear), hit_u);
+    if (prim < 0) return false;
+    hit = seg;
+    return true;
+  };
+  const WalkEnd end = walk(P, V, options.max_distance, options.max_crossings, 0.0, query);
+  out.stop[i] = end.stop;
+  out.crossings[i] = end.crossings;
+  out.distance[i] = end.distance;
+  if (end.stop != kHit) return;
+
+  // Refine Embree's float hit on the triangle's plane in double precision; keep Embree's
+  // parameter where the chord grazes the plane and the double solution is meaningless.
+  const Vec4& plane = triangle_planes_[prim];
+  const Vec3 n{plane[0], plane[1], plane[2]};
+  const Vec3 d = sub3(hit.x1, hit.x0);
+  double u = hit_u;
+  const double denom = dot3(n, d);
+  if (std::abs(denom) > 1e-9 * std::sqrt(dot3(n, n) * dot3(d, d))) {
+    const double refined = -(dot3(n, hit.x0) + plane[3]) / denom;
+    if (refined > -1e-3 && refined < 1.0 + 1e-3) u = refined;
+  }
+  u = std::clamp(u, 0.0, 1.0);
+  const Vec3 xh{hit.x0[0] + u * d[0], hit.x0[1] + u * d[1], hit.x0[2] + u * d[2]};
+  const Vec4 H = space_.model(xh);
+  const double s = std::clamp(space_.arclength(hit.P, hit.V, H), 0.0, hit.length);
+  out.depth[i] = end.distance + s;
+  out.distance[i] = out.depth[i];
+
+  // Unit normal at H facing the incoming ray.
+  const Vec4 incoming = space_.velocity(hit.P, hit.V, s);
+  Vec4 N = space_.tangent_part(H, space_.plane_normal(plane));
+  if (!space_.normalise(N)) N = lin4(-1.0, incoming, 0.0, incoming);  // degenerate triangle
+  if (space_.inner(N, incoming) > 0.0) N = lin4(-1.0, N, 0.0, N);
+  const Vec3 chart_normal = Space::chart_vector(H, N);
+
+  const std::int32_t object = triangle_object_[prim];
+  const Rgb& base = object_color_[object];
+  const Rgb& emission = object_emission_[object];
+  Rgb light{1.0f, 1.0f, 1.0f};
+  if (options.shade) light = illumination(H, N, options.max_crossings);
+  for (int a = 0; a < 3; ++a) {
+    out.position[3 * i + a] = xh[a];
+    out.normal[3 * i + a] = float(chart_normal[a]);
+    out.color[3 * i + a] = (options.shade ? emission[a] : 0.0f) + base[a] * light[a];
+  }
+  out.object[i] = object;
+}
+
+// Sum over lights of radiance * cos * falloff * visibility at the surface point H with normal N,
+// each light seen at its nearest lift.
+Rgb Tracer::illumination(const Vec4& H, const Vec4& N, int max_crossings) const {
+  Rgb sum{0.0f, 0.0f, 0.0f};
+  for (std::size_t l = 0; l < light_lifts_.size(); ++l) {
+    const Vec4* nearest = nullptr;
+    double r = kInf;
+    for (const Vec4& L : light_lifts_[l]) {
+      const double dl = space_.distance(H, L);
+      if (dl < r) {
+        r = dl;
+        nearest = &L;
+      }
+    }
+    if (!nearest) continue;
+    Vec4 dir = space_.toward(H, *nearest);
+    if (!space_.normalise(dir)) continue;  // light on the surface point (or antipodal in S3)
+    const double cosine = space_.inner(N, dir);
+    if (!(cosine > 0.0) || !visible(H, dir, r, max_crossings)) continue;
+    const double weight = cosine * space_.falloff(r);
+    for (int a = 0; a < 3; ++a) sum[a] += float(weight * light_radiance_[l][a]);
+  }
+  return sum;
+}
+
+// Whether the geodesic from the surface point H along dir reaches distance r unobstructed. A
+// shadow ray that runs out of crossings found no blocker and counts as visible.
+bool Tracer::visible(const Vec4& H, const Vec4& dir, double r, int max_crossings) const {
+  const auto query = [&](const Segment& seg, float tnear) {
+    return embree::occluded(occluders_, chord_ray(seg.x0, seg.x1, tnear));
+  };
+  // Embree's float vertices are only good to about 1e-7 of the scene's scale.
+  return walk(H, dir, r * (1.0 - 1e-6), max_crossings, 1e-5 * scale_, query).stop != kHit;
+}
+
+void Tracer::query_segments(std::size_t count, Strided2<double> starts, Strided2<double> ends,
+                            float* t, std::int32_t* prim) {
+  std::lock_guard<std::mutex> lock(run_mutex_);
+  run_chunks(
+      count,
+      [&](std::size_t, std::size_t begin, std::size_t end) {
+        for (std::size_t i = begin; i < end; ++i) {
+          const Vec3 x0{starts(i, 0), starts(i, 1), starts(i, 2)};
+          const Vec3 x1{ends(i, 0), ends(i, 1), ends(i, 2)};
+          float u = 0.0f;
+          prim[i] = embree::intersect(scene_.get(), chord_ray(x0, x1, 0.0f), u);
+          t[i] = prim[i] < 0 ? std::numeric_limits<float>::infinity() : u;
+        }
+      },
+      nullptr, false);
+}
+
+void Tracer::run_chunks(std::size_t count,
+                        const std::function<void(std::size_t, std::size_t, std::size_t)>& fn,
+                        const Poll& poll, bool cancellable) {
+  const std::size_t chunks = (count + kChunk - 1) / kChunk;
+  std::atomic<std::size_t> next{0}, done{0};
+  std::atomic<bool> stop{false};
+  if (poll && !poll(0)) stop = true;
+  const std::function<void()> task = [&] {
+    try {
+      while (!stop.load() && !(cancellable && cancel_.load())) {
+        const std::size_t chunk = next.fetch_add(1);
+        if (chunk >= chunks) break;
+        const std::size_t begin = chunk * kChunk, end = std::min(count, begin + kChunk);
+        fn(chunk, begin, end);
+        done.fetch_add(end - begin);
+      }
+    } catch (...) {
+      stop = true;  // let the other workers finish early too
+      throw;
+    }
+  };
+  pool_.start(task);
+  while (!pool_.wait_for(kPollInterval))
+    if (poll && !stop.load() && !poll(done.load())) stop = true;
+  if (pool_.error()) std::rethrow_exception(pool_.error());
+  if (poll && !stop.load()) poll(done.load());  // the final count
+}
+
+}  // namespace thurston
