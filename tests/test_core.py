@@ -403,6 +403,17 @@ def test_h3_depth_to_a_plane_and_through_a_face():
     np.testing.assert_allclose(r["normal"][7], [1, 0, 0], atol=1e-6)
 
 
+def test_h3_origin_on_the_lower_sheet_is_the_same_chart_ray():
+    half = 0.8
+    tracer = make_tracer(-1, cube_faces(half), h3_cube_maps(half), [square_x(np.tanh(0.3), 0.5)])
+    o, v = origin_rays(-1, [[1, 0.2, 0], [-1, 0.1, 0.1]])
+    upper = tracer.trace(o, v, 10.0, 5)
+    lower = tracer.trace(-o, -v, 10.0, 5)
+    assert np.all(upper["stop"] == 0)
+    for key in ("depth", "position", "crossings"):
+        np.testing.assert_array_equal(upper[key], lower[key])
+
+
 @pytest.mark.parametrize("curvature, falloff", [(1, np.sin), (-1, np.sinh)])
 def test_curved_lambert_at_the_foot_point(curvature, falloff):
     # Light on the x axis at distance 0.1, plane perpendicular to it at distance 0.5: the ray along
@@ -507,6 +518,13 @@ def test_exception_in_progress_propagates():
     with pytest.raises(RuntimeError, match="stop here"):
         tracer.trace(o, d, 10.0, 10, progress=progress)
     assert np.all(tracer.trace(o, d, 10.0, 10)["stop"] < 3)
+
+
+def test_tracer_cannot_be_reentered_from_its_callback():
+    tracer = make_tracer(0, cube_faces(HALF), torus_maps(), [box_mesh(BOX_LO, BOX_HI)])
+    o, d = many_rays(10)
+    with pytest.raises(RuntimeError, match="own progress callback"):
+        tracer.trace(o, d, 10.0, 10, progress=lambda done, total: tracer.trace(o, d, 1.0, 1))
 
 
 def scene_arrays():

@@ -6,8 +6,7 @@
 #else
 #include <embree3/rtcore.h>
 #endif
-
-#include <limits>
+RTC_NAMESPACE_USE  // for Embree builds with an API namespace
 
 namespace thurston::embree {
 

@@ -97,8 +97,11 @@ struct Space {
       V = lin4(1.0, V, -dot4(V, P), P);
     } else {
       const double q = -inner(P, P);
-      if (!(q > 0.0) || P[3] <= 0.0) return false;
-      P = lin4(1.0 / std::sqrt(q), P, 0.0, P);
+      if (!(q > 0.0)) return false;
+      // (-P, -V) is the same chart ray on the upper sheet, where the domain's covectors apply.
+      const double s = std::copysign(1.0 / std::sqrt(q), P[3]);
+      P = lin4(s, P, 0.0, P);
+      V = lin4(s < 0.0 ? -1.0 : 1.0, V, 0.0, V);
       V = lin4(1.0, V, inner(V, P), P);
     }
     return normalise(V) && finite4(P);

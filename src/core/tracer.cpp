@@ -196,9 +196,23 @@ Tracer::WalkEnd Tracer::walk(Vec4 P, Vec4 V, double length, int max_crossings,
   }
 }
 
+// One run at a time on the pool; a progress callback calling back into its own tracer would
+// wait on itself forever, so that is an error instead.
+Tracer::RunLock::RunLock(Tracer& tracer) : tracer_(tracer) {
+  if (tracer.runner_.load() == std::this_thread::get_id())
+    throw std::runtime_error("a Tracer cannot be used from its own progress callback");
+  tracer.run_mutex_.lock();
+  tracer.runner_.store(std::this_thread::get_id());
+}
+
+Tracer::RunLock::~RunLock() {
+  tracer_.runner_.store(std::thread::id());
+  tracer_.run_mutex_.unlock();
+}
+
 TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<double> directions,
                          const TraceOptions& options, const TraceOutputs& out, const Poll& poll) {
-  std::lock_guard<std::mutex> lock(run_mutex_);
+  const RunLock lock(*this);
   cancel_.store(false);
   // Every ray starts out as untraced, which is what rays skipped by a cancel report.
   for (std::size_t i = 0; i < count; ++i) {
@@ -340,7 +354,7 @@ bool Tracer::visible(const Vec4& H, const Vec4& dir, double r, int max_crossings
 
 void Tracer::query_segments(std::size_t count, Strided2<double> starts, Strided2<double> ends,
                             float* t, std::int32_t* prim) {
-  std::lock_guard<std::mutex> lock(run_mutex_);
+  const RunLock lock(*this);
   run_chunks(
       count,
       [&](std::size_t, std::size_t begin, std::size_t end) {

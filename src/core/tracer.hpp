@@ -8,6 +8,7 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <thread>
 #include <vector>
 
 #include "embree.hpp"
@@ -154,7 +155,13 @@ class Tracer {
   RTCScene occluders_ = nullptr;
 
   ThreadPool pool_;
+  struct RunLock {
+    explicit RunLock(Tracer& tracer);
+    ~RunLock();
+    Tracer& tracer_;
+  };
   std::mutex run_mutex_;
+  std::atomic<std::thread::id> runner_{};
   std::atomic<bool> cancel_{false};
 };
 
