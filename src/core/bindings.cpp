@@ -262,13 +262,16 @@ nb::dict trace(Tracer& tracer, const Array& origins, const Array& directions, do
   std::unique_ptr<std::int64_t[]> chords(new std::int64_t[1]{std::int64_t(stats.chords)});
   result["chords"] = to_numpy(std::move(chords), {});
   if (record_segments) {
-    const std::size_t s = stats.segments.size() / 6;
+    std::size_t s = 0;
+    for (const auto& chunk : stats.segments) s += chunk.size() / 6;
     std::unique_ptr<double[]> starts(new double[3 * s]), ends(new double[3 * s]);
-    for (std::size_t i = 0; i < s; ++i)
-      for (int a = 0; a < 3; ++a) {
-        starts[3 * i + a] = stats.segments[6 * i + a];
-        ends[3 * i + a] = stats.segments[6 * i + 3 + a];
-      }
+    std::size_t i = 0;
+    for (const auto& chunk : stats.segments)
+      for (std::size_t j = 0; j < chunk.size(); j += 6, ++i)
+        for (int a = 0; a < 3; ++a) {
+          starts[3 * i + a] = chunk[j + a];
+          ends[3 * i + a] = chunk[j + 3 + a];
+        }
     result["segment_starts"] = to_numpy(std::move(starts), {s, 3});
     result["segment_ends"] = to_numpy(std::move(ends), {s, 3});
   }
@@ -303,7 +306,7 @@ light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,
 threads: worker threads, 0 for one per hardware thread.
 All arrays are taken as they are (no conversion); wrong dtypes or shapes raise ValueError.)";
 
-const char* const kTraceDoc = R"(trace(origins, directions, max_distance, max_crossings, shade=True, progress=None, record_segments=False) -> dict
+const char* const kTraceDoc = R"(Traces rays through the domain and its face pairings.
 
 origins: float64 (N,4) model points; directions: float64 (N,4) unit tangent vectors there.
 Rays stop at the first hit, after max_distance of geodesic length, or when they would make
@@ -335,19 +338,33 @@ NB_MODULE(_core, m) {
                                          light_lifts, light_of_lift, light_radiance);
             new (self) Tracer(std::move(scene), unsigned(threads));
           },
+          nb::sig("def __init__(self, curvature: int, face_covectors: numpy.ndarray, "
+                  "face_maps: numpy.ndarray, vertices: numpy.ndarray, triangles: numpy.ndarray, "
+                  "triangle_object: numpy.ndarray, object_color: numpy.ndarray, "
+                  "object_emission: numpy.ndarray, light_lifts: numpy.ndarray, "
+                  "light_of_lift: numpy.ndarray, light_radiance: numpy.ndarray, "
+                  "threads: int = 0) -> None"),
           nb::arg("curvature"), nb::arg("face_covectors").noconvert(),
           nb::arg("face_maps").noconvert(), nb::arg("vertices").noconvert(),
           nb::arg("triangles").noconvert(), nb::arg("triangle_object").noconvert(),
           nb::arg("object_color").noconvert(), nb::arg("object_emission").noconvert(),
           nb::arg("light_lifts").noconvert(), nb::arg("light_of_lift").noconvert(),
           nb::arg("light_radiance").noconvert(), nb::arg("threads") = 0)
-      .def("trace", &trace, nb::arg("origins").noconvert(), nb::arg("directions").noconvert(),
+      .def("trace", &trace,
+           nb::sig("def trace(self, origins: numpy.ndarray, directions: numpy.ndarray, "
+                   "max_distance: float, max_crossings: int, shade: bool = True, "
+                   "progress: collections.abc.Callable[[int, int], bool | None] | None = None, "
+                   "record_segments: bool = False) -> dict[str, numpy.ndarray]"),
+           nb::arg("origins").noconvert(), nb::arg("directions").noconvert(),
            nb::arg("max_distance"), nb::arg("max_crossings"), nb::arg("shade") = true,
            nb::arg("progress").none() = nb::none(), nb::arg("record_segments") = false, kTraceDoc)
       .def("cancel", &Tracer::cancel, "Stops a running trace(); callable from any Python thread.")
-      .def("query_segments", &query_segments, nb::arg("starts").noconvert(),
+      .def("query_segments", &query_segments,
+           nb::sig("def query_segments(self, starts: numpy.ndarray, ends: numpy.ndarray) -> "
+                   "tuple[numpy.ndarray, numpy.ndarray]"),
+           nb::arg("starts").noconvert(),
            nb::arg("ends").noconvert(),
-           "query_segments(starts, ends) -> (t, prim)\n\nBare Embree first hit of the chart "
+           "Bare Embree first hit of the chart "
            "segments (float64 (N,3) each) on the same BVH and threads: chord parameter t float32 "
            "(N,) in [0, 1] (inf: none) and triangle prim int32 (N,) (-1: none).")
       .def_prop_ro("num_threads", &Tracer::num_threads)

@@ -187,7 +187,8 @@ Tracer::WalkEnd Tracer::walk(Vec4 P, Vec4 V, double length, int max_crossings,
     }
     if (!crosses) return {kDistanceLimit, length, crossings};
     dist += exit.t;
-    if (++crossings > max_crossings) return {kCrossingLimit, dist, max_crossings};
+    if (crossings == max_crossings) return {kCrossingLimit, dist, crossings};
+    ++crossings;
     const Mat4& M = face_maps_[exit.face];
     const Vec4 X = space_.point(P, V, exit.t), Xv = space_.velocity(P, V, exit.t);
     P = apply(M, X);
@@ -229,6 +230,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   }
 
   const std::size_t chunks = (count + kChunk - 1) / kChunk;
+  // Kept by chunk, so that the recording does not depend on the thread count.
   std::vector<std::vector<double>> chunk_segments(options.record_segments ? chunks : 0);
   std::atomic<std::uint64_t> chords{0};
   run_chunks(
@@ -245,12 +247,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
       },
       poll, true);
 
-  TraceStats stats;
-  stats.chords = chords.load();
-  // Chunk order keeps the recording independent of the thread count.
-  for (auto& segments : chunk_segments)
-    stats.segments.insert(stats.segments.end(), segments.begin(), segments.end());
-  return stats;
+  return {chords.load(), std::move(chunk_segments)};
 }
 
 void Tracer::trace_ray(std::size_t i, const Vec4& origin, const Vec4& direction,

@@ -68,7 +68,8 @@ struct TraceOutputs {
 
 struct TraceStats {
   std::uint64_t chords = 0;
-  std::vector<double> segments;  // 6 per recorded chord: start xyz, end xyz
+  // Recorded chords by chunk of rays, in ray order: 6 doubles each, start xyz and end xyz.
+  std::vector<std::vector<double>> segments;
 };
 
 class Tracer {
