@@ -1,0 +1,20 @@
+"""E3: Euclidean space, X = (x, 1); isometries are affine maps."""
+import numpy as np
+
+from .projective import ProjectiveGeometry
+
+
+class Euclidean(ProjectiveGeometry):
+    name = "E3"
+    curvature = 0
+    form = np.array([1.0, 1.0, 1.0, 0.0])
+
+    def cos_sin(self, t):
+        t = np.asarray(t, float)
+        return np.ones_like(t), t
+
+    def distance(self, A, B):
+        return np.linalg.norm(self.to_chart(A) - self.to_chart(B), axis=-1)
+
+    def falloff(self, r):
+        return 1.0 / np.asarray(r, float) ** 2

@@ -1,0 +1,216 @@
+"""What the three isotropic geometries share: a projective chart in which geodesics are straight.
+
+Points are homogeneous 4-vectors X ("model" coordinates) with chart point x = X[:3] / X[3]:
+E3 uses X = (x, 1); S3 the unit sphere of R^4 (gnomonic chart); H3 the upper sheet of the
+hyperboloid <X, X> = -1 of R^{3,1} (Klein chart). Isometries are 4x4 matrices acting linearly on X.
+A plane of the chart is a covector c with c . X = 0; the same covector works in every geometry.
+Everything is float64 numpy and broadcasts over leading axes.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def _dot(a, b):
+    return np.einsum("...i,...i->...", a, b)
+
+
+class ProjectiveGeometry:
+    """Base class: subclasses set `name`, `curvature` and the form `form` (diagonal of the
+    ambient bilinear form restricted as the metric sees it)."""
+
+    name: str
+    curvature: int
+    form: np.ndarray  # diagonal of the ambient form on R^4 (the last entry is unused in E3)
+
+    def cos_sin(self, t):
+        """The generalised cosine and sine of the geodesic flow (E3: 1 and t)."""
+        raise NotImplementedError
+
+    def distance(self, A, B):
+        """Geodesic distance between model points."""
+        raise NotImplementedError
+
+    def falloff(self, r):
+        """Point-light falloff at geodesic distance r: 1 / (area of the sphere of radius r / 4 pi)."""
+        raise NotImplementedError
+
+    # --- the ambient form and the metric ---------------------------------------------------
+    def inner(self, a, b):
+        """Ambient bilinear form; on tangent vectors of the model it is the Riemannian metric."""
+        return _dot(a * self.form, b)
+
+    def metric(self, x):
+        """Riemannian metric of the chart at chart points x: (..., 3, 3)."""
+        x = np.asarray(x, float)
+        k = self.curvature
+        d = 1.0 + k * _dot(x, x)
+        eye = np.broadcast_to(np.eye(3), x.shape[:-1] + (3, 3))
+        return eye / d[..., None, None] - k * np.einsum("...i,...j->...ij", x, x) / (d * d)[..., None, None]
+
+    def volume_density(self, x):
+        """sqrt(det g) of the chart metric."""
+        x = np.asarray(x, float)
+        return (1.0 + self.curvature * _dot(x, x)) ** -2
+
+    # --- charts ---------------------------------------------------------------------------
+    def to_chart(self, X):
+        X = np.asarray(X, float)
+        return X[..., :3] / X[..., 3:4]
+
+    def to_model(self, x):
+        x = np.asarray(x, float)
+        Y = np.concatenate([x, np.ones(x.shape[:-1] + (1,))], axis=-1)
+        return self.normalize_point(Y)
+
+    def in_chart(self, x):
+        """Whether chart points are points of the geometry (H3: inside the unit ball)."""
+        x = np.asarray(x, float)
+        ok = np.all(np.isfinite(x), axis=-1)
+        if self.curvature < 0:
+            ok &= _dot(x, x) < 1.0
+        return ok
+
+    def tangent_to_model(self, x, u):
+        """Push a chart tangent vector u at chart point x to the model (differential of to_model)."""
+        x = np.asarray(x, float)
+        u = np.asarray(u, float)
+        Y = np.concatenate([x, np.ones(x.shape[:-1] + (1,))], axis=-1)
+        dY = np.concatenate([u, np.zeros(u.shape[:-1] + (1,))], axis=-1)
+        if self.curvature == 0:
+            return dY
+        scale = np.sqrt(self.curvature * self.inner(Y, Y))[..., None]
+        X = Y / scale
+        return (dY - self.curvature * self.inner(X, dY)[..., None] * X) / scale
+
+    def tangent_to_chart(self, X, V):
+        """Chart velocity of a model tangent vector V at X (differential of to_chart)."""
+        X = np.asarray(X, float)
+        V = np.asarray(V, float)
+        return (V[..., :3] - X[..., :3] * (V[..., 3:4] / X[..., 3:4])) / X[..., 3:4]
+
+    # --- staying on the model ----------------------------------------------------------------
+    def normalize_point(self, X):
+        X = np.asarray(X, float)
+        if self.curvature == 0:
+            return X / X[..., 3:4]
+        return X / np.sqrt(self.curvature * self.inner(X, X))[..., None]
+
+    def normalize_tangent(self, X, V):
+        """Project V onto the tangent space at X and scale it to unit length in the metric."""
+        V = np.asarray(V, float)
+        if self.curvature == 0:
+            V = V.copy()
+            V[..., 3] = 0.0
+        else:
+            V = V - self.curvature * self.inner(X, V)[..., None] * X
+        return V / np.sqrt(self.inner(V, V))[..., None]
+
+    # --- geodesics -------------------------------------------------------------------------
+    def geodesic(self, P, V, t):
+        """Position and unit velocity at arclength t along the geodesic from P with unit tangent V."""
+        P, V, t = np.asarray(P, float), np.asarray(V, float), np.asarray(t, float)[..., None]
+        c, s = self.cos_sin(t)
+        return c * P + s * V, -self.curvature * s * P + c * V
+
+    def chart_geodesic(self, x, u, t):
+        """Chart position and chart velocity at arclength t from chart point x, chart direction u
+        (u is normalised in the metric at x)."""
+        X = self.to_model(x)
+        V = self.normalize_tangent(X, self.tangent_to_model(x, u))
+        Xt, Vt = self.geodesic(X, V, t)
+        return self.to_chart(Xt), self.tangent_to_chart(Xt, Vt)
+
+    def direction_to(self, A, B):
+        """Unit tangent at A of the geodesic from A to B (the shortest one in S3)."""
+        A, B = np.asarray(A, float), np.asarray(B, float)
+        if self.curvature == 0:
+            return self.normalize_tangent(A, B / B[..., 3:4] - A / A[..., 3:4])
+        return self.normalize_tangent(A, B)
+
+    # --- isometries ------------------------------------------------------------------------
+    def is_isometry(self, M, tol=1e-9):
+        M = np.asarray(M, float)
+        if self.curvature == 0:
+            R = M[:3, :3]
+            return bool(np.allclose(M[3], [0, 0, 0, 1], atol=tol) and np.allclose(R.T @ R, np.eye(3), atol=tol))
+        J = np.diag(self.form)
+        return bool(np.allclose(M.T @ J @ M, J, atol=tol * max(1.0, np.abs(M).max() ** 2)) and M[3, 3] > 0)
+
+    def rotation(self, axis, angle):
+        """Rotation by `angle` (right-handed) about the geodesic through the origin along `axis`."""
+        a = np.asarray(axis, float)
+        a = a / np.linalg.norm(a)
+        K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+        M = np.eye(4)
+        M[:3, :3] = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
+        return M
+
+    def translation(self, direction, distance):
+        """Translation by `distance` along the geodesic through the origin in chart direction `direction`."""
+        n = np.asarray(direction, float)
+        n = n / np.linalg.norm(n)
+        M = np.eye(4)
+        c, s = self.cos_sin(distance)
+        nn = np.outer(n, n)
+        M[:3, :3] = np.eye(3) + (c - 1.0) * nn
+        M[:3, 3] = s * n
+        M[3, :3] = -self.curvature * s * n
+        M[3, 3] = c
+        return M
+
+    def reorthonormalize(self, M):
+        """Nearest isometry to an almost-isometry M (removes accumulated rounding)."""
+        M = np.array(M, float)
+        if self.curvature == 0:
+            U, _, Vt = np.linalg.svd(M[:3, :3])
+            M[:3, :3] = U @ Vt
+            M[3] = [0, 0, 0, 1]
+            return M
+        # Gram-Schmidt in the ambient form, starting from the image of the origin (column 3)
+        cols = [None] * 4
+        order = [3, 0, 1, 2]
+        for i in order:
+            v = M[:, i].copy()
+            for j in order[: order.index(i)]:
+                v -= self.inner(v, cols[j]) / self.inner(cols[j], cols[j]) * cols[j]
+            cols[i] = v / np.sqrt(abs(self.inner(v, v)))
+        return np.stack(cols, axis=1)
+
+    def transform_points(self, M, x):
+        """Apply an isometry to chart points."""
+        X = self.to_model(x)
+        return self.to_chart(X @ np.asarray(M).T)
+
+    # --- planes (covectors) ---------------------------------------------------------------
+    def bisector(self, Q):
+        """Covector c of the plane of points equidistant from the origin and Q, with
+        c . X <= 0 on the origin's side."""
+        Q = self.normalize_point(np.asarray(Q, float))
+        if self.curvature == 0:
+            q = Q[:3]
+            return np.append(2.0 * q, -q @ q)
+        # S3: X.O >= X.Q; H3: -<X,O> <= -<X,Q>; both linear in X
+        return (Q - ORIGIN) * self.form
+
+    def covector_dual_form(self):
+        """Diagonal form on covectors whose restriction measures dihedral angles."""
+        return np.array([1.0, 1.0, 1.0, float(self.curvature)])
+
+    def dihedral_angle(self, c1, c2):
+        """Interior dihedral angle between the half-spaces c1 . X <= 0 and c2 . X <= 0."""
+        f = self.covector_dual_form()
+        g = lambda a, b: np.sum(a * f * b, axis=-1)
+        cos = -g(c1, c2) / np.sqrt(g(c1, c1) * g(c2, c2))
+        return np.arccos(np.clip(cos, -1.0, 1.0))
+
+    def plane_distance(self, c):
+        """Geodesic distance from the origin to the plane c . X = 0."""
+        c = np.asarray(c, float)
+        n = np.linalg.norm(c[..., :3], axis=-1)
+        r = np.abs(c[..., 3]) / n
+        if self.curvature == 0:
+            return r
+        return np.arctan(r) if self.curvature > 0 else np.arctanh(r)

@@ -1,0 +1,510 @@
+"""Spaces (manifolds) as data: a geometry, generators of a discrete group of isometries, defaults.
+
+A space file is TOML (see presets/*.toml). The fundamental domain is the Dirichlet domain of the
+chart origin, computed here from the generators: the intersection of the half-spaces closer to the
+origin O than to gO over the group elements g, which are planes in the projective chart. Leaving the
+domain through the face of g means entering the copy gD, so the ray is carried back by g^-1.
+Every space is validated on load (pairings are isometries that map faces onto faces, edge cycles sum
+to 2 pi); a space that fails raises SpaceError naming the file and the problem.
+"""
+from __future__ import annotations
+
+import ast
+import math
+import operator
+import tomllib
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import ConvexHull, HalfspaceIntersection
+
+from . import geometries
+
+PRESET_DIR = Path(__file__).parent / "presets"
+_GROUP_LIMIT = 20000  # more elements than this within the needed radius: not a useful discrete group
+
+
+class SpaceError(ValueError):
+    """A space file that cannot be read or does not describe a valid space."""
+
+
+# --- safe arithmetic for matrix entries such as "sqrt(3)/2" ------------------------------------
+_FUNCS = {n: getattr(math, n) for n in ("sqrt", "sin", "cos", "tan", "asin", "acos", "atan", "sinh", "cosh", "tanh", "asinh", "acosh", "atanh", "exp", "log")}
+_CONSTS = {"pi": math.pi, "phi": (1 + math.sqrt(5)) / 2, "e": math.e}
+_OPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv, ast.Pow: operator.pow, ast.USub: operator.neg, ast.UAdd: operator.pos}
+
+
+def evaluate(value, where: str) -> float:
+    """A number, or a string of arithmetic with sqrt, sin, ..., pi, phi."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if not isinstance(value, str):
+        raise SpaceError(f"{where}: expected a number or an arithmetic string, got {value!r}")
+
+    def ev(node):
+        if isinstance(node, ast.Expression):
+            return ev(node.body)
+        if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)):
+            return float(node.value)
+        if isinstance(node, ast.Name) and node.id in _CONSTS:
+            return _CONSTS[node.id]
+        if isinstance(node, ast.BinOp) and type(node.op) in _OPS:
+            return _OPS[type(node.op)](ev(node.left), ev(node.right))
+        if isinstance(node, ast.UnaryOp) and type(node.op) in _OPS:
+            return _OPS[type(node.op)](ev(node.operand))
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in _FUNCS and len(node.args) == 1:
+            return _FUNCS[node.func.id](ev(node.args[0]))
+        raise SpaceError(f"{where}: cannot evaluate {value!r} (numbers, + - * / **, pi, phi, sqrt, sin, cos, ... only)")
+
+    try:
+        result = ev(ast.parse(value, mode="eval"))
+    except (SyntaxError, ZeroDivisionError, ValueError, OverflowError) as exc:
+        raise SpaceError(f"{where}: cannot evaluate {value!r}: {exc}") from None
+    if not math.isfinite(result):
+        raise SpaceError(f"{where}: {value!r} is not finite")
+    return result
+
+
+def _vector(value, n, where):
+    if not isinstance(value, list) or len(value) != n:
+        raise SpaceError(f"{where}: expected a list of {n} numbers, got {value!r}")
+    return np.array([evaluate(v, f"{where}[{i}]") for i, v in enumerate(value)])
+
+
+# --- the space ---------------------------------------------------------------------------------
+@dataclass
+class CameraDefaults:
+    position: np.ndarray
+    forward: np.ndarray
+    up: np.ndarray
+    fov: float  # horizontal field of view, degrees
+
+
+@dataclass
+class Face:
+    covector: np.ndarray  # c with c . X <= 0 inside
+    element: np.ndarray  # group element g whose bisector this face is
+    vertices: list[int]  # indices into Domain.vertices, counter-clockwise seen from outside
+    partner: int = -1  # face through which a ray leaving through this one re-enters
+    vertex_map: dict = field(default_factory=dict)  # vertex index -> partner's vertex index under g^-1
+
+    @property
+    def pairing(self):
+        """The isometry applied to a ray that leaves through this face."""
+        return np.linalg.inv(self.element)
+
+
+@dataclass
+class Domain:
+    vertices: np.ndarray  # (V, 3) chart coordinates
+    faces: list[Face]
+
+    @cached_property
+    def edges(self) -> list[tuple[int, int, int, int]]:
+        """(vertex a, vertex b, face i, face j) for each edge, a < b."""
+        owners: dict[tuple[int, int], list[int]] = {}
+        for fi, face in enumerate(self.faces):
+            ring = face.vertices
+            for k in range(len(ring)):
+                a, b = sorted((ring[k], ring[(k + 1) % len(ring)]))
+                owners.setdefault((a, b), []).append(fi)
+        return [(a, b, fs[0], fs[1]) for (a, b), fs in sorted(owners.items())]
+
+    def covectors(self):
+        return np.array([f.covector for f in self.faces])
+
+    def contains(self, X, tol=1e-12):
+        """Whether model points lie in the domain (with a relative tolerance)."""
+        X = np.asarray(X, float)
+        c = self.covectors()
+        scale = np.linalg.norm(c, axis=1) * np.linalg.norm(X, axis=-1)[..., None]
+        return np.all(X @ c.T <= tol * scale, axis=-1)
+
+
+class Space:
+    def __init__(self, data: dict, source: str):
+        self.source = source
+        where = source
+        try:
+            self.geometry = geometries.get(data["geometry"])
+        except KeyError:
+            raise SpaceError(f"{where}: missing field 'geometry' (E3, S3 or H3)") from None
+        except ValueError as exc:
+            raise SpaceError(f"{where}: {exc}") from None
+        self.id = str(data.get("id") or Path(source).stem)
+        self.name = str(data.get("name", self.id))
+        self.description = str(data.get("description", ""))
+        self.scale = evaluate(data.get("scale", 1.0), f"{where}: scale")
+        self.max_distance = evaluate(data.get("max_distance", 20.0), f"{where}: max_distance")
+        self.max_crossings = int(data.get("max_crossings", 64))
+        gens = data.get("generator")
+        if not isinstance(gens, list) or not gens:
+            raise SpaceError(f"{where}: no [[generator]] tables: a space needs generator matrices")
+        self.generators = []
+        self.generator_names = []
+        for i, gen in enumerate(gens):
+            name = str(gen.get("name", f"g{i}"))
+            w = f"{where}: generator {name!r}"
+            rows = gen.get("matrix")
+            if not isinstance(rows, list) or len(rows) != 4:
+                raise SpaceError(f"{w}: 'matrix' must be 4 rows of 4 numbers")
+            M = np.array([_vector(r, 4, f"{w} row {k}") for k, r in enumerate(rows)])
+            if not self.geometry.is_isometry(M, tol=1e-9):
+                raise SpaceError(f"{w}: the matrix is not an isometry of {self.geometry.name}")
+            self.generators.append(self.geometry.reorthonormalize(M))
+            self.generator_names.append(name)
+        cam = data.get("camera", {})
+        self.camera = CameraDefaults(
+            position=_vector(cam.get("position", [0, 0, 0]), 3, f"{where}: camera.position"),
+            forward=_vector(cam.get("forward", [0, 1, 0]), 3, f"{where}: camera.forward"),
+            up=_vector(cam.get("up", [0, 0, 1]), 3, f"{where}: camera.up"),
+            fov=evaluate(cam.get("fov", 90.0), f"{where}: camera.fov"),
+        )
+        self._elements: list[np.ndarray] = [np.eye(4)]
+        self._radius = 0.0
+        self._dirichlet_domain()
+
+    # --- group elements ------------------------------------------------------------------------
+    def _key(self, M):
+        """Identifies a group element: the image of the origin does (the action is free), plus the
+        linear part in E3, where a lattice translation and a screw can move the origin alike."""
+        key = tuple(np.round(M[:, 3], 7))
+        return key + tuple(np.round(M[:3, :3].ravel(), 5)) if self.geometry.curvature == 0 else key
+
+    def elements_within(self, radius: float) -> list[np.ndarray]:
+        """All group elements g with d(O, gO) <= radius (identity first, then by distance)."""
+        if radius > self._radius:
+            self._enumerate(radius)
+        g = self.geometry
+        O = geometries.projective.ORIGIN
+        return [M for M in self._elements if g.distance(O, M[:, 3]) <= radius + 1e-9]
+
+    def _enumerate(self, radius):
+        """Breadth-first search over words. Once the domain is known the steps are its face elements
+        and h is expanded while the copy hD can meet the ball B(O, radius): those copies are connected
+        through faces, so none is missed. Before that the steps are the generators and the horizon
+        is one step beyond the radius; the Dirichlet construction checks what it gets."""
+        g = self.geometry
+        O = geometries.projective.ORIGIN
+        domain = getattr(self, "domain", None)
+        if domain is not None:
+            steps = [f.element for f in domain.faces]
+            reaches = lambda M: np.max(self.face_distances(np.linalg.solve(M, O))) <= radius + 1e-9
+        else:
+            steps = [*self.generators, *(np.linalg.inv(s) for s in self.generators)]
+            horizon = radius + max(g.distance(O, s[:, 3]) for s in steps)
+            reaches = lambda M: g.distance(O, M[:, 3]) <= horizon + 1e-9
+        found = {self._key(np.eye(4)): np.eye(4)}
+        frontier = [np.eye(4)]
+        while frontier:
+            nxt = []
+            for M in frontier:
+                for s in steps:
+                    N = g.reorthonormalize(M @ s)
+                    key = self._key(N)
+                    if key in found or not reaches(N):
+                        continue
+                    found[key] = N
+                    nxt.append(N)
+                    if len(found) > _GROUP_LIMIT:
+                        raise SpaceError(
+                            f"{self.source}: more than {_GROUP_LIMIT} group elements near the ball of radius {radius:.3g}; "
+                            "the generators do not give a discrete group with a small domain"
+                        )
+            frontier = nxt
+        self._elements = sorted(found.values(), key=lambda M: g.distance(O, M[:, 3]))
+        self._radius = radius
+
+    def neighbourhood(self, levels: int = 1) -> list[np.ndarray]:
+        """Elements h whose copies hD surround D: level 1 are the copies that share at least a vertex
+        with D (everything a small object sticking out of D can reach); each further level adds the
+        copies touching the previous ones. Identity first."""
+        if levels <= 0:
+            return [np.eye(4)]
+        cached = self.__dict__.setdefault("_neighbourhoods", {})
+        if levels in cached:
+            return cached[levels]
+        g = self.geometry
+        inner = self.neighbourhood(levels - 1)
+        corners = np.array([M @ X for M in inner for X in g.to_model(self.domain.vertices)])
+        steps = [f.element for f in self.domain.faces]
+        found = {self._key(M): M for M in inner}
+        frontier = list(inner)
+        while frontier:
+            nxt = []
+            for M in frontier:
+                for s in steps:
+                    N = g.reorthonormalize(M @ s)
+                    key = self._key(N)
+                    if key in found:
+                        continue
+                    back = g.normalize_point(np.linalg.solve(N, corners.T).T)
+                    if not np.any(np.max(self.face_distances(back), axis=-1) <= 1e-9):
+                        continue
+                    found[key] = N
+                    nxt.append(N)
+            frontier = nxt
+        cached[levels] = list(found.values())
+        return cached[levels]
+
+    def face_distances(self, X):
+        """Signed geodesic distances from model points to the planes of the domain's faces
+        (positive outside); their maximum bounds the distance to the domain from below."""
+        X = np.asarray(X, float)
+        C = self.domain.covectors()
+        k = self.geometry.curvature
+        norm = np.sqrt(np.sum(C * C * self.geometry.covector_dual_form(), axis=1))
+        s = (X @ C.T) / norm
+        if k == 0:
+            return s / X[..., 3:4]
+        return np.arcsin(np.clip(s, -1, 1)) if k > 0 else np.arcsinh(s)
+
+    @cached_property
+    def group_order(self) -> int | None:
+        """Number of elements of a finite group (S3), None for infinite groups."""
+        if self.geometry.curvature <= 0:
+            return None
+        return len(self.elements_within(math.pi + 1e-6))
+
+    # --- the Dirichlet domain --------------------------------------------------------------------
+    def _dirichlet_domain(self) -> Domain:
+        """Grow the set of elements until the polyhedron of their bisectors passes Poincaré's
+        polyhedron theorem (faces paired by isometries, edge cycles of 2 pi): it is then a
+        fundamental domain cut out by bisectors of O, hence the Dirichlet domain."""
+        g = self.geometry
+        O = geometries.projective.ORIGIN
+        full = math.pi + 1e-6  # in S3 every element lies within distance pi
+        radius = max(g.distance(O, s[:, 3]) for s in self.generators) + 1e-6
+        while True:
+            if g.curvature > 0:
+                radius = min(radius, full)
+            elements = self.elements_within(radius)[1:]
+            if any(g.distance(O, M[:, 3]) < 1e-6 for M in elements):
+                raise SpaceError(f"{self.source}: a group element other than the identity fixes the domain centre; "
+                                 "the group does not act freely (not a manifold) or the generators repeat")
+            self.domain = self._intersect([g.bisector(M[:, 3]) for M in elements], elements)
+            self.__dict__.pop("edge_cycles", None)
+            circumradius = max(g.distance(O, g.to_model(v)) for v in self.domain.vertices)
+            try:
+                self._pair_faces(self.domain)
+                self._validate()
+            except SpaceError:
+                # faces can only come from elements within twice the circumradius
+                if 2 * circumradius <= radius or radius >= full:
+                    raise
+                radius = min(2 * circumradius + 1e-6, 1.5 * radius)
+                continue
+            self._elements, self._radius = [np.eye(4)], 0.0  # enumerate again with face steps
+            return self.domain
+
+    def _intersect(self, covectors, elements) -> Domain:
+        g = self.geometry
+        C = np.array(covectors)
+        C /= np.linalg.norm(C[:, :3], axis=1)[:, None]
+        try:
+            hs = HalfspaceIntersection(C, np.zeros(3))
+        except Exception as exc:  # qhull raises its own error types
+            raise SpaceError(f"{self.source}: the half-spaces of the group do not bound a domain: {exc}") from None
+        pts = hs.intersections
+        if not np.all(np.isfinite(pts)) or (g.curvature < 0 and np.any(np.linalg.norm(pts, axis=1) >= 1)):
+            raise SpaceError(f"{self.source}: the Dirichlet domain is not compact (the group has too few generators)")
+        # merge vertices that several planes produce
+        verts: list[np.ndarray] = []
+        for p in pts:
+            if not any(np.linalg.norm(p - q) < 1e-9 * (1 + np.linalg.norm(p)) for q in verts):
+                verts.append(p)
+        V = np.array(verts)
+        Y = np.hstack([V, np.ones((len(V), 1))])
+        faces = []
+        for c, M in zip(C, elements):
+            on = np.nonzero(np.abs(Y @ c) < 1e-8 * (1 + np.abs(c[3])))[0]
+            if len(on) < 3:
+                continue
+            faces.append(Face(covector=c, element=M, vertices=self._ring(V, on, c[:3])))
+        return Domain(vertices=V, faces=faces)
+
+    @staticmethod
+    def _ring(V, idx, normal):
+        """Order a face's vertices counter-clockwise seen from outside (outward normal)."""
+        P = V[idx]
+        centre = P.mean(axis=0)
+        n = normal / np.linalg.norm(normal)
+        a = P[0] - centre
+        a /= np.linalg.norm(a)
+        b = np.cross(n, a)
+        ang = np.arctan2((P - centre) @ b, (P - centre) @ a)
+        return [int(i) for i in idx[np.argsort(ang)]]
+
+    def _pair_faces(self, domain: Domain):
+        g = self.geometry
+        where = self.source
+        keys = {self._key(f.element): i for i, f in enumerate(domain.faces)}
+        for i, face in enumerate(domain.faces):
+            inv = np.linalg.inv(face.element)
+            j = keys.get(self._key(inv))
+            if j is None:
+                raise SpaceError(f"{where}: face {i} has no partner face (the inverse of its element is not a face)")
+            face.partner = j
+            image = g.transform_points(face.pairing, domain.vertices[face.vertices])
+            target = domain.faces[j].vertices
+            for v, p in zip(face.vertices, image):
+                d = np.linalg.norm(domain.vertices[target] - p, axis=1)
+                k = int(np.argmin(d))
+                if d[k] > 1e-7 * (1 + np.linalg.norm(p)):
+                    raise SpaceError(f"{where}: the pairing of face {i} does not map its vertex {v} onto a vertex of face {j}")
+                face.vertex_map[v] = target[k]
+            if sorted(face.vertex_map.values()) != sorted(target):
+                raise SpaceError(f"{where}: the pairing of face {i} does not map it onto face {j}")
+
+    # --- validation and invariants ----------------------------------------------------------------
+    @cached_property
+    def edge_cycles(self) -> list[list[tuple[int, int]]]:
+        """Edge classes: each a list of (edge index, face index) visited by the pairings."""
+        dom = self.domain
+        index = {(a, b): e for e, (a, b, _, _) in enumerate(dom.edges)}
+        seen = set()
+        cycles = []
+        for e0, (a, b, f0, _) in enumerate(dom.edges):
+            if e0 in seen:
+                continue
+            cycle = []
+            e, f = e0, f0
+            for _ in range(len(dom.edges) + 1):
+                cycle.append((e, f))
+                seen.add(e)
+                a, b = dom.edges[e][:2]
+                face = dom.faces[f]
+                image = tuple(sorted((face.vertex_map[a], face.vertex_map[b])))
+                e = index[image]
+                _, _, fi, fj = dom.edges[e]
+                f = fj if fi == face.partner else fi
+                if e == e0:
+                    break
+            cycles.append(cycle)
+        return cycles
+
+    def dihedral_angle(self, edge: int) -> float:
+        _, _, fi, fj = self.domain.edges[edge]
+        faces = self.domain.faces
+        return float(self.geometry.dihedral_angle(faces[fi].covector, faces[fj].covector))
+
+    def _validate(self):
+        where = self.source
+        for i, face in enumerate(self.domain.faces):
+            if not self.geometry.is_isometry(face.pairing, tol=1e-8):
+                raise SpaceError(f"{where}: the pairing of face {i} is not an isometry")
+        for cycle in self.edge_cycles:
+            total = sum(self.dihedral_angle(e) for e, _ in cycle)
+            if abs(total - 2 * math.pi) > 1e-6:
+                e = cycle[0][0]
+                a, b = self.domain.edges[e][:2]
+                raise SpaceError(
+                    f"{where}: the dihedral angles around the edge class of edge {a}-{b} sum to {total:.6f}, not 2 pi; "
+                    "the face pairings do not glue a manifold"
+                )
+
+    @cached_property
+    def inradius(self) -> float:
+        return float(min(self.geometry.plane_distance(f.covector) for f in self.domain.faces))
+
+    @cached_property
+    def circumradius(self) -> float:
+        g = self.geometry
+        return float(max(g.distance(geometries.projective.ORIGIN, g.to_model(v)) for v in self.domain.vertices))
+
+    @cached_property
+    def volume(self) -> float:
+        """Riemannian volume of the domain: cones from the origin over the faces, the radial integral
+        in closed form and a Gauss-Legendre (Duffy) rule on each face triangle."""
+        g = self.geometry
+        k = g.curvature
+        if k == 0:
+            return float(ConvexHull(self.domain.vertices).volume)
+
+        def radial(R):  # integral of density(r) r^2 dr from 0 to R
+            if k > 0:
+                return 0.5 * (np.arctan(R) - R / (1 + R * R))
+            return 0.5 * (R / (1 - R * R) - np.arctanh(R))
+
+        u, w = np.polynomial.legendre.leggauss(24)
+        u, w = 0.5 * (u + 1), 0.5 * w
+        U, W = np.meshgrid(u, u, indexing="ij")
+        WW = np.outer(w, w)
+        total = 0.0
+        V = self.domain.vertices
+        for face in self.domain.faces:
+            ring = V[face.vertices]
+            centre = ring.mean(axis=0)
+            n = face.covector[:3]
+            h = abs(face.covector[3]) / np.linalg.norm(n)
+            for p, q in zip(ring, np.roll(ring, -1, axis=0)):
+                # x(U, W) = centre + U (p - centre) + U W (q - p); dA = 2 area U dU dW
+                X = centre + U[..., None] * (p - centre) + (U * W)[..., None] * (q - p)
+                area2 = np.linalg.norm(np.cross(p - centre, q - centre))
+                r = np.linalg.norm(X, axis=-1)
+                total += np.sum(WW * U * area2 * radial(r) * h / r**3)
+        return float(total)
+
+    @cached_property
+    def holonomy(self) -> list[np.ndarray]:
+        """Linear parts of the group (E3): the holonomy group of a flat manifold."""
+        found = {tuple(np.round(np.eye(3).ravel(), 6)): np.eye(3)}
+        frontier = [np.eye(3)]
+        while frontier:
+            nxt = []
+            for R in frontier:
+                for s in self.generators:
+                    N = s[:3, :3] @ R
+                    key = tuple(np.round(N.ravel(), 6))
+                    if key not in found:
+                        found[key] = N
+                        nxt.append(N)
+            frontier = nxt
+        return list(found.values())
+
+    # --- using the domain ---------------------------------------------------------------------
+    def bring_inside(self, X, V=None, max_steps=1000):
+        """Move a model point (and a tangent vector) into the domain by face pairings.
+        Returns (X, V, M) with M the accumulated isometry; raises SpaceError if it cannot."""
+        g = self.geometry
+        X = np.asarray(X, float)
+        M = np.eye(4)
+        C = self.domain.covectors()
+        for _ in range(max_steps):
+            out = (C @ X) / np.linalg.norm(C, axis=1)
+            worst = int(np.argmax(out))
+            if out[worst] <= 1e-12:
+                return X, (None if V is None else g.normalize_tangent(X, M @ V)), M
+            M = g.reorthonormalize(self.domain.faces[worst].pairing @ M)
+            X = g.normalize_point(self.domain.faces[worst].pairing @ X)
+        raise SpaceError(f"the point {g.to_chart(X)} cannot be brought into the domain of {self.id!r}")
+
+    def summary(self) -> dict:
+        return {
+            "id": self.id, "name": self.name, "geometry": self.geometry.name, "description": self.description,
+            "faces": len(self.domain.faces), "vertices": len(self.domain.vertices), "source": self.source,
+        }
+
+
+def load(path_or_id: str | Path) -> Space:
+    """A preset by id, or a space file by path."""
+    path = Path(path_or_id)
+    if not path.suffix and not path.exists():
+        path = PRESET_DIR / f"{path_or_id}.toml"
+        if not path.exists():
+            raise SpaceError(f"unknown space {str(path_or_id)!r}: not a preset ({', '.join(preset_ids())}) and not a file")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SpaceError(f"space file {str(path)!r} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SpaceError(f"cannot read space file {str(path)!r}: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SpaceError(f"space file {str(path)!r} is not valid TOML: {exc}") from None
+    return Space(data, str(path))
+
+
+def preset_ids() -> list[str]:
+    return sorted(p.stem for p in PRESET_DIR.glob("*.toml"))
