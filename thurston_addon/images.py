@@ -1,0 +1,80 @@
+"""Writing renders: multi-channel linear EXR and 8-bit sRGB PNG (or other formats) via OpenImageIO."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+# EXR channel names per pass (Blender-like layer.channel names)
+CHANNELS = {
+    "color": ("R", "G", "B"),
+    "depth": ("Z",),
+    "normal": ("Normal.X", "Normal.Y", "Normal.Z"),
+    "position": ("Position.X", "Position.Y", "Position.Z"),
+    "object": ("IndexOB",),
+    "crossings": ("Crossings",),
+    "stop": ("Stop",),
+}
+
+
+class OutputError(ValueError):
+    pass
+
+
+def check_output(path: str | Path, overwrite: bool) -> Path:
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise OutputError(f"output {str(path)!r} exists; pass --overwrite to replace it")
+    if path.is_dir():
+        raise OutputError(f"output {str(path)!r} is a directory")
+    if not path.parent.exists():
+        raise OutputError(f"output folder {str(path.parent)!r} does not exist")
+    if not os.access(path.parent, os.W_OK):
+        raise OutputError(f"output folder {str(path.parent)!r} is not writable")
+    return path
+
+
+def linear_to_srgb(c):
+    c = np.clip(np.nan_to_num(c), 0.0, 1.0)
+    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
+
+
+def write(path: str | Path, passes: dict, names=None, metadata: dict | None = None):
+    """EXR: every pass in `names` (default all) as float channels, linear; other formats: the
+    colour pass, sRGB-encoded, 8 bit. Written to a temporary file and moved into place, so a failed
+    write never leaves a broken file under the user's name."""
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    exr = path.suffix.lower() == ".exr"
+    names = [n for n in (names or CHANNELS) if n in passes] if exr else ["color"]
+    H, W = passes["color"].shape[:2]
+    planes, channels = [], []
+    for n in names:
+        a = np.asarray(passes[n], dtype=np.float32).reshape(H, W, -1)
+        if n != "color" or exr:
+            planes.append(a)
+        else:
+            planes.append(linear_to_srgb(a).astype(np.float32))
+        channels += CHANNELS[n]
+    pixels = np.ascontiguousarray(np.concatenate(planes, axis=2))
+    spec = oiio.ImageSpec(W, H, len(channels), oiio.FLOAT if exr else oiio.UINT8)
+    spec.channelnames = tuple(channels)
+    if exr:
+        spec.attribute("compression", "zip")
+        if "depth" in names:
+            spec.z_channel = channels.index("Z")
+    for k, v in (metadata or {}).items():
+        spec.attribute(f"thurston:{k}", str(v))
+    tmp = path.with_name(f".{path.name}.partial{path.suffix}")
+    out = oiio.ImageOutput.create(str(tmp))
+    if out is None:
+        raise OutputError(f"cannot write {str(path)!r}: {oiio.geterror()}")
+    try:
+        if not out.open(str(tmp), spec) or not out.write_image(pixels):
+            raise OutputError(f"cannot write {str(path)!r}: {out.geterror()}")
+    finally:
+        out.close()
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,280 @@
+"""From a space and a scene to passes: the scene compiled for the tracer (with the copies that
+objects sticking out of the domain need), camera rays, the C++ trace, pseudo-colour modes, and the
+render's statistics (cost and accuracy)."""
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .scene import Camera, Scene, SceneError
+from .spaces import Space, SpaceError
+
+# Quality: samples per pixel (antialiasing, the only approximation for straight-chart geometries,
+# whose geodesics are exact up to float64 rounding). The same names are used by the add-on.
+QUALITY = {"draft": 1, "preview": 1, "standard": 4, "final": 16}
+SHADING = ("lambert", "normal", "position", "depth", "crossings", "object")
+PASSES = ("color", "depth", "normal", "position", "object", "crossings", "stop")
+STOP_REASONS = ("hit", "distance", "crossings", "cancelled")
+
+
+class RenderError(ValueError):
+    """Input that cannot be rendered, with a message naming the problem."""
+
+
+class Cancelled(RuntimeError):
+    pass
+
+
+@dataclass
+class Settings:
+    width: int = 640
+    height: int = 360
+    projection: str = "perspective"  # or "equirect"
+    quality: str = "standard"
+    shading: str = "lambert"
+    max_distance: float | None = None  # None: the space's default
+    max_crossings: int | None = None
+    fog: float | None = None  # distance at which colour falls to 1/e; None: no fog
+    threads: int = 0
+
+    def check(self):
+        if self.width < 1 or self.height < 1 or self.width * self.height > 2**28:
+            raise RenderError(f"image size {self.width}x{self.height} is not usable")
+        if self.projection not in ("perspective", "equirect"):
+            raise RenderError(f"unknown projection {self.projection!r} (perspective, equirect)")
+        if self.quality not in QUALITY:
+            raise RenderError(f"unknown quality {self.quality!r} ({', '.join(QUALITY)})")
+        if self.shading not in SHADING:
+            raise RenderError(f"unknown shading {self.shading!r} ({', '.join(SHADING)})")
+        if self.max_distance is not None and not (self.max_distance > 0 and math.isfinite(self.max_distance)):
+            raise RenderError(f"max distance must be a positive number, got {self.max_distance}")
+        if self.max_crossings is not None and self.max_crossings < 0:
+            raise RenderError(f"max crossings must be >= 0, got {self.max_crossings}")
+
+
+@dataclass
+class Result:
+    passes: dict  # name -> (H, W, C) or (H, W) arrays, rows top-down
+    stats: dict = field(default_factory=dict)
+
+    def summary(self) -> str:
+        s = self.stats
+        return (f"{s['rays']} rays, {s['crossings_per_ray']:.2f} crossings/ray, {s['chords']} chords, "
+                f"{s['hit_fraction'] * 100:.1f}% hits, {s['seconds']:.2f} s "
+                f"({s['rays'] / max(s['seconds'], 1e-9) / 1e6:.2f} Mrays/s, {s['threads']} threads); "
+                f"accuracy: {s['samples_per_pixel']} samples/pixel, pixel footprint {s['footprint']:.2e} "
+                f"chart units at median depth, geodesic error <= {s['geodesic_error']:.1e}")
+
+
+# --- compiling the scene -------------------------------------------------------------------------------
+def compile_scene(space: Space, scene: Scene):
+    """Tracer arrays: triangles of every object and of its copies g(object) that can reach the domain
+    (parts sticking out re-enter through the paired faces), and the lights' copies near the domain."""
+    g = space.geometry
+    C = space.domain.covectors()
+    C = C / np.linalg.norm(C, axis=1)[:, None]
+    elements = space.neighbourhood(1)
+    verts, tris, owner = [], [], []
+    offset = 0
+    for index, obj in enumerate(scene.objects):
+        if not np.all(g.in_chart(obj.vertices)):
+            raise SceneError(f"object {obj.name!r} has vertices outside the chart of {g.name} (the Klein chart is the open unit ball)")
+        X = g.to_model(obj.vertices)
+        shown = 0
+        for M in elements:
+            Y = X @ M.T
+            ok = Y[:, 3] > 1e-9 * np.linalg.norm(Y, axis=1)  # the copy stays on the chart's side
+            s = (Y / np.linalg.norm(Y, axis=1)[:, None]) @ C.T
+            outside = s > 1e-9
+            T = obj.triangles
+            keep = ~np.any(outside[T[:, 0]] & outside[T[:, 1]] & outside[T[:, 2]], axis=1) & ok[T].all(axis=1)
+            if not keep.any():
+                continue
+            used, local = np.unique(T[keep], return_inverse=True)
+            verts.append(g.to_chart(Y[used]))
+            tris.append(local.reshape(-1, 3) + offset)
+            owner.append(np.full(int(keep.sum()), index, np.int32))
+            offset += len(used)
+            shown += 1
+        if shown == 0:
+            warnings.warn(f"object {obj.name!r} lies outside the domain and its neighbouring copies: not shown", stacklevel=2)
+    V = np.vstack(verts) if verts else np.zeros((0, 3))
+    T = np.vstack(tris).astype(np.int32) if tris else np.zeros((0, 3), np.int32)
+    O = np.concatenate(owner) if owner else np.zeros(0, np.int32)
+    colors = np.array([o.color for o in scene.objects], np.float32).reshape(-1, 3)
+    emission = np.array([o.emission for o in scene.objects], np.float32).reshape(-1, 3)
+    lifts, of_lift, radiance = [], [], []
+    for i, light in enumerate(scene.lights):
+        if not np.all(g.in_chart(light.position)):
+            raise SceneError(f"light {i} at {light.position} is outside the chart of {g.name}")
+        L = g.to_model(light.position)
+        for M in elements:
+            Y = M @ L
+            lifts.append(Y if g.curvature == 0 else Y * np.sign(Y[3]))
+            of_lift.append(i)
+        radiance.append(np.asarray(light.color, float) * light.power)
+    return dict(
+        curvature=g.curvature, face_covectors=np.ascontiguousarray(space.domain.covectors()),
+        face_maps=np.ascontiguousarray(np.array([f.pairing for f in space.domain.faces])),
+        vertices=np.ascontiguousarray(V, np.float64), triangles=np.ascontiguousarray(T),
+        triangle_object=np.ascontiguousarray(O), object_color=colors, object_emission=emission,
+        light_lifts=np.array(lifts, np.float64).reshape(-1, 4), light_of_lift=np.array(of_lift, np.int32),
+        light_radiance=np.array(radiance, np.float32).reshape(-1, 3),
+    )
+
+
+def make_tracer(space: Space, scene: Scene, threads: int = 0):
+    from . import _core
+
+    return _core.Tracer(**compile_scene(space, scene), threads=threads)
+
+
+# --- camera --------------------------------------------------------------------------------------------
+def camera_frame(space: Space, camera: Camera):
+    """Camera point (model) brought into the domain and an orthonormal frame (forward, right, up)
+    there in the metric."""
+    g = space.geometry
+    p = np.asarray(camera.position, float)
+    if not (np.all(np.isfinite(p)) and g.in_chart(p)):
+        raise RenderError(f"camera position {p.tolist()} is not a point of {g.name}")
+    f, u = np.asarray(camera.forward, float), np.asarray(camera.up, float)
+    r = np.cross(f, u)
+    if not (np.all(np.isfinite(r)) and np.linalg.norm(r) > 1e-12 * np.linalg.norm(f) * np.linalg.norm(u)):
+        raise RenderError(f"camera forward {f.tolist()} and up {u.tolist()} must be finite, non-zero and not parallel")
+    X = g.to_model(p)
+    frame = [g.tangent_to_model(p, v) for v in (f, r, u)]
+    try:
+        X, _, M = space.bring_inside(X)
+    except SpaceError as exc:
+        raise RenderError(f"camera: {exc}") from None
+    basis = []
+    for v in frame:
+        v = M @ v
+        for b in basis:
+            v = v - g.inner(v, b) * b
+        basis.append(g.normalize_tangent(X, v))
+    return X, basis
+
+
+def camera_rays(space: Space, camera: Camera, settings: Settings, jitter=(0.5, 0.5)):
+    """Origins and unit directions (model) for every pixel, rows top-down."""
+    X, (f, r, u) = camera_frame(space, camera)
+    W, H = settings.width, settings.height
+    j = (np.arange(W) + jitter[0]) / W
+    i = (np.arange(H) + jitter[1]) / H
+    if settings.projection == "perspective":
+        t = math.tan(math.radians(camera.fov) / 2)
+        sx = (2 * j - 1) * t
+        sy = (1 - 2 * i) * t * H / W
+        a, b, c = np.ones((H, W)), np.broadcast_to(sx, (H, W)), np.broadcast_to(sy[:, None], (H, W))
+        n = np.sqrt(a * a + b * b + c * c)
+        a, b, c = a / n, b / n, c / n
+    else:  # equirectangular: longitude 0 is forward, increasing to the right; latitude up
+        lon = (2 * j - 1) * math.pi
+        lat = (0.5 - i) * math.pi
+        a = np.cos(lat)[:, None] * np.cos(lon)[None, :]
+        b = np.cos(lat)[:, None] * np.sin(lon)[None, :]
+        c = np.broadcast_to(np.sin(lat)[:, None], (H, W))
+    D = a[..., None] * f + b[..., None] * r + c[..., None] * u
+    origins = np.broadcast_to(X, (H * W, 4)).copy()
+    return origins, np.ascontiguousarray(D.reshape(-1, 4))
+
+
+def _sample_offsets(n):
+    """Stratified sub-pixel positions, the pixel centre first (it also gives the non-colour passes)."""
+    if n == 1:
+        return [(0.5, 0.5)]
+    k = int(math.ceil(math.sqrt(n)))
+    rng = np.random.default_rng(12345)
+    cells = [((a + rng.random()) / k, (b + rng.random()) / k) for a in range(k) for b in range(k)]
+    return [(0.5, 0.5)] + cells[: n - 1]
+
+
+# --- rendering -----------------------------------------------------------------------------------------
+def render(space: Space, scene: Scene, settings: Settings, camera: Camera | None = None,
+           progress=None, tracer=None) -> Result:
+    """Render a view. progress(done, total) -> bool is called during tracing (False cancels)."""
+    settings.check()
+    camera = camera or scene.camera or Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
+    if not (0 < camera.fov < 180):
+        raise RenderError(f"camera field of view must be between 0 and 180 degrees, got {camera.fov}")
+    max_distance = settings.max_distance or space.max_distance
+    max_crossings = space.max_crossings if settings.max_crossings is None else settings.max_crossings
+    t0 = time.perf_counter()
+    tracer = tracer or make_tracer(space, scene, settings.threads)
+    offsets = _sample_offsets(QUALITY[settings.quality])
+    total = len(offsets) * settings.width * settings.height
+    shade = settings.shading == "lambert"
+    color_sum = None
+    chords = 0
+    for k, jitter in enumerate(offsets):
+        origins, directions = camera_rays(space, camera, settings, jitter)
+        base = k * len(origins)
+        report = None if progress is None else (lambda done, _n, base=base: progress(base + done, total))
+        out = tracer.trace(origins, directions, max_distance, max_crossings, shade=shade, progress=report)
+        if np.any(out["stop"] == 3):
+            raise Cancelled("render cancelled")
+        chords += int(out["chords"])
+        if k == 0:
+            first = out
+        color = _colorize(out, settings, space)
+        color_sum = color if color_sum is None else color_sum + color
+    H, W = settings.height, settings.width
+    seconds = time.perf_counter() - t0
+    passes = {
+        "color": (color_sum / len(offsets)).reshape(H, W, 3).astype(np.float32),
+        "depth": first["depth"].reshape(H, W),
+        "normal": first["normal"].reshape(H, W, 3),
+        "position": first["position"].reshape(H, W, 3),
+        "object": first["object"].reshape(H, W),
+        "crossings": first["crossings"].reshape(H, W),
+        "stop": first["stop"].reshape(H, W),
+    }
+    depth = first["depth"][np.isfinite(first["depth"])]
+    median_depth = float(np.median(depth)) if len(depth) else 0.0
+    fov = math.radians(camera.fov) if settings.projection == "perspective" else 2 * math.pi
+    stats = {
+        "rays": total, "chords": chords, "seconds": seconds, "threads": tracer.num_threads,
+        "crossings_per_ray": float(first["crossings"].mean()), "hit_fraction": float((first["stop"] == 0).mean()),
+        "samples_per_pixel": len(offsets), "triangles": tracer.num_triangles,
+        # angular size of a pixel over sqrt(samples), at the median hit depth, in chart-scale units
+        "footprint": fov / W / math.sqrt(len(offsets)) * median_depth,
+        # float64 rounding through the closed forms, growing with each crossing's renormalisation
+        "geodesic_error": 1e-15 * (1 + float(first["crossings"].max(initial=0))) * max(1.0, max_distance),
+        "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},
+    }
+    return Result(passes, stats)
+
+
+def _colorize(out, settings: Settings, space: Space):
+    hit = out["stop"] == 0
+    mode = settings.shading
+    if mode == "lambert":
+        color = out["color"].astype(np.float64)
+    elif mode == "normal":
+        color = np.where(hit[:, None], 0.5 + 0.5 * np.nan_to_num(out["normal"]), 0.0)
+    elif mode == "position":
+        lo, hi = space.domain.vertices.min(axis=0), space.domain.vertices.max(axis=0)
+        color = np.where(hit[:, None], np.clip((np.nan_to_num(out["position"]) - lo) / (hi - lo), 0, 1), 0.0)
+    elif mode == "depth":
+        d = np.where(hit, out["depth"], 0.0)
+        scale = np.percentile(d[hit], 95) if hit.any() else 1.0
+        color = np.repeat(np.where(hit, 1 - np.clip(d / max(scale, 1e-12), 0, 1), 0.0)[:, None], 3, axis=1)
+    elif mode == "crossings":
+        n = out["crossings"].astype(np.float64)
+        color = np.repeat((n / max(1.0, n.max()))[:, None], 3, axis=1)
+    else:  # object: a distinct hue per object index, base colour for lookups
+        idx = out["object"]
+        hue = (idx * 0.618034) % 1.0
+        color = np.where(hit[:, None], np.stack([_hue(hue + o) for o in (0, 1 / 3, 2 / 3)], axis=1), 0.0)
+    if settings.fog:
+        color = color * np.exp(-np.where(hit, out["depth"], 0.0) / settings.fog)[:, None]
+    return color
+
+
+def _hue(h):
+    return 0.5 + 0.5 * np.cos(2 * math.pi * h)
