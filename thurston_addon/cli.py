@@ -1,0 +1,198 @@
+"""Command line: `thurston spaces`, `thurston render`, `thurston trace`."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from . import images, render, scene as scenes, spaces
+
+
+class CommandError(Exception):
+    pass
+
+
+def _triple(text: str):
+    try:
+        v = [float(t) for t in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected x,y,z, got {text!r}") from None
+    if len(v) != 3 or not np.all(np.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers x,y,z, got {text!r}")
+    return np.array(v)
+
+
+def _size(text: str):
+    try:
+        w, h = (int(t) for t in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x360, got {text!r}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"image size must be positive, got {text!r}")
+    return w, h
+
+
+def _passes(text: str):
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    bad = [n for n in names if n not in render.PASSES]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(f"unknown pass(es) {', '.join(bad) or text!r}; known: {', '.join(render.PASSES)}")
+    return names
+
+
+class Progress:
+    """A progress bar on stderr (only when it is a terminal, or every 10% otherwise)."""
+
+    def __init__(self, label: str):
+        self.label, self.start, self.shown = label, time.perf_counter(), -1
+        self.tty = sys.stderr.isatty()
+
+    def __call__(self, done: int, total: int) -> bool:
+        frac = done / max(total, 1)
+        step = int(frac * (100 if self.tty else 10))
+        if step != self.shown:
+            self.shown = step
+            bar = "#" * int(frac * 30)
+            end = "\r" if self.tty and done < total else "\n"
+            print(f"{self.label} [{bar:<30}] {frac * 100:5.1f}% {time.perf_counter() - self.start:6.1f} s", end=end, file=sys.stderr, flush=True)
+        return True
+
+
+def cmd_spaces(args):
+    rows = [spaces.load(i).summary() for i in spaces.preset_ids()]
+    if args.json:
+        print(json.dumps(rows, indent=2))
+    else:
+        for r in rows:
+            print(f"{r['id']:<16} {r['geometry']:<3}  {r['description']}")
+
+
+def _load_world(args):
+    space = spaces.load(args.space)
+    scene = scenes.load_scenes(args.scene) if args.scene else scenes.default_scene(space)
+    if args.scene and not scene.objects:
+        warnings.warn("the scene files hold no objects: only the background will show")
+    return space, scene
+
+
+def cmd_render(args):
+    out = images.check_output(args.out, args.overwrite)
+    if out.suffix.lower() not in (".exr", ".png", ".jpg", ".jpeg", ".tif", ".tiff"):
+        raise CommandError(f"output {str(out)!r}: use .exr (all passes) or .png/.jpg/.tif (colour)")
+    space, scene = _load_world(args)
+    cam = scene.camera or scenes.Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
+    camera = scenes.Camera(
+        args.camera_position if args.camera_position is not None else cam.position,
+        args.camera_forward if args.camera_forward is not None else cam.forward,
+        args.camera_up if args.camera_up is not None else cam.up,
+        args.fov if args.fov is not None else cam.fov,
+    )
+    w, h = args.size
+    settings = render.Settings(width=w, height=h, projection=args.projection, quality=args.quality,
+                               shading=args.shading, max_distance=args.max_distance,
+                               max_crossings=args.max_crossings, fog=args.fog, threads=args.threads)
+    result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
+    images.write(out, result.passes, names=args.passes, metadata={
+        "space": space.id, "quality": args.quality, "summary": result.summary()})
+    print(f"{out}: {w}x{h} {space.id}; {result.summary()}")
+
+
+def cmd_trace(args):
+    out = images.check_output(args.out, args.overwrite)
+    space, scene = _load_world(args)
+    try:
+        rays = np.load(args.rays, allow_pickle=False)
+    except FileNotFoundError:
+        raise CommandError(f"rays file {args.rays!r} does not exist") from None
+    except (OSError, ValueError) as exc:
+        raise CommandError(f"cannot read rays file {args.rays!r} as a .npy array: {exc}") from None
+    if rays.ndim != 2 or rays.shape[1] != 6 or rays.dtype != np.float64:
+        raise CommandError(f"{args.rays}: expected a float64 array of shape (N, 6), got {rays.dtype} {rays.shape}")
+    bad = ~np.all(np.isfinite(rays), axis=1)
+    if bad.any():
+        raise CommandError(f"{args.rays}: ray {int(np.argmax(bad))} has a NaN or infinite value")
+    g = space.geometry
+    outside = ~g.in_chart(rays[:, :3])
+    if outside.any():
+        raise CommandError(f"{args.rays}: ray {int(np.argmax(outside))} starts outside the chart of {g.name}")
+    if np.any(np.linalg.norm(rays[:, 3:], axis=1) == 0):
+        raise CommandError(f"{args.rays}: ray {int(np.argmax(np.linalg.norm(rays[:, 3:], axis=1) == 0))} has a zero direction")
+    X = g.to_model(rays[:, :3])
+    V = g.normalize_tangent(X, g.tangent_to_model(rays[:, :3], rays[:, 3:]))
+    inside = space.domain.contains(X)
+    for i in np.nonzero(~inside)[0]:
+        X[i], V[i], _ = space.bring_inside(X[i], V[i])
+    tracer = render.make_tracer(space, scene, args.threads)
+    result = tracer.trace(np.ascontiguousarray(X), np.ascontiguousarray(V),
+                          args.max_distance or space.max_distance,
+                          space.max_crossings if args.max_crossings is None else args.max_crossings,
+                          shade=False, progress=Progress(f"trace {len(rays)} rays"))
+    tmp = out.with_name(f".{out.name}.partial.npz")
+    np.savez(tmp, **{k: result[k] for k in ("depth", "object", "position", "normal", "crossings", "stop")})
+    tmp.replace(out)
+    hit = result["stop"] == 0
+    print(f"{out}: {len(rays)} rays, {hit.mean() * 100:.1f}% hits, {result['crossings'].mean():.2f} crossings/ray")
+
+
+def build_parser():
+    p = argparse.ArgumentParser(prog="thurston", description="Inside views of 3-manifolds modeled on Thurston's geometries.")
+    sub = p.add_subparsers(dest="command", required=True)
+    s = sub.add_parser("spaces", help="list the preset spaces")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(run=cmd_spaces)
+
+    def world(q):
+        q.add_argument("--space", required=True, help="preset id (see `thurston spaces`) or a space file (.toml)")
+        q.add_argument("--scene", action="append", metavar="FILE", help="mesh file (.obj .ply .stl .glb .gltf) or scene file (.toml); repeatable; default: the space's default scene")
+        q.add_argument("--max-distance", type=float, help="geodesic length at which a ray stops (default: the space's)")
+        q.add_argument("--max-crossings", type=int, help="face crossings after which a ray stops (default: the space's)")
+        q.add_argument("--threads", type=int, default=0, help="0: all cores")
+        q.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
+
+    r = sub.add_parser("render", help="render a view to an image (.exr with all passes, or .png)")
+    world(r)
+    r.add_argument("--camera-position", type=_triple, metavar="X,Y,Z")
+    r.add_argument("--camera-forward", type=_triple, metavar="X,Y,Z")
+    r.add_argument("--camera-up", type=_triple, metavar="X,Y,Z")
+    r.add_argument("--fov", type=float, help="horizontal field of view in degrees")
+    r.add_argument("--size", type=_size, default=(640, 360), metavar="WxH")
+    r.add_argument("--projection", choices=("perspective", "equirect"), default="perspective")
+    r.add_argument("--passes", type=_passes, help=f"EXR passes, comma separated (default all: {','.join(render.PASSES)})")
+    r.add_argument("--quality", choices=tuple(render.QUALITY), default="standard", help="samples per pixel: " + ", ".join(f"{k} {v}" for k, v in render.QUALITY.items()))
+    r.add_argument("--shading", choices=render.SHADING, default="lambert")
+    r.add_argument("--fog", type=float, help="distance at which colour falls to 1/e")
+    r.add_argument("--out", required=True, metavar="FILE")
+    r.set_defaults(run=cmd_render)
+
+    t = sub.add_parser("trace", help="batch ray queries: RAYS.npy (N,6) float64 -> HITS.npz")
+    world(t)
+    t.add_argument("--rays", required=True, metavar="RAYS.npy")
+    t.add_argument("--out", required=True, metavar="HITS.npz")
+    t.set_defaults(run=cmd_trace)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    warnings.showwarning = lambda msg, *a, **k: print(f"thurston: warning: {msg}", file=sys.stderr)
+    try:
+        args.run(args)
+    except (CommandError, spaces.SpaceError, scenes.SceneError, render.RenderError, images.OutputError) as exc:
+        print(f"thurston: error: {exc}", file=sys.stderr)
+        return 2
+    except render.Cancelled:
+        print("thurston: cancelled", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:
+        print("\nthurston: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
