@@ -499,7 +499,7 @@ def test_cancel_from_another_thread():
     tracer = make_tracer(0, cube_faces(HALF), torus_maps(), [box_mesh(BOX_LO, BOX_HI)], threads=2)
     o, d = many_rays()
     started = threading.Event()
-    canceller = threading.Thread(target=lambda: started.wait() and tracer.cancel())
+    canceller = threading.Thread(target=lambda: started.wait(30) and tracer.cancel())
     canceller.start()
     r = tracer.trace(o, d, 200.0, 1000, progress=lambda done, total: started.set())
     canceller.join()

@@ -27,6 +27,20 @@ RTCRay chord_ray(const Vec3& x0, const Vec3& x1, float tnear) {
   return embree::make_ray(org, dir, tnear, 1.0f);
 }
 
+// The outputs of a ray that hit nothing.
+void write_miss(const TraceOutputs& out, std::size_t i, Stop stop, int crossings, double distance) {
+  for (int a = 0; a < 3; ++a) {
+    out.color[3 * i + a] = 0.0f;
+    out.position[3 * i + a] = kNaN;
+    out.normal[3 * i + a] = float(kNaN);
+  }
+  out.depth[i] = kInf;
+  out.object[i] = -1;
+  out.crossings[i] = crossings;
+  out.stop[i] = stop;
+  out.distance[i] = distance;
+}
+
 void check_device(RTCDevice device, const char* what) {
   const RTCError error = rtcGetDeviceError(device);
   if (error != RTC_ERROR_NONE)
@@ -215,25 +229,11 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
                          const TraceOptions& options, const TraceOutputs& out, const Poll& poll) {
   const RunLock lock(*this);
   cancel_.store(false);
-  // Every ray starts out as untraced, which is what rays skipped by a cancel report.
-  for (std::size_t i = 0; i < count; ++i) {
-    for (int a = 0; a < 3; ++a) {
-      out.color[3 * i + a] = 0.0f;
-      out.position[3 * i + a] = kNaN;
-      out.normal[3 * i + a] = float(kNaN);
-    }
-    out.depth[i] = kInf;
-    out.object[i] = -1;
-    out.crossings[i] = 0;
-    out.stop[i] = kCancelled;
-    out.distance[i] = 0.0;
-  }
-
   const std::size_t chunks = (count + kChunk - 1) / kChunk;
   // Kept by chunk, so that the recording does not depend on the thread count.
   std::vector<std::vector<double>> chunk_segments(options.record_segments ? chunks : 0);
   std::atomic<std::uint64_t> chords{0};
-  run_chunks(
+  const std::size_t traced = run_chunks(
       count,
       [&](std::size_t chunk, std::size_t begin, std::size_t end) {
         std::vector<double>* segments = options.record_segments ? &chunk_segments[chunk] : nullptr;
@@ -246,7 +246,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
         chords.fetch_add(local_chords);
       },
       poll, true);
-
+  for (std::size_t i = traced; i < count; ++i) write_miss(out, i, kCancelled, 0, 0.0);
   return {chords.load(), std::move(chunk_segments)};
 }
 
@@ -255,7 +255,7 @@ void Tracer::trace_ray(std::size_t i, const Vec4& origin, const Vec4& direction,
                        std::vector<double>* segments, std::uint64_t& chords) const {
   Vec4 P = origin, V = direction;
   if (!space_.renormalise(P, V)) {  // no point or no direction: the ray goes nowhere
-    out.stop[i] = kDistanceLimit;
+    write_miss(out, i, kDistanceLimit, 0, 0.0);
     return;
   }
   int prim = -1;
@@ -271,10 +271,12 @@ void Tracer::trace_ray(std::size_t i, const Vec4& origin, const Vec4& direction,
     return true;
   };
   const WalkEnd end = walk(P, V, options.max_distance, options.max_crossings, 0.0, query);
-  out.stop[i] = end.stop;
+  if (end.stop != kHit) {
+    write_miss(out, i, end.stop, end.crossings, end.distance);
+    return;
+  }
+  out.stop[i] = kHit;
   out.crossings[i] = end.crossings;
-  out.distance[i] = end.distance;
-  if (end.stop != kHit) return;
 
   // Refine Embree's float hit on the triangle's plane in double precision; keep Embree's
   // parameter where the chord grazes the plane and the double solution is meaningless.
@@ -366,7 +368,7 @@ void Tracer::query_segments(std::size_t count, Strided2<double> starts, Strided2
       nullptr, false);
 }
 
-void Tracer::run_chunks(std::size_t count,
+std::size_t Tracer::run_chunks(std::size_t count,
                         const std::function<void(std::size_t, std::size_t, std::size_t)>& fn,
                         const Poll& poll, bool cancellable) {
   const std::size_t chunks = (count + kChunk - 1) / kChunk;
@@ -392,6 +394,8 @@ void Tracer::run_chunks(std::size_t count,
     if (poll && !stop.load() && !poll(done.load())) stop = true;
   if (pool_.error()) std::rethrow_exception(pool_.error());
   if (poll && !stop.load()) poll(done.load());  // the final count
+  // Chunks are handed out in order and every chunk taken is finished.
+  return std::min(count, std::min(next.load(), chunks) * kChunk);
 }
 
 }  // namespace thurston

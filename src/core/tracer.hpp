@@ -132,8 +132,9 @@ class Tracer {
   Rgb illumination(const Vec4& H, const Vec4& N, int max_crossings) const;
   bool visible(const Vec4& H, const Vec4& dir, double r, int max_crossings) const;
 
-  // Runs fn(chunk, begin, end) over [0, count) in chunks on the pool, polling from this thread.
-  void run_chunks(std::size_t count, const std::function<void(std::size_t, std::size_t, std::size_t)>& fn,
+  // Runs fn(chunk, begin, end) over [0, count) in chunks on the pool, polling from this thread;
+  // returns how many items (a prefix) were done before a stop.
+  std::size_t run_chunks(std::size_t count, const std::function<void(std::size_t, std::size_t, std::size_t)>& fn,
                   const Poll& poll, bool cancellable);
 
   Space space_;
