@@ -340,6 +340,24 @@ def test_reorthonormalize_repairs_a_perturbed_isometry(name, geom, rng):
         assert np.abs(R - M0).max() < 1e-5
 
 
+@pytest.mark.parametrize("d", [
+    0.5, 3.0,
+    pytest.param(6.0, marks=pytest.mark.xfail(strict=True, reason="H3 reorthonormalize loses accuracy ~eps*e^(2d)")),
+    pytest.param(10.0, marks=pytest.mark.xfail(strict=True, reason="H3 reorthonormalize loses accuracy ~eps*e^(2d)")),
+])
+def test_h3_reorthonormalize_keeps_large_isometries_accurate(d):
+    """An exact isometry must come back (numerically) unchanged: applied to a point at distance d
+    it should bring it back as accurately as the matrix itself does."""
+    geom = geometries.get("H3")
+    n = np.array([0.3, 0.5, 0.8])
+    x = np.array([0.1, 0.2, 0.3])
+    T = geom.translation(n, d) @ geom.rotation([1.0, 2.0, 3.0], 0.7)
+    P = np.linalg.solve(T, geom.to_model(x))  # the point T maps onto x, at distance ~d
+    err_T = np.abs(geom.to_chart(T @ P) - x).max()  # rounding of T itself
+    R = geom.reorthonormalize(T)
+    assert np.abs(geom.to_chart(R @ P) - x).max() < max(1e-9, 100 * err_T)
+
+
 def test_is_isometry_rejects_non_isometries(name, geom):
     M = np.eye(4)
     M[0, 0] = 1.01
