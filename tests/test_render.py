@@ -1,0 +1,472 @@
+"""End-to-end tests of the render pipeline (spaces -> compile_scene -> C++ tracer -> passes) against
+closed forms: ray-sphere distances to every copy of a geodesic ball under the group, lattice
+crossing counts, Lambert shading, and the behaviour of render() itself."""
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from thurston_addon import render, spaces
+from thurston_addon.scene import Camera, PointLight, Scene, SceneObject, default_scene
+
+ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+@pytest.fixture(scope="module")
+def space_cache():
+    cache = {}
+
+    def get(sid):
+        if sid not in cache:
+            cache[sid] = spaces.load(sid)
+        return cache[sid]
+
+    return get
+
+
+# --- helpers: geodesic balls and closed-form first hits ----------------------------------------------
+def chart_radius(g, rho):
+    """Chart (gnomonic / Klein / Euclidean) radius of the geodesic ball of radius rho about O."""
+    return {0: rho, 1: math.tan(rho), -1: math.tanh(rho)}[g.curvature]
+
+
+def geodesic_radius(g, r):
+    return {0: r, 1: math.atan(r), -1: math.atanh(r)}[g.curvature]
+
+
+def ball_mesh(g, centre_dir, centre_dist, rho, subdivisions=5):
+    """A polyhedral geodesic ball: the chart icosphere about O (its vertices on the geodesic sphere
+    of radius rho) moved by the translation taking O to the centre. Returns (vertices, faces,
+    centre as a model point, geodesic sagitta: the largest distance between faces and sphere)."""
+    ico = trimesh.creation.icosphere(subdivisions=subdivisions, radius=chart_radius(g, rho))
+    V, F = np.asarray(ico.vertices, float), np.asarray(ico.faces)
+    A, B, C = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    n = np.cross(B - A, C - A)
+    h = np.min(np.abs(np.einsum("ij,ij->i", n, A)) / np.linalg.norm(n, axis=1))
+    sagitta = rho - geodesic_radius(g, h)
+    if centre_dist == 0:
+        return V, F, ORIGIN.copy(), sagitta
+    T = g.translation(centre_dir, centre_dist)
+    return g.transform_points(T, V), F, T[:, 3].copy(), sagitta
+
+
+def first_entry(g, P, V, centres, rho):
+    """Closed-form arclength at which the geodesic from P (model) with unit tangent V first enters
+    one of the geodesic balls of radius rho about the model points `centres`, and the cosine of
+    the angle of incidence there. (N,) arrays; inf / 0 where no ball is entered."""
+    k = g.curvature
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if k == 0:
+            w = P[:, None, :3] - centres[None, :, :3]
+            b = np.einsum("nj,nkj->nk", V[:, :3], w)
+            q = np.einsum("nkj,nkj->nk", w, w) - rho * rho
+            disc = b * b - q
+            t = -b - np.sqrt(disc)
+            cos = np.sqrt(disc) / rho
+            ok = (disc > 0) & (t > 0)
+        elif k > 0:
+            A, B = P @ centres.T, V @ centres.T
+            R = np.hypot(A, B)
+            alpha = np.arccos(np.clip(math.cos(rho) / R, -1, 1))
+            t = np.mod(np.arctan2(B, A) - alpha, 2 * math.pi)
+            cos = np.sqrt(np.maximum(R * R - math.cos(rho) ** 2, 0)) / math.sin(rho)
+            ok = R > math.cos(rho)
+        else:
+            J = np.array([1.0, 1.0, 1.0, -1.0])
+            a, b = -(P * J) @ centres.T, -(V * J) @ centres.T
+            kk = math.cosh(rho)
+            disc = kk * kk - a * a + b * b
+            u = (kk - np.sqrt(disc)) / (a + b)
+            t = np.log(u)
+            cos = np.sqrt(disc) / math.sinh(rho)
+            ok = (disc > 0) & (u > 1)
+    t = np.where(ok, t, np.inf)
+    j = np.argmin(t, axis=1)
+    rows = np.arange(len(P))
+    return t[rows, j], np.where(ok[rows, j], cos[rows, j], 0.0)
+
+
+def model_rays(g, p, u):
+    """Model origins and unit model tangents from chart points p and chart directions u."""
+    X = g.to_model(p)
+    return X, g.normalize_tangent(X, g.tangent_to_model(p, u))
+
+
+def random_units(rng, n):
+    v = rng.normal(size=(n, 3))
+    return v / np.linalg.norm(v, axis=1)[:, None]
+
+
+def edge_targets(space, rng, n):
+    """n chart points on the domain's edges, the vertices among them."""
+    V = space.domain.vertices
+    E = np.array([e[:2] for e in space.domain.edges])
+    pick = E[rng.integers(len(E), size=n)]
+    s = rng.random(n)
+    s[: n // 5] = rng.integers(0, 2, size=n // 5)  # a fifth exactly at vertices
+    return s[:, None] * V[pick[:, 0]] + (1 - s[:, None]) * V[pick[:, 1]]
+
+
+def interior_points(space, rng, n, fraction=0.8):
+    g = space.geometry
+    r = chart_radius(g, fraction * space.inradius)
+    return random_units(rng, n) * (r * rng.random(n) ** (1 / 3))[:, None]
+
+
+def sphere_scene(V, F):
+    return Scene(objects=[SceneObject("ball", V, F, (0.5, 0.5, 0.5))])
+
+
+def check_against_balls(space, V, F, centre, rho, sagitta, P, D, max_distance, max_crossings=400):
+    """Trace and compare with the closed-form first entry into the group's copies of the ball."""
+    g = space.geometry
+    tracer = render.make_tracer(space, sphere_scene(V, F))
+    out = tracer.trace(np.ascontiguousarray(P), np.ascontiguousarray(D), max_distance, max_crossings, shade=False)
+    reach = max_distance + rho + g.distance(ORIGIN, centre) + float(np.max(g.distance(ORIGIN, P)))
+    elements = space.elements_within(reach if g.curvature <= 0 else math.pi + 1e-6)
+    centres = np.array([M @ centre for M in elements])
+    # the origins must lie outside every copy
+    dmin = np.min(g.distance(P[:, None, :], centres[None, :, :]), axis=-1)
+    assert np.all(dmin > rho + 1e-3), "test set-up: a ray starts inside a copy of the ball"
+    t, cos = first_entry(g, P, D, centres, rho)
+    tol = 2 * sagitta / np.maximum(cos, 1e-3) + 1e-6
+    hit = (t < max_distance - tol) & (cos > 0.3)
+    miss = t > max_distance + 1e-6
+    assert hit.sum() > 200 and miss.sum() > 50, (hit.sum(), miss.sum())
+    assert np.all(out["stop"][hit] == 0), f"{np.sum(out['stop'][hit] != 0)} rays missed a ball they enter"
+    err = np.abs(out["depth"][hit] - t[hit])
+    worst = int(np.argmax(err / tol[hit]))
+    assert np.all(err <= tol[hit]), (
+        f"depth off by {err[worst]:.3g} (tolerance {tol[hit][worst]:.3g}) at analytic depth {t[hit][worst]:.4f}, "
+        f"traced {out['depth'][hit][worst]:.4f}")
+    # rays that stay clear of every copy (the polyhedron lies inside the ball) find nothing
+    assert np.all(out["stop"][miss] == 1), np.bincount(out["stop"][miss])
+    assert np.all(np.isinf(out["depth"][miss]))
+    # hit positions: chart points on the domain side, in the domain
+    X = g.to_model(out["position"][hit])
+    assert np.all(space.domain.contains(X, tol=1e-6))
+    return hit.sum()
+
+
+CASES = {
+    # space: (chart direction of the centre, its geodesic distance from O, geodesic radius, max distance,
+    # radius of the ball of ray origins as a fraction of the inradius)
+    "torus": ([0.6, 0.3, -0.5], 0.3, 0.15, 4.0, 0.8),
+    "quarter_turn": ([0.2, -0.5, 0.4], 0.3, 0.12, 4.0, 0.8),
+    "hantzsche_wendt": ([0.5, 0.4, 0.3], 0.35, 0.15, 4.0, 0.8),
+    "poincare": ([0.3, 0.2, -0.4], 0.15, 0.1, 6.0, 0.8),
+    # H3: the group grows exponentially; keep the enumeration radius near 3.2
+    "seifert_weber": ([0.2, 0.7, 0.3], 0.3, 0.25, 2.4, 0.3),
+}
+
+
+@pytest.mark.parametrize("sid", list(CASES))
+def test_depth_matches_closed_form_ball_copies(space_cache, sid):
+    space = space_cache(sid)
+    g = space.geometry
+    direction, dist, rho, max_distance, spread = CASES[sid]
+    V, F, centre, sagitta = ball_mesh(g, direction, dist, rho)
+    assert sagitta < 5e-4 * max(rho, 0.1)
+    rng = np.random.default_rng(1)
+    n = 1500
+    # from the domain centre in random directions, and aimed at edges and vertices
+    p0 = np.zeros((2 * n, 3))
+    u0 = np.vstack([random_units(rng, n), edge_targets(space, rng, n)])
+    # from random interior points (away from the ball) in random directions
+    p1 = interior_points(space, rng, 4 * n, spread)
+    c_chart = g.to_chart(centre)
+    p1 = p1[np.linalg.norm(p1 - c_chart, axis=1) > 2.5 * chart_radius(g, rho)][:n]
+    u1 = random_units(rng, len(p1))
+    P, D = model_rays(g, np.vstack([p0, p1]), np.vstack([u0, u1]))
+    hits = check_against_balls(space, V, F, centre, rho, sagitta, P, D, max_distance)
+    assert hits > 300
+
+
+# --- objects that straddle faces ---------------------------------------------------------------------
+def test_straddling_ball_on_torus_face(space_cache):
+    space = space_cache("torus")
+    g = space.geometry
+    rho = 0.2
+    V, F, centre, sag = ball_mesh(g, [1, 0, 0], 0.5, rho)
+    tracer = render.make_tracer(space, sphere_scene(V, F))
+    dirs = np.array([[1.0, 0, 0], [-1.0, 0, 0]])
+    P, D = model_rays(g, np.zeros((2, 3)), dirs)
+    out = tracer.trace(P, D, 5.0, 20, shade=False)
+    assert list(out["stop"]) == [0, 0]
+    np.testing.assert_allclose(out["depth"], 0.3, atol=2 * sag + 1e-6)
+    # towards -x the ray crosses no face: it meets the part re-entering through x = -0.5
+    assert list(out["crossings"]) == [0, 0]
+    np.testing.assert_allclose(out["position"][1], [-0.3, 0, 0], atol=2 * sag + 1e-6)
+    # and everywhere else as the closed form over the lattice copies says
+    rng = np.random.default_rng(2)
+    P, D = model_rays(g, np.zeros((3000, 3)), random_units(rng, 3000))
+    check_against_balls(space, V, F, centre, rho, sag, P, D, 3.0)
+
+
+def test_straddling_ball_on_torus_vertex(space_cache):
+    space = space_cache("torus")
+    g = space.geometry
+    rho = 0.2
+    V, F, centre, sag = ball_mesh(g, [1, 1, 1], math.sqrt(3) / 2, rho)
+    np.testing.assert_allclose(g.to_chart(centre), [0.5, 0.5, 0.5], atol=1e-12)
+    tracer = render.make_tracer(space, sphere_scene(V, F))
+    corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+    P, D = model_rays(g, np.zeros((8, 3)), corners)
+    out = tracer.trace(P, D, 5.0, 20, shade=False)
+    assert np.all(out["stop"] == 0)
+    np.testing.assert_allclose(out["depth"], math.sqrt(3) / 2 - rho, atol=2 * sag + 1e-6)
+    hitpoints = corners / np.linalg.norm(corners, axis=1)[:, None] * (math.sqrt(3) / 2 - rho)
+    np.testing.assert_allclose(out["position"], hitpoints, atol=2 * sag + 1e-6)
+    rng = np.random.default_rng(3)
+    P, D = model_rays(g, interior_points(space, rng, 3000, 0.5), random_units(rng, 3000))
+    check_against_balls(space, V, F, centre, rho, sag, P, D, 3.0)
+
+
+def test_straddling_ball_on_poincare_face(space_cache):
+    space = space_cache("poincare")
+    g = space.geometry
+    rho = 0.1
+    face = space.domain.faces[0]
+    mid = g.normalize_point(ORIGIN + face.element[:, 3])  # the face centre: midpoint of O and gO
+    n = g.to_chart(mid)
+    assert abs(g.distance(ORIGIN, mid) - math.pi / 10) < 1e-9
+    V, F, centre, sag = ball_mesh(g, n, math.pi / 10, rho)
+    np.testing.assert_allclose(centre, mid, atol=1e-12)
+    partner = space.domain.faces[face.partner]
+    m2 = g.to_chart(g.normalize_point(ORIGIN + partner.element[:, 3]))
+    tracer = render.make_tracer(space, sphere_scene(V, F))
+    P, D = model_rays(g, np.zeros((2, 3)), np.array([n, m2]))
+    out = tracer.trace(P, D, 10.0, 100, shade=False)
+    assert list(out["stop"]) == [0, 0]
+    np.testing.assert_allclose(out["depth"], math.pi / 10 - rho, atol=2 * sag + 1e-6)
+    rng = np.random.default_rng(4)
+    P, D = model_rays(g, np.zeros((3000, 3)), random_units(rng, 3000))
+    check_against_balls(space, V, F, centre, rho, sag, P, D, 5.0)
+
+
+# --- no leaks at edges and vertices ----------------------------------------------------------------------
+def check_trace_outputs(space, out, max_distance, max_crossings, n_objects):
+    g = space.geometry
+    stop, hit = out["stop"], out["stop"] == 0
+    assert set(np.unique(stop)) <= {0, 1, 2}, np.bincount(stop)
+    if n_objects == 0:
+        assert not hit.any()
+    for key in ("distance", "color"):
+        assert np.all(np.isfinite(out[key])), key
+    assert np.all(out["crossings"] >= 0) and np.all(out["crossings"] <= max_crossings)
+    d = out["distance"]
+    assert np.all(d >= 0) and np.all(d <= max_distance * (1 + 1e-12))
+    np.testing.assert_allclose(d[stop == 1], max_distance, rtol=1e-12)
+    assert np.all(out["crossings"][stop == 2] == max_crossings)
+    assert np.all(np.isinf(out["depth"][~hit])) and np.all(out["object"][~hit] == -1)
+    assert np.all(np.isnan(out["position"][~hit])) and np.all(np.isnan(out["normal"][~hit]))
+    if hit.any():
+        assert np.all(np.isfinite(out["depth"][hit]))
+        np.testing.assert_allclose(out["depth"][hit], d[hit], rtol=1e-12)
+        assert np.all(np.isfinite(out["position"][hit])) and np.all(np.isfinite(out["normal"][hit]))
+        np.testing.assert_allclose(np.linalg.norm(out["normal"][hit], axis=1), 1.0, atol=1e-4)
+        assert np.all((out["object"][hit] >= 0) & (out["object"][hit] < n_objects))
+        inside = space.domain.contains(g.to_model(out["position"][hit]), tol=1e-6)
+        assert inside.all(), f"{(~inside).sum()} hit positions outside the domain"
+
+
+@pytest.mark.parametrize("sid", spaces.preset_ids())
+def test_no_leak_at_edges_and_vertices(space_cache, sid):
+    space = space_cache(sid)
+    g = space.geometry
+    rng = np.random.default_rng(5)
+    n = 100_000
+    targets = edge_targets(space, rng, n)
+    p = np.zeros((n, 3))
+    p[n // 2:] = interior_points(space, rng, n - n // 2)
+    P, D = model_rays(g, p, targets - p)
+    assert np.all(np.isfinite(P)) and np.all(np.isfinite(D))
+    max_distance, max_crossings = (6.0 if g.curvature >= 0 else 3.0), 40
+    scenes = [Scene()]
+    if sid in ("poincare", "seifert_weber", "torus"):
+        scenes.append(default_scene(space))
+    for scene in scenes:
+        out = render.make_tracer(space, scene).trace(P, D, max_distance, max_crossings, shade=True)
+        check_trace_outputs(space, out, max_distance, max_crossings, len(scene.objects))
+        if scene.objects:
+            assert (out["stop"] == 0).mean() > 0.2
+
+
+def test_torus_crossings_count_lattice_planes(space_cache):
+    """A straight line of length L crosses the planes x_i = k + 1/2 of the cube lattice once each."""
+    space = space_cache("torus")
+    g = space.geometry
+    rng = np.random.default_rng(6)
+    n = 20000
+    L = 7.318309886
+    p = np.zeros((n, 3))
+    p[n // 2:] = rng.uniform(-0.45, 0.45, size=(n - n // 2, 3))
+    d = random_units(rng, n)
+    e = p + L * d
+    frac = np.abs((e + 0.5) - np.round(e + 0.5))
+    keep = np.all(frac > 1e-6, axis=1)
+    expected = np.sum(np.abs(np.floor(e + 0.5) - np.floor(p + 0.5)), axis=1).astype(int)
+    P, D = model_rays(g, p, d)
+    out = render.make_tracer(space, Scene()).trace(P, D, L, 1000, shade=False)
+    assert np.all(out["stop"] == 1)
+    assert keep.mean() > 0.99
+    np.testing.assert_array_equal(out["crossings"][keep], expected[keep])
+
+
+# --- Lambert shading ----------------------------------------------------------------------------------
+def square(x, half):
+    V = np.array([[x, -half, -half], [x, half, -half], [x, half, half], [x, -half, half]])
+    return V, np.array([[0, 1, 2], [0, 2, 3]])
+
+
+@pytest.mark.parametrize("sid", ["torus", "poincare", "seifert_weber"])
+def test_lambert_shading_closed_form(space_cache, sid):
+    space = space_cache(sid)
+    g = space.geometry
+    x0, half = {"torus": (0.3, 0.4), "poincare": (0.15, 0.1), "seifert_weber": (0.4, 0.3)}[sid]
+    V, F = square(x0, half)
+    base = np.array([0.8, 0.5, 0.25])
+    light_chart = np.array([0.02, 0.05, -0.03])
+    power = 0.7
+    light_color = np.array([1.0, 0.9, 0.6])
+    scene = Scene(objects=[SceneObject("wall", V, F, base)],
+                  lights=[PointLight(light_chart, light_color, power)])
+    tracer = render.make_tracer(space, scene)
+    rng = np.random.default_rng(7)
+    targets = np.column_stack([np.full(50, x0), rng.uniform(-0.8 * half, 0.8 * half, size=(50, 2))])
+    P, D = model_rays(g, np.zeros((50, 3)), targets)
+    out = tracer.trace(P, D, 5.0, 40, shade=True)
+    assert np.all(out["stop"] == 0)
+    np.testing.assert_allclose(out["position"], targets, atol=1e-6)
+    H = g.to_model(targets)
+    L = g.to_model(light_chart)
+    r = g.distance(H, L[None, :])
+    # unit normal of the plane x = x0 at H (the covector (1,0,0,-x0) as a tangent vector), towards O
+    N = g.normalize_tangent(H, np.tile([-1.0, 0.0, 0.0, x0 * g.curvature], (50, 1)) if g.curvature else np.tile([-1.0, 0, 0, 0], (50, 1)))
+    assert np.all(g.inner(N, g.direction_to(H, ORIGIN[None, :])) > 0)
+    cos = g.inner(N, g.direction_to(H, L[None, :]))
+    expected = base[None, :] * light_color[None, :] * power * (cos * g.falloff(r))[:, None]
+    np.testing.assert_allclose(out["color"], expected, rtol=2e-5)
+    # not shaded: the base colour
+    plain = tracer.trace(P, D, 5.0, 40, shade=False)
+    np.testing.assert_allclose(plain["color"], np.broadcast_to(base, (50, 3)), rtol=1e-6)
+
+
+def test_emission_adds_and_shadow_blocks(space_cache):
+    space = space_cache("torus")
+    g = space.geometry
+    V, F = square(0.3, 0.4)
+    blocker_V, blocker_F = square(0.15, 0.05)  # between the light and the wall's centre
+    scene = Scene(objects=[SceneObject("wall", V, F, (1, 1, 1), emission=(0.1, 0.2, 0.3)),
+                           SceneObject("blocker", blocker_V + [0, 0.2, 0.2], blocker_F, (1, 1, 1))],
+                  lights=[PointLight(np.array([0.0, 0.2, 0.2]), np.ones(3), 1.0)])
+    tracer = render.make_tracer(space, scene)
+    # ray to the wall point straight behind the blocker (seen from the light) and one beside it
+    targets = np.array([[0.3, 0.2, 0.2], [0.3, -0.2, -0.2]])
+    # the first ray passes below the blocker to reach the wall
+    p = np.array([[0.0, 0.2, -0.1], [0.0, -0.2, -0.2]])
+    P, D = model_rays(g, p, targets - p)
+    out = tracer.trace(P, D, 5.0, 40, shade=True)
+    assert list(out["object"]) == [0, 0]
+    np.testing.assert_allclose(out["color"][0], [0.1, 0.2, 0.3], rtol=1e-6)  # shadowed: emission only
+    r = np.linalg.norm(targets[1] - [0.0, 0.2, 0.2])
+    cos = 0.3 / r
+    np.testing.assert_allclose(out["color"][1], np.array([0.1, 0.2, 0.3]) + cos / r**2, rtol=2e-5)
+
+
+# --- render() ---------------------------------------------------------------------------------------------
+def test_render_sizes_passes_and_quality(space_cache):
+    space = space_cache("torus")
+    scene = default_scene(space)
+    for projection, (w, h) in (("perspective", (24, 13)), ("equirect", (32, 16))):
+        res = render.render(space, scene, render.Settings(width=w, height=h, projection=projection, quality="draft"))
+        p = res.passes
+        assert set(p) == set(render.PASSES)
+        assert p["color"].shape == (h, w, 3) and p["color"].dtype == np.float32
+        assert p["depth"].shape == (h, w) and p["depth"].dtype == np.float64
+        assert p["normal"].shape == (h, w, 3) and p["position"].shape == (h, w, 3)
+        assert p["object"].shape == (h, w) and p["object"].dtype == np.int32
+        assert p["crossings"].shape == (h, w) and p["stop"].shape == (h, w)
+        assert res.stats["rays"] == w * h and res.stats["samples_per_pixel"] == 1
+        assert np.all(np.isfinite(p["color"]))
+        assert "rays" in res.summary()
+    res = render.render(space, scene, render.Settings(width=8, height=6, quality="standard"))
+    assert res.stats["samples_per_pixel"] == 4 and res.stats["rays"] == 4 * 48
+
+
+def test_render_depth_is_the_camera_ray_depth(space_cache):
+    """Pixel (i, j) of a perspective render is the geodesic along the pinhole direction."""
+    space = space_cache("torus")
+    g = space.geometry
+    V, F, centre, sag = ball_mesh(g, [0, 1, 0], 0.0, 0.2)
+    scene = sphere_scene(V + [0, 0.3, 0], F)
+    W, H = 21, 11
+    cam = Camera(np.array([0.0, -0.2, 0.0]), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), 60.0)
+    res = render.render(space, scene, render.Settings(width=W, height=H, quality="draft", max_distance=3.0), camera=cam)
+    depth = res.passes["depth"]
+    t = math.tan(math.radians(30))
+    for i, j in ((5, 10), (3, 12), (7, 8)):
+        sx = (2 * (j + 0.5) / W - 1) * t
+        sy = (1 - 2 * (i + 0.5) / H) * t * H / W
+        d = np.array([sx, 1.0, sy])  # right = forward x up = +x
+        d /= np.linalg.norm(d)
+        P, D = model_rays(g, cam.position[None, :], d[None, :])
+        tt, cos = first_entry(g, P, D, np.array([[0, 0.3, 0, 1.0]]), 0.2)
+        assert cos[0] > 0.3
+        assert abs(depth[i, j] - tt[0]) < 2 * sag / cos[0] + 1e-6
+
+
+def test_camera_outside_domain_is_brought_inside(space_cache):
+    space = space_cache("torus")
+    scene = default_scene(space)
+    settings = render.Settings(width=24, height=12, quality="draft")
+    f, u = np.array([0.3, 1.0, 0.1]), np.array([0.0, 0.0, 1.0])
+    a = render.render(space, scene, settings, camera=Camera(np.array([1.1, 0.0, 0.0]), f, u))
+    b = render.render(space, scene, settings, camera=Camera(np.array([0.1, 0.0, 0.0]), f, u))
+    np.testing.assert_array_equal(a.passes["object"], b.passes["object"])
+    np.testing.assert_allclose(a.passes["depth"], b.passes["depth"], rtol=1e-9)
+
+
+def test_camera_outside_twisted_domain(space_cache):
+    """quarter_turn: the camera outside is carried in by the pairing, its frame turned with it."""
+    space = space_cache("quarter_turn")
+    g = space.geometry
+    scene = default_scene(space)
+    settings = render.Settings(width=24, height=12, quality="draft")
+    p, f, u = np.array([0.1, 0.2, 0.9]), np.array([0.3, 1.0, 0.1]), np.array([0.0, 0.0, 1.0])
+    X, _, M = space.bring_inside(g.to_model(p))
+    assert not np.allclose(M[:3, :3], np.eye(3))  # the pairing used turns the frame
+    inside = Camera(g.to_chart(X), M[:3, :3] @ f, M[:3, :3] @ u)
+    a = render.render(space, scene, settings, camera=Camera(p, f, u))
+    b = render.render(space, scene, settings, camera=inside)
+    np.testing.assert_array_equal(a.passes["object"], b.passes["object"])
+    np.testing.assert_allclose(a.passes["depth"], b.passes["depth"], rtol=1e-9)
+
+
+def test_camera_not_a_point_raises(space_cache):
+    space = space_cache("seifert_weber")
+    cam = Camera(np.array([2.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]))
+    with pytest.raises(render.RenderError, match="camera"):
+        render.render(space, Scene(), render.Settings(width=4, height=4, quality="draft"), camera=cam)
+
+
+def test_render_cancel(space_cache):
+    space = space_cache("torus")
+    calls = []
+
+    def progress(done, total):
+        calls.append((done, total))
+        return False
+
+    with pytest.raises(render.Cancelled):
+        render.render(space, default_scene(space), render.Settings(width=64, height=32, quality="draft"), progress=progress)
+    assert calls
+
+
+def test_bad_settings_raise(space_cache):
+    space = space_cache("torus")
+    for kw in (dict(width=0), dict(projection="fisheye"), dict(quality="ultra"), dict(shading="toon"),
+               dict(max_distance=float("nan")), dict(max_crossings=-1)):
+        with pytest.raises(render.RenderError):
+            render.render(space, Scene(), render.Settings(**{"width": 4, "height": 4, **kw}))
