@@ -774,3 +774,47 @@ def test_dodecahedron_glued_by_pure_translations_fails_quickly(tmp_path):
                           env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"})
     assert proc.returncode == 3, proc.stdout + proc.stderr
     assert str(path) in proc.stdout
+
+
+@pytest.mark.parametrize("entry", [
+    pytest.param('"(-1)**0.5"', marks=pytest.mark.xfail(strict=True, reason=(
+        "spaces.evaluate: a negative base to a fractional power gives a complex number; "
+        "math.isfinite(complex) raises TypeError, which escapes instead of SpaceError"))),
+    pytest.param('"' + "+".join(["1"] * 5000) + '"', marks=pytest.mark.xfail(strict=True, reason=(
+        "spaces.evaluate: ast.parse of a very long expression raises RecursionError, "
+        "which is not caught and escapes instead of SpaceError"))),
+])
+def test_pathological_matrix_entries_raise_space_error(tmp_path, entry):
+    expect_error(write(tmp_path, BOX_TORUS.replace('"sqrt(4)/2"', entry)), "cannot evaluate")
+
+
+QUATERNION_SPACE = """
+name = "Quaternionic space S3/Q8"
+geometry = "S3"
+# left multiplications by the unit quaternions i and j, coordinates (x, y, z, w) of w + x i + y j + z k
+[[generator]]
+matrix = [[0, 0, 0, 1], [0, 0, -1, 0], [0, 1, 0, 0], [-1, 0, 0, 0]]
+[[generator]]
+matrix = [[0, 0, 1, 0], [0, 0, 0, 1], [-1, 0, 0, 0], [0, -1, 0, 0]]
+"""
+
+
+def test_quaternion_generators_are_orthogonal_and_generate_q8():
+    gens = [np.array(m, float) for m in ([[0, 0, 0, 1], [0, 0, -1, 0], [0, 1, 0, 0], [-1, 0, 0, 0]],
+                                         [[0, 0, 1, 0], [0, 0, 0, 1], [-1, 0, 0, 0], [0, -1, 0, 0]])]
+    for g in gens:
+        np.testing.assert_allclose(g.T @ g, np.eye(4))
+    group = close_group(gens)
+    assert sorted(order(M) for M in group) == [1, 2, 4, 4, 4, 4, 4, 4]
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "ProjectiveGeometry.is_isometry demands M[3,3] > 0 in S3 too, so orthogonal generators that move the "
+    "origin by pi/2 or more (here i and j, M[3,3] = 0) are rejected as 'not an isometry of S3'"))
+def test_quaternionic_space_loads(tmp_path):
+    s = spaces.load(write(tmp_path, QUATERNION_SPACE, "quaternionic.toml"))
+    assert s.group_order == 8
+    corners = {(x, y, z) for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)}
+    assert {tuple(np.round(v, 12) + 0.0) for v in s.domain.vertices} == corners
+    assert s.volume == pytest.approx(2 * math.pi ** 2 / 8, abs=1e-9)
+    assert tetra_volume_integral(s, 16) == pytest.approx(2 * math.pi ** 2 / 8, abs=1e-6)
