@@ -60,10 +60,12 @@ def evaluate(value, where: str) -> float:
 
     try:
         result = ev(ast.parse(value, mode="eval"))
-    except (SyntaxError, ZeroDivisionError, ValueError, OverflowError) as exc:
+    except SpaceError:
+        raise
+    except (SyntaxError, ZeroDivisionError, ValueError, OverflowError, TypeError, RecursionError, MemoryError) as exc:
         raise SpaceError(f"{where}: cannot evaluate {value!r}: {exc}") from None
-    if not math.isfinite(result):
-        raise SpaceError(f"{where}: {value!r} is not finite")
+    if not isinstance(result, float) or not math.isfinite(result):
+        raise SpaceError(f"{where}: cannot evaluate {value!r}: not a finite real number")
     return result
 
 
@@ -470,6 +472,9 @@ class Space:
         Returns (X, V, M) with M the accumulated isometry; raises SpaceError if it cannot."""
         g = self.geometry
         X = np.asarray(X, float)
+        x = g.to_chart(X)
+        if not (np.all(np.isfinite(X)) and g.in_chart(x)):
+            raise SpaceError(f"the point {x} is not a point of {g.name}; it cannot be brought into the domain of {self.id!r}")
         M = np.eye(4)
         C = self.domain.covectors()
         for _ in range(max_steps):

@@ -133,11 +133,15 @@ class ProjectiveGeometry:
     # --- isometries ------------------------------------------------------------------------
     def is_isometry(self, M, tol=1e-9):
         M = np.asarray(M, float)
+        if M.shape != (4, 4) or not np.all(np.isfinite(M)):
+            return False
         if self.curvature == 0:
             R = M[:3, :3]
             return bool(np.allclose(M[3], [0, 0, 0, 1], atol=tol) and np.allclose(R.T @ R, np.eye(3), atol=tol))
         J = np.diag(self.form)
-        return bool(np.allclose(M.T @ J @ M, J, atol=tol * max(1.0, np.abs(M).max() ** 2)) and M[3, 3] > 0)
+        ok = np.allclose(M.T @ J @ M, J, atol=tol * max(1.0, np.abs(M).max() ** 2))
+        # H3: the isometries are the maps that keep the upper sheet of the hyperboloid
+        return bool(ok and (self.curvature > 0 or M[3, 3] > 0))
 
     def rotation(self, axis, angle):
         """Rotation by `angle` (right-handed) about the geodesic through the origin along `axis`."""
@@ -161,23 +165,35 @@ class ProjectiveGeometry:
         M[3, 3] = c
         return M
 
+    def translation_to(self, Q):
+        """The translation along the geodesic from the origin that takes it to the model point Q,
+        built from Q's coordinates directly (cos/cosh d = Q[3], sin/sinh d n = Q[:3])."""
+        M = np.eye(4)
+        r = np.linalg.norm(Q[:3])
+        n = Q[:3] / r if r > 0 else np.zeros(3)
+        M[:3, :3] += (Q[3] - 1.0) * np.outer(n, n)
+        M[:3, 3] = Q[:3]
+        M[3, :3] = -self.curvature * Q[:3]
+        M[3, 3] = Q[3]
+        return M
+
     def reorthonormalize(self, M):
-        """Nearest isometry to an almost-isometry M (removes accumulated rounding)."""
+        """Nearest isometry to an almost-isometry M (removes accumulated rounding). M is split into
+        the translation taking the origin to M's image of it, computed exactly, and a rotation about
+        the origin, repaired by SVD; Gram-Schmidt on large Lorentz matrices would lose digits."""
         M = np.array(M, float)
         if self.curvature == 0:
             U, _, Vt = np.linalg.svd(M[:3, :3])
             M[:3, :3] = U @ Vt
             M[3] = [0, 0, 0, 1]
             return M
-        # Gram-Schmidt in the ambient form, starting from the image of the origin (column 3)
-        cols = [None] * 4
-        order = [3, 0, 1, 2]
-        for i in order:
-            v = M[:, i].copy()
-            for j in order[: order.index(i)]:
-                v -= self.inner(v, cols[j]) / self.inner(cols[j], cols[j]) * cols[j]
-            cols[i] = v / np.sqrt(abs(self.inner(v, v)))
-        return np.stack(cols, axis=1)
+        T = self.translation_to(self.normalize_point(M[:, 3]))
+        J = np.diag(self.form)
+        R = (J @ T.T @ J) @ M  # T^-1 M, nearly a rotation about the origin
+        U, _, Vt = np.linalg.svd(R[:3, :3])
+        R = np.eye(4)
+        R[:3, :3] = U @ Vt
+        return T @ R
 
     def transform_points(self, M, x):
         """Apply an isometry to chart points."""
