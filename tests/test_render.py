@@ -470,3 +470,51 @@ def test_bad_settings_raise(space_cache):
                dict(max_distance=float("nan")), dict(max_crossings=-1)):
         with pytest.raises(render.RenderError):
             render.render(space, Scene(), render.Settings(**{"width": 4, "height": 4, **kw}))
+
+
+def test_projection_orientation_and_fog(space_cache):
+    """Perspective and equirect: an object to the camera's right shows right of centre, one above
+    shows in the top rows (rows run top-down); fog scales colour by exp(-depth / fog)."""
+    space = space_cache("torus")
+    g = space.geometry
+
+    def box(c, s=0.1):
+        m = trimesh.creation.box(extents=[s] * 3)
+        return SceneObject(f"box {c}", m.vertices + c, m.faces, (0, 0, 0), emission=(0.2, 0.4, 0.8))
+
+    # camera looks along +y with up +z: right is +x
+    scene = Scene(objects=[box([0.3, 0.1, 0.0]), box([0.0, 0.1, 0.3]), box([0.0, 0.3, 0.0])])
+    cam = Camera(np.zeros(3), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), 150.0)
+    W, H = 41, 41
+    common = dict(width=W, height=H, quality="draft", max_distance=0.45)
+    res = render.render(space, scene, render.Settings(**common), camera=cam)
+    obj = res.passes["object"]
+    assert obj[20, 20] == 2  # ahead
+    assert obj[20, 36] == 0 and obj[20, 4] == -1  # right, not left
+    assert obj[4, 20] == 1 and obj[36, 20] == -1  # up in the top rows
+    W, H = 64, 32
+    scene = Scene(objects=[box([0.3, 0.0, 0.0]), box([0.0, 0.0, 0.3]), box([0.0, 0.3, 0.0])])
+    res = render.render(space, scene, render.Settings(**{**common, "width": W, "height": H, "projection": "equirect"}), camera=cam)
+    obj = res.passes["object"]
+    assert obj[16, 32] == 2  # longitude 0 (column centre) is forward
+    assert obj[16, 48] == 0  # longitude +90 degrees: right
+    assert obj[0, 5] == 1 and obj[0, 60] == 1  # the top row looks straight up
+    assert obj[16, 16] == -1 and obj[31, 30] == -1
+    # fog
+    plain = render.render(space, scene, render.Settings(**{**common, "width": 9, "height": 9}), camera=cam)
+    foggy = render.render(space, scene, render.Settings(**{**common, "width": 9, "height": 9, "fog": 0.5}), camera=cam)
+    d = plain.passes["depth"][4, 4]
+    assert d == pytest.approx(0.25, abs=1e-6)
+    np.testing.assert_allclose(plain.passes["color"][4, 4], [0.2, 0.4, 0.8], rtol=1e-6)
+    np.testing.assert_allclose(foggy.passes["color"][4, 4], np.array([0.2, 0.4, 0.8]) * math.exp(-d / 0.5), rtol=1e-5)
+
+
+def test_camera_several_cells_away(space_cache):
+    space = space_cache("torus")
+    scene = default_scene(space)
+    settings = render.Settings(width=16, height=8, quality="draft")
+    f, u = np.array([0.3, 1.0, 0.1]), np.array([0.0, 0.0, 1.0])
+    a = render.render(space, scene, settings, camera=Camera(np.array([3.1, -2.2, 5.05]), f, u))
+    b = render.render(space, scene, settings, camera=Camera(np.array([0.1, -0.2, 0.05]), f, u))
+    np.testing.assert_array_equal(a.passes["object"], b.passes["object"])
+    np.testing.assert_allclose(a.passes["depth"], b.passes["depth"], rtol=1e-9)
