@@ -355,3 +355,27 @@ def test_argument_errors_exit_2(argv, capsys):
     assert info.value.code == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and err.strip()
+
+
+@pytest.mark.parametrize("option", [["--max-distance", "-1"], ["--max-distance", "0"], ["--max-crossings", "-3"]])
+def test_render_bad_limits_exit_2(tmp_path, capsys, option):
+    code, _, err = run(["render", "--space", "torus", "--size", "4x4", "--out", tmp_path / "x.png", *option], capsys)
+    assert code == 2
+    assert "max" in error_line(err)
+
+
+@pytest.mark.xfail(strict=True, reason="cli.cmd_trace does not check --max-distance / --max-crossings: negative or "
+                   "NaN values reach Tracer.trace, whose ValueError escapes main() as a traceback (exit 1), and "
+                   "--max-distance 0 is silently replaced by the space's default (`args.max_distance or ...`)")
+@pytest.mark.parametrize("option", [["--max-distance", "-1"], ["--max-distance", "nan"], ["--max-distance", "0"],
+                                    ["--max-crossings", "-3"]])
+def test_trace_bad_limits_exit_2(tmp_path, capsys, option):
+    np.save(tmp_path / "rays.npy", np.array([[0, 0, 0, 1, 0, 0.0]]))
+    try:
+        code, _, err = run(["trace", "--space", "torus", "--rays", tmp_path / "rays.npy", "--out", tmp_path / "h.npz",
+                            *option], capsys)
+    except ValueError:
+        code, err = 1, ""
+    assert code == 2
+    assert "max" in error_line(err)
+    assert not (tmp_path / "h.npz").exists()
