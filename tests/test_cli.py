@@ -364,9 +364,6 @@ def test_render_bad_limits_exit_2(tmp_path, capsys, option):
     assert "max" in error_line(err)
 
 
-@pytest.mark.xfail(strict=True, reason="cli.cmd_trace does not check --max-distance / --max-crossings: negative or "
-                   "NaN values reach Tracer.trace, whose ValueError escapes main() as a traceback (exit 1), and "
-                   "--max-distance 0 is silently replaced by the space's default (`args.max_distance or ...`)")
 @pytest.mark.parametrize("option", [["--max-distance", "-1"], ["--max-distance", "nan"], ["--max-distance", "0"],
                                     ["--max-crossings", "-3"]])
 def test_trace_bad_limits_exit_2(tmp_path, capsys, option):

@@ -143,8 +143,6 @@ def test_glb_nodes_materials(tmp_path):
     np.testing.assert_allclose(by_name["second"].vertices.mean(axis=0), [0, 0, 0.25], atol=1e-6)
 
 
-@pytest.mark.xfail(strict=True, reason="scene._trimesh_objects numbers glTF nodes in the order of "
-                   "trimesh's graph.nodes_geometry (reversed), not in the file's order")
 def test_glb_nodes_in_file_order(tmp_path):
     objs = load_mesh_file(glb_scene(tmp_path, ["zeta", "alpha", "mid"]))
     assert [o.name for o in objs] == ["zeta", "alpha", "mid"]
@@ -388,8 +386,6 @@ def test_default_scene_copies_in_compiled_scene():
     assert len(compiled["light_lifts"]) > 1
 
 
-@pytest.mark.xfail(strict=True, reason="scene.load_scene_file/primitive convert with bare float()/int() and index "
-                   "without type checks: wrong-typed values raise ValueError/TypeError, not SceneError naming the file")
 @pytest.mark.parametrize("body, pattern", [
     ('[[light]]\nposition = [0, 0, 0]\npower = "bright"\n', "light 0.*power"),
     ('[camera]\nfov = "wide"\n', "camera.*fov"),

@@ -114,7 +114,7 @@ def compile_scene(space: Space, scene: Scene):
         L = g.to_model(light.position)
         for M in elements:
             Y = M @ L
-            lifts.append(Y if g.curvature == 0 else Y * np.sign(Y[3]))
+            lifts.append(Y)
             of_lift.append(i)
         radiance.append(np.asarray(light.color, float) * light.power)
     return dict(

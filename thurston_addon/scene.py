@@ -156,7 +156,8 @@ def _trimesh_objects(path: Path) -> list[SceneObject]:
 
     loaded = trimesh.load(str(path), force="scene", process=False)
     out = []
-    for node in loaded.graph.nodes_geometry:
+    order = _gltf_node_order(path)
+    for node in sorted(loaded.graph.nodes_geometry, key=lambda n: order.get(n, len(order))):
         transform, geom_name = loaded.graph[node]
         mesh = loaded.geometry[geom_name]
         if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
@@ -165,6 +166,21 @@ def _trimesh_objects(path: Path) -> list[SceneObject]:
         color, emission = _trimesh_material(mesh)
         out.append(SceneObject(str(node), V, np.asarray(mesh.faces), color, emission))
     return out
+
+
+def _gltf_node_order(path: Path) -> dict[str, int]:
+    """Node name -> index in a glTF/GLB file's node list (trimesh's scene graph loses that order)."""
+    import json
+    import struct
+
+    if path.suffix.lower() not in (".glb", ".gltf"):
+        return {}
+    data = path.read_bytes()
+    if data[:4] == b"glTF":  # binary: 12-byte header, then the JSON chunk (length, type, data)
+        length = struct.unpack_from("<I", data, 12)[0]
+        data = data[20:20 + length]
+    nodes = json.loads(data.decode("utf-8")).get("nodes", [])
+    return {str(n.get("name", i)): i for i, n in enumerate(nodes)}
 
 
 def _trimesh_material(mesh):
@@ -215,6 +231,13 @@ def _vec(value, where, n=3):
     return v
 
 
+def _number(spec: dict, key: str, default: float, where: str) -> float:
+    value = spec.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise SceneError(f"{where}: {key} must be a finite number, got {value!r}")
+    return float(value)
+
+
 def load_scene_file(path: str | Path) -> Scene:
     """A mesh file, or a TOML scene file:
 
@@ -242,10 +265,21 @@ def load_scene_file(path: str | Path) -> Scene:
         raise SceneError(f"scene file {str(path)!r} does not exist") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise SceneError(f"cannot read scene file {str(path)!r}: {exc}") from None
+    try:
+        return _scene_from_toml(data, path)
+    except (TypeError, ValueError, AttributeError) as exc:
+        if isinstance(exc, SceneError):
+            raise
+        raise SceneError(f"{path}: a value has the wrong type: {exc}") from None
+
+
+def _scene_from_toml(data: dict, path: Path) -> Scene:
     scene = Scene()
     for i, spec in enumerate(data.get("object", [])):
         where = f"{path}: object {i}"
         if "file" in spec:
+            if not isinstance(spec["file"], str):
+                raise SceneError(f"{where}: file must be a path string, got {spec['file']!r}")
             objs = load_mesh_file(path.parent / spec["file"])
         elif "primitive" in spec:
             objs = [primitive(spec, where)]
@@ -262,7 +296,7 @@ def load_scene_file(path: str | Path) -> Scene:
         scene.lights.append(PointLight(
             _vec(spec.get("position"), f"{where}: position"),
             _vec(spec.get("color", [1, 1, 1]), f"{where}: color"),
-            float(spec.get("power", 1.0)),
+            _number(spec, "power", 1.0, where),
         ))
     if "camera" in data:
         c = data["camera"]
@@ -270,7 +304,7 @@ def load_scene_file(path: str | Path) -> Scene:
             _vec(c.get("position", [0, 0, 0]), f"{path}: camera.position"),
             _vec(c.get("forward", [0, 1, 0]), f"{path}: camera.forward"),
             _vec(c.get("up", [0, 0, 1]), f"{path}: camera.up"),
-            float(c.get("fov", 90.0)),
+            _number(c, "fov", 90.0, f"{path}: camera"),
         )
     return scene
 
@@ -281,11 +315,11 @@ def primitive(spec: dict, where: str) -> SceneObject:
     kind = spec["primitive"]
     center = _vec(spec.get("center", [0, 0, 0]), f"{where}: center")
     if kind == "sphere":
-        mesh = trimesh.creation.icosphere(subdivisions=int(spec.get("subdivisions", 3)), radius=float(spec.get("radius", 0.1)))
+        mesh = trimesh.creation.icosphere(subdivisions=int(_number(spec, "subdivisions", 3, where)), radius=_number(spec, "radius", 0.1, where))
     elif kind == "box":
         mesh = trimesh.creation.box(extents=_vec(spec.get("size", [0.2, 0.2, 0.2]), f"{where}: size"))
     elif kind == "torus":
-        mesh = trimesh.creation.torus(major_radius=float(spec.get("radius", 0.15)), minor_radius=float(spec.get("tube", 0.05)))
+        mesh = trimesh.creation.torus(major_radius=_number(spec, "radius", 0.15, where), minor_radius=_number(spec, "tube", 0.05, where))
     else:
         raise SceneError(f"{where}: unknown primitive {kind!r} (sphere, box, torus)")
     obj = SceneObject(str(spec.get("name", kind)), mesh.vertices + center, mesh.faces,
