@@ -14,25 +14,15 @@ from scipy.integrate import quad, solve_ivp
 from scipy.optimize import brentq
 
 from thurston_addon import geometries
+from truth import AMBIENT, chart_metric
 
 NAMES = ["E3", "S3", "H3"]
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
-AMBIENT = {"E3": np.diag([1.0, 1.0, 1.0, 0.0]), "S3": np.eye(4), "H3": np.diag([1.0, 1.0, 1.0, -1.0])}
 SIGN = {"E3": 0, "S3": 1, "H3": -1}
 
 
 # --- the chart metrics, written from the textbook formulas ---------------------------------------
 
-def chart_metric(name, x):
-    x = np.asarray(x, float)
-    r2 = x @ x
-    if name == "E3":
-        return np.eye(3)
-    if name == "S3":
-        return np.eye(3) / (1 + r2) - np.outer(x, x) / (1 + r2) ** 2
-    if name == "H3":
-        return np.eye(3) / (1 - r2) + np.outer(x, x) / (1 - r2) ** 2
-    raise ValueError(name)
 
 
 def chart_metric_derivative(name, x):

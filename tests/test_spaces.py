@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from thurston_addon import spaces
+from truth import AMBIENT, chart_metric
 
 PRESETS = ["torus", "half_turn", "quarter_turn", "third_turn", "sixth_turn", "hantzsche_wendt", "poincare", "seifert_weber"]
 FLAT = PRESETS[:6]
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
-AMBIENT = {"E3": np.diag([1.0, 1.0, 1.0, 0.0]), "S3": np.eye(4), "H3": np.diag([1.0, 1.0, 1.0, -1.0])}
 SIGN = {"E3": 0, "S3": 1, "H3": -1}
 PHI = (1 + math.sqrt(5)) / 2
 REPO = Path(__file__).resolve().parents[1]
@@ -35,14 +35,6 @@ def space(request):
 
 # --- independent helpers ---------------------------------------------------------------------------
 
-def chart_metric(name, x):
-    x = np.asarray(x, float)
-    r2 = x @ x
-    if name == "E3":
-        return np.eye(3)
-    if name == "S3":
-        return np.eye(3) / (1 + r2) - np.outer(x, x) / (1 + r2) ** 2
-    return np.eye(3) / (1 - r2) + np.outer(x, x) / (1 - r2) ** 2
 
 
 def volume_density(name, x):

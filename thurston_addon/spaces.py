@@ -198,26 +198,31 @@ class Space:
             steps = [*self.generators, *(np.linalg.inv(s) for s in self.generators)]
             horizon = radius + max(g.distance(O, s[:, 3]) for s in steps)
             reaches = lambda M: g.distance(O, M[:, 3]) <= horizon + 1e-9
-        found = {self._key(np.eye(4)): np.eye(4)}
-        frontier = [np.eye(4)]
+        found = self._search([np.eye(4)], steps, reaches, f"near the ball of radius {radius:.3g}")
+        self._elements = sorted(found, key=lambda M: g.distance(O, M[:, 3]))
+        self._radius = radius
+
+    def _search(self, start, steps, accept, what: str) -> list[np.ndarray]:
+        """Breadth-first closure of `start` under right multiplication by `steps`, keeping the
+        elements that `accept`."""
+        g = self.geometry
+        found = {self._key(M): M for M in start}
+        frontier = list(start)
         while frontier:
             nxt = []
             for M in frontier:
                 for s in steps:
                     N = g.reorthonormalize(M @ s)
                     key = self._key(N)
-                    if key in found or not reaches(N):
+                    if key in found or not accept(N):
                         continue
                     found[key] = N
                     nxt.append(N)
                     if len(found) > _GROUP_LIMIT:
-                        raise SpaceError(
-                            f"{self.source}: more than {_GROUP_LIMIT} group elements near the ball of radius {radius:.3g}; "
-                            "the generators do not give a discrete group with a small domain"
-                        )
+                        raise SpaceError(f"{self.source}: more than {_GROUP_LIMIT} group elements {what}; "
+                                         "the generators do not give a discrete group with a small domain")
             frontier = nxt
-        self._elements = sorted(found.values(), key=lambda M: g.distance(O, M[:, 3]))
-        self._radius = radius
+        return list(found.values())
 
     def neighbourhood(self, levels: int = 1) -> list[np.ndarray]:
         """Elements h whose copies hD surround D: level 1 are the copies that share at least a vertex
@@ -232,23 +237,12 @@ class Space:
         inner = self.neighbourhood(levels - 1)
         corners = np.array([M @ X for M in inner for X in g.to_model(self.domain.vertices)])
         steps = [f.element for f in self.domain.faces]
-        found = {self._key(M): M for M in inner}
-        frontier = list(inner)
-        while frontier:
-            nxt = []
-            for M in frontier:
-                for s in steps:
-                    N = g.reorthonormalize(M @ s)
-                    key = self._key(N)
-                    if key in found:
-                        continue
-                    back = g.normalize_point(np.linalg.solve(N, corners.T).T)
-                    if not np.any(np.max(self.face_distances(back), axis=-1) <= 1e-9):
-                        continue
-                    found[key] = N
-                    nxt.append(N)
-            frontier = nxt
-        cached[levels] = list(found.values())
+
+        def touches(N):
+            back = g.normalize_point(np.linalg.solve(N, corners.T).T)
+            return bool(np.any(np.max(self.face_distances(back), axis=-1) <= 1e-9))
+
+        cached[levels] = self._search(inner, steps, touches, f"around the domain at level {levels}")
         return cached[levels]
 
     def face_distances(self, X):
