@@ -107,7 +107,7 @@ bool normalise_point(const Space& space, Vec4& X) {
     if (!(q > 0.0)) return false;
     s = std::copysign(1.0 / std::sqrt(q), X[3]);
   }
-  X = lin4(s, X, 0.0, X);
+  X = scaled(s, X);
   return finite4(X);
 }
 

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstddef>
 #include <limits>
 
 namespace thurston {
@@ -28,8 +29,16 @@ inline Vec3 cross3(const Vec3& a, const Vec3& b) {
 inline Vec4 lin4(double s, const Vec4& a, double t, const Vec4& b) {
   return {s * a[0] + t * b[0], s * a[1] + t * b[1], s * a[2] + t * b[2], s * a[3] + t * b[3]};
 }
+inline Vec4 scaled(double s, const Vec4& a) { return {s * a[0], s * a[1], s * a[2], s * a[3]}; }
 inline bool finite4(const Vec4& a) {
   return std::isfinite(a[0]) && std::isfinite(a[1]) && std::isfinite(a[2]) && std::isfinite(a[3]);
+}
+
+// 1 / sqrt(q) for q > 0. Within rounding of 1, the usual case after an isometry, one Newton step
+// from 1 is as exact (error 3/8 (q - 1)^2) and avoids a slow square root and division.
+inline double inverse_sqrt(double q) {
+  const double e = q - 1.0;
+  return std::abs(e) < 1e-8 ? 1.0 - 0.5 * e : 1.0 / std::sqrt(q);
 }
 
 // Curvature k in {+1, 0, -1} fixes the model: S3 (unit sphere in R^4), E3 (w = 1 affine space),
@@ -43,65 +52,99 @@ struct Space {
     return k == 0 ? s : k > 0 ? s + a[3] * b[3] : s - a[3] * b[3];
   }
 
-  // Unit-speed geodesic X(t) from P with velocity V, and its velocity X'(t).
-  Vec4 point(const Vec4& P, const Vec4& V, double t) const {
-    if (k == 0) return lin4(1.0, P, t, V);
-    if (k > 0) return lin4(std::cos(t), P, std::sin(t), V);
-    return lin4(std::cosh(t), P, std::sinh(t), V);
+  // A geodesic parameter t with the coefficients of X(t) = c P + s V: (cos t, sin t) in S3,
+  // (cosh t, sinh t) in H3, (1, t) in E3.
+  struct Turn {
+    double t, c, s;
+  };
+  Turn turn(double t) const {
+    if (k == 0) return {t, 1.0, t};
+    if (k > 0) return {t, std::cos(t), std::sin(t)};
+    return {t, std::cosh(t), std::sinh(t)};
   }
-  Vec4 velocity(const Vec4& P, const Vec4& V, double t) const {
-    if (k == 0) return V;
-    if (k > 0) return lin4(-std::sin(t), P, std::cos(t), V);
-    return lin4(std::sinh(t), P, std::cosh(t), V);
+
+  // Point X(t) and velocity X'(t) of the unit-speed geodesic from P with velocity V.
+  void advance(const Vec4& P, const Vec4& V, const Turn& u, Vec4& X, Vec4& Xv) const {
+    X = lin4(u.c, P, u.s, V);
+    Xv = k == 0 ? V : lin4(k > 0 ? -u.s : u.s, P, u.c, V);
   }
 
   static Vec3 chart(const Vec4& X) { return {X[0] / X[3], X[1] / X[3], X[2] / X[3]}; }
-
-  // Chart point of X(t); in H3 the projectively equal P + tanh(t) V never overflows.
-  Vec3 chart_at(const Vec4& P, const Vec4& V, double t) const {
-    return chart(k < 0 ? lin4(1.0, P, std::tanh(t), V) : point(P, V, t));
-  }
 
   Vec4 model(const Vec3& x) const {
     const Vec4 Y{x[0], x[1], x[2], 1.0};
     if (k == 0) return Y;
     const double q = dot3(x, x);
     const double s = k > 0 ? 1.0 / std::sqrt(1.0 + q) : 1.0 / std::sqrt(std::max(1.0 - q, 1e-300));
-    return lin4(s, Y, 0.0, Y);
+    return scaled(s, Y);
   }
 
-  // First t >= 0 at which c . X(t) crosses zero upwards (leaves the half-space c . X <= 0), given
-  // a = c . P and b = c . V. A point already (numerically) outside and heading out leaves at t = 0,
-  // which is what carries rays across edges and vertices without leaking.
-  double exit_time(double a, double b) const {
-    if (k == 0) return b > 0.0 ? std::max(0.0, -a / b) : kInf;
-    if (k > 0) {
-      if (a == 0.0 && b == 0.0) return kInf;  // the whole great circle lies in the face plane
-      const double t = std::atan2(-a, b);
-      return t >= 0.0 ? t : t < -0.5 * kPi ? t + 2.0 * kPi : 0.0;
+  // The exit from the half-space c . X <= 0: the first t >= 0 at which c . X(t) crosses zero
+  // upwards, given a = c . P and b = c . V. A point already (numerically) outside and heading out
+  // leaves at t = 0, which is what carries rays across edges and vertices without leaking.
+  // exit_order is a cheap key ordered like t (inf where there is no exit), so that the exit search
+  // needs transcendental functions only for the winning face, in exit_turn. Written with selects
+  // rather than branches (the cases vary unpredictably from face to face) so that it vectorises.
+  double exit_order(double a, double b) const {
+    if (k == 0) {
+      const double t = std::max(0.0, -a / b);
+      return b > 0.0 ? t : kInf;
     }
-    if (a > 0.0) return b > 0.0 ? 0.0 : kInf;
-    return b + a > 0.0 ? 0.5 * std::log((b - a) / (b + a)) : kInf;
+    if (k > 0) {
+      // A pseudo-angle on [0, 3) of the direction (x, y) = (b, -a) of the zero, for exit angles
+      // in [0, 3 pi / 2) (quadrant + fraction); angles in [-pi / 2, 0) mean outside and leaving: 0.
+      const double x = b, y = -a, ax = std::abs(x), ay = std::abs(y);
+      const double quadrant = y >= 0.0 ? (x >= 0.0 ? 0.0 : 1.0) : 2.0;
+      const double key = quadrant + (((x < 0.0) & (y >= 0.0)) ? ax : ay) / (ax + ay);
+      const double leaving = ((y < 0.0) & (x >= 0.0)) ? 0.0 : key;
+      return ax + ay > 0.0 ? leaving : kInf;  // else the whole great circle lies in the face plane
+    }
+    // a cosh t + b sinh t = 0 at exp(2 t) = (b - a) / (b + a).
+    const double ratio = (b - a) / (b + a);
+    const double inside = b + a > 0.0 ? ratio : kInf;
+    const double outside = b > 0.0 ? 1.0 : kInf;
+    return a > 0.0 ? outside : inside;
+  }
+  void exit_orders(const double* a, const double* b, double* order, std::size_t n) const {
+    // One loop per curvature, so that each is a straight-line body.
+    if (k == 0)
+      for (std::size_t j = 0; j < n; ++j) order[j] = Space{0}.exit_order(a[j], b[j]);
+    else if (k > 0)
+      for (std::size_t j = 0; j < n; ++j) order[j] = Space{1}.exit_order(a[j], b[j]);
+    else
+      for (std::size_t j = 0; j < n; ++j) order[j] = Space{-1}.exit_order(a[j], b[j]);
+  }
+  Turn exit_turn(double a, double b) const {  // requires a finite exit_order(a, b)
+    if (k == 0) return turn(std::max(0.0, -a / b));
+    if (k > 0) {
+      const double t = std::atan2(-a, b);
+      if (t < 0.0 && t >= -0.5 * kPi) return {0.0, 1.0, 0.0};
+      const double r = std::sqrt(a * a + b * b);
+      return {t < 0.0 ? t + 2.0 * kPi : t, b / r, -a / r};
+    }
+    if (a > 0.0) return {0.0, 1.0, 0.0};
+    const double r = std::sqrt((b - a) * (b + a));
+    return {0.5 * std::log((b - a) / (b + a)), b / r, -a / r};
   }
 
   // Project (P, V) back onto the model: P a point, V a unit tangent at P. False if degenerate.
   bool renormalise(Vec4& P, Vec4& V) const {
     if (k == 0) {
       if (P[3] == 0.0) return false;
-      P = lin4(1.0 / P[3], P, 0.0, P);
+      if (P[3] != 1.0) P = scaled(1.0 / P[3], P);
       V[3] = 0.0;
     } else if (k > 0) {
-      const double n = std::sqrt(dot4(P, P));
-      if (!(n > 0.0)) return false;
-      P = lin4(1.0 / n, P, 0.0, P);
+      const double q = dot4(P, P);
+      if (!(q > 0.0)) return false;
+      P = scaled(inverse_sqrt(q), P);
       V = lin4(1.0, V, -dot4(V, P), P);
     } else {
       const double q = -inner(P, P);
       if (!(q > 0.0)) return false;
       // (-P, -V) is the same chart ray on the upper sheet, where the domain's covectors apply.
-      const double s = std::copysign(1.0 / std::sqrt(q), P[3]);
-      P = lin4(s, P, 0.0, P);
-      V = lin4(s < 0.0 ? -1.0 : 1.0, V, 0.0, V);
+      const double s = std::copysign(inverse_sqrt(q), P[3]);
+      P = scaled(s, P);
+      V = scaled(s < 0.0 ? -1.0 : 1.0, V);
       V = lin4(1.0, V, inner(V, P), P);
     }
     return normalise(V) && finite4(P);
@@ -111,7 +154,7 @@ struct Space {
   bool normalise(Vec4& v) const {
     const double q = inner(v, v);
     if (!(q > 0.0) || !std::isfinite(q)) return false;
-    v = lin4(1.0 / std::sqrt(q), v, 0.0, v);
+    v = scaled(inverse_sqrt(q), v);
     return true;
   }
 

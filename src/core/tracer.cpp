@@ -14,7 +14,7 @@ constexpr std::chrono::milliseconds kPollInterval{100};
 constexpr double kH3Reach = 40.0;  // beyond this a Klein chart point is within e^-80 of the sphere
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
-Vec4 apply(const Mat4& M, const Vec4& x) {
+Vec4 mat_vec(const Mat4& M, const Vec4& x) {
   Vec4 y;
   for (int r = 0; r < 4; ++r)
     y[r] = M[4 * r] * x[0] + M[4 * r + 1] * x[1] + M[4 * r + 2] * x[2] + M[4 * r + 3] * x[3];
@@ -52,7 +52,6 @@ void check_device(RTCDevice device, const char* what) {
 
 Tracer::Tracer(SceneData scene, unsigned threads)
     : space_{scene.curvature},
-      face_covectors_(std::move(scene.face_covectors)),
       face_maps_(std::move(scene.face_maps)),
       vertices_(std::move(scene.vertices)),
       triangles_(std::move(scene.triangles)),
@@ -61,6 +60,8 @@ Tracer::Tracer(SceneData scene, unsigned threads)
       object_emission_(std::move(scene.object_emission)),
       light_radiance_(std::move(scene.light_radiance)),
       pool_(threads) {
+  for (const Vec4& c : scene.face_covectors)
+    for (int a = 0; a < 4; ++a) face_components_[a].push_back(c[a]);
   bounds_lo_ = {kInf, kInf, kInf};
   bounds_hi_ = {-kInf, -kInf, -kInf};
   triangle_planes_.reserve(triangles_.size());
@@ -134,22 +135,38 @@ Tracer::SceneHandle Tracer::build_scene(const std::vector<std::uint32_t>& triang
   return scene;
 }
 
-// The face through which the geodesic leaves the domain first (lowest index on ties).
+// The face through which the geodesic leaves the domain first (lowest index on ties). In S3 the
+// edge of the gnomonic chart's hemisphere X[3] > 0 competes as a pseudo-face (it loses ties): a
+// valid domain is left through a face before it, and chords must stop (just) short of it.
 Tracer::Exit Tracer::find_exit(const Vec4& P, const Vec4& V) const {
-  Exit exit{kInf, -1};
-  for (std::size_t f = 0; f < face_covectors_.size(); ++f) {
-    const double t = space_.exit_time(dot4(face_covectors_[f], P), dot4(face_covectors_[f], V));
-    if (t < exit.t) exit = {t, int(f)};
+  // Blocks of faces on the stack, each pass a simple loop that the compiler vectorises.
+  constexpr std::size_t kBlock = 16;
+  const std::size_t faces = face_components_[0].size();
+  const double *c0 = face_components_[0].data(), *c1 = face_components_[1].data(),
+               *c2 = face_components_[2].data(), *c3 = face_components_[3].data();
+  double best = kInf, best_a = 0.0, best_b = 0.0;
+  int face = -1;
+  for (std::size_t begin = 0; begin < faces; begin += kBlock) {
+    const std::size_t n = std::min(kBlock, faces - begin);
+    double a[kBlock], b[kBlock], order[kBlock];
+    for (std::size_t j = 0; j < n; ++j) {
+      const std::size_t f = begin + j;
+      a[j] = c0[f] * P[0] + c1[f] * P[1] + c2[f] * P[2] + c3[f] * P[3];
+      b[j] = c0[f] * V[0] + c1[f] * V[1] + c2[f] * V[2] + c3[f] * V[3];
+    }
+    space_.exit_orders(a, b, order, n);
+    for (std::size_t j = 0; j < n; ++j)
+      if (order[j] < best) {
+        best = order[j];
+        best_a = a[j];
+        best_b = b[j];
+        face = int(begin + j);
+      }
   }
-  return exit;
-}
-
-// How far the geodesic can be followed in the chart: S3 up to (just short of) the hemisphere
-// X[3] > 0 where the gnomonic chart is valid, H3 until it is indistinguishable from the ideal
-// boundary. A valid domain is left through a face before that.
-double Tracer::chart_reach(const Vec4& P, const Vec4& V) const {
-  if (space_.k > 0) return space_.exit_time(-P[3], -V[3]) * (1.0 - 1e-6);
-  return space_.k < 0 ? kH3Reach : kInf;
+  if (space_.k > 0 && space_.exit_order(-P[3], -V[3]) < best)
+    return {space_.exit_turn(-P[3], -V[3]), kChartEdge};
+  if (face < 0) return {{kInf, 0.0, 0.0}, -1};
+  return {space_.exit_turn(best_a, best_b), face};
 }
 
 // E3 only: a chord from x0 longer than this leaves the scene's bounding ball for good.
@@ -188,25 +205,32 @@ Tracer::WalkEnd Tracer::walk(Vec4 P, Vec4 V, double length, int max_crossings,
   int crossings = 0;
   for (bool first = true;; first = false) {
     const Exit exit = find_exit(P, V);
-    const double reach = std::min(length - dist, chart_reach(P, V));
-    const bool crosses = exit.face >= 0 && exit.t <= reach;
+    // How far the chart can follow the geodesic: S3 to its hemisphere's edge, H3 until the point
+    // is indistinguishable from the sphere at infinity.
+    const double reach = exit.face == kChartEdge ? exit.turn.t * (1.0 - 1e-6)
+                         : space_.k < 0              ? kH3Reach
+                                                     : kInf;
+    const double limit = std::min(length - dist, reach);
+    const bool crosses = exit.face >= 0 && exit.turn.t <= limit;
     const Vec3 x0 = Space::chart(P);
     // A ray that leaves no face ends in this copy; nothing lies beyond the scene's extent.
-    const double t = crosses ? exit.t : std::min(reach, scene_escape(x0));
+    const Space::Turn u = crosses ? exit.turn : space_.turn(std::min(limit, scene_escape(x0)));
+    const double t = u.t;
+    Vec4 X, Xv;
+    space_.advance(P, V, u, X, Xv);
     if (t > 0.0) {
-      const Segment seg{P, V, x0, space_.chart_at(P, V, t), t};
+      const Segment seg{P, V, x0, Space::chart(X), t};
       const Vec3 d = sub3(seg.x1, seg.x0);
       const double tnear = first ? first_skip / std::sqrt(dot3(d, d)) : 0.0;
       if (tnear < 1.0 && may_hit(seg) && query(seg, float(tnear))) return {kHit, dist, crossings};
     }
     if (!crosses) return {kDistanceLimit, length, crossings};
-    dist += exit.t;
+    dist += t;
     if (crossings == max_crossings) return {kCrossingLimit, dist, crossings};
     ++crossings;
     const Mat4& M = face_maps_[exit.face];
-    const Vec4 X = space_.point(P, V, exit.t), Xv = space_.velocity(P, V, exit.t);
-    P = apply(M, X);
-    V = apply(M, Xv);
+    P = mat_vec(M, X);
+    V = mat_vec(M, Xv);
     if (!space_.renormalise(P, V)) return {kDistanceLimit, dist, crossings};
   }
 }
@@ -297,10 +321,11 @@ void Tracer::trace_ray(std::size_t i, const Vec4& origin, const Vec4& direction,
   out.distance[i] = out.depth[i];
 
   // Unit normal at H facing the incoming ray.
-  const Vec4 incoming = space_.velocity(hit.P, hit.V, s);
+  Vec4 on_ray, incoming;
+  space_.advance(hit.P, hit.V, space_.turn(s), on_ray, incoming);
   Vec4 N = space_.tangent_part(H, space_.plane_normal(plane));
-  if (!space_.normalise(N)) N = lin4(-1.0, incoming, 0.0, incoming);  // degenerate triangle
-  if (space_.inner(N, incoming) > 0.0) N = lin4(-1.0, N, 0.0, N);
+  if (!space_.normalise(N)) N = scaled(-1.0, incoming);  // degenerate triangle
+  if (space_.inner(N, incoming) > 0.0) N = scaled(-1.0, N);
   const Vec3 chart_normal = Space::chart_vector(H, N);
 
   const std::int32_t object = triangle_object_[prim];

@@ -95,9 +95,10 @@ class Tracer {
                       std::int32_t* prim);
 
  private:
+  static constexpr int kChartEdge = -2;
   struct Exit {
-    double t;
-    int face;  // -1: no face ahead
+    Space::Turn turn;
+    int face;  // a face, -1 if none lies ahead, or kChartEdge
   };
   struct Segment {
     Vec4 P, V;   // start point and unit velocity
@@ -119,7 +120,6 @@ class Tracer {
   SceneHandle build_scene(const std::vector<std::uint32_t>& triangle_ids) const;
 
   Exit find_exit(const Vec4& P, const Vec4& V) const;
-  double chart_reach(const Vec4& P, const Vec4& V) const;
   double scene_escape(const Vec3& x0) const;
   bool may_hit(const Segment& seg) const;
   template <class Query>
@@ -138,7 +138,7 @@ class Tracer {
                   const Poll& poll, bool cancellable);
 
   Space space_;
-  std::vector<Vec4> face_covectors_;
+  std::array<std::vector<double>, 4> face_components_;  // covectors by component, for SIMD
   std::vector<Mat4> face_maps_;
   std::vector<Vec3> vertices_;
   std::vector<std::array<std::uint32_t, 3>> triangles_;
