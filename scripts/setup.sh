@@ -21,4 +21,4 @@ command -v "$python" >/dev/null || python=python3
 # The core is compiled by CMake through scikit-build-core; the editable install keeps the Python
 # sources live and rebuilds the extension incrementally in build/.
 .venv/bin/pip install -q --disable-pip-version-check --no-build-isolation -e .
-echo "setup: ready ($(.venv/bin/python -c 'import thurston_addon._core as c; print(c.__name__)'))"
+echo "setup: ready ($(.venv/bin/python -c 'import thurston_core; print(thurston_core.__name__, thurston_core.EMBREE_VERSION)'))"

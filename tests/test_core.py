@@ -1,10 +1,10 @@
-"""Tests of the C++ core (thurston_addon._core) against closed-form answers, with real Embree."""
+"""Tests of the C++ core (thurston_core) against closed-form answers, with real Embree."""
 import threading
 
 import numpy as np
 import pytest
 
-from thurston_addon import _core
+import thurston_core as _core
 
 HALF = 0.5  # the E3 torus domain is the cube [-HALF, HALF]^3
 

@@ -128,9 +128,9 @@ def compile_scene(space: Space, scene: Scene):
 
 
 def make_tracer(space: Space, scene: Scene, threads: int = 0):
-    from . import _core
+    import thurston_core
 
-    return _core.Tracer(**compile_scene(space, scene), threads=threads)
+    return thurston_core.Tracer(**compile_scene(space, scene), threads=threads)
 
 
 # --- camera --------------------------------------------------------------------------------------------

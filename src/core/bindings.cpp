@@ -321,7 +321,7 @@ Embree queries of primary rays, and with record_segments segment_starts / segmen
 
 }  // namespace
 
-NB_MODULE(_core, m) {
+NB_MODULE(thurston_core, m) {
   m.doc() = "C++ core of Thurston: the ray tracer through fundamental domains (Embree).";
   m.attr("EMBREE_VERSION") = RTC_VERSION_STRING;
 
