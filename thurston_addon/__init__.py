@@ -1,6 +1,19 @@
 """Thurston: inside views of 3-manifolds modeled on Thurston's geometries.
 
 Importable without Blender: the geometry kernels, the spaces, the scene description and the tracer
-work in plain Python. The Blender layer is loaded only by Blender, through `register()`.
+work in plain Python. Blender calls `register()` / `unregister()`, which load the Blender layer
+(`thurston_addon.blender`) only then.
 """
 __version__ = "0.1.0"
+
+
+def register():
+    from . import blender
+
+    blender.register()
+
+
+def unregister():
+    from . import blender
+
+    blender.unregister()
