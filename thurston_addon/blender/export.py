@@ -1,0 +1,169 @@
+"""Blender -> Thurston: the space, the scene (from the evaluated depsgraph), the camera and the
+render settings. Only translation happens here; everything else lives in the Blender-free layers."""
+from __future__ import annotations
+
+import math
+import os
+
+import bpy
+import numpy as np
+
+from .. import render, scene as scenes, spaces
+
+GUIDE_TAG = "thurston_guide"
+_space_cache: dict = {}
+
+
+class ExportError(ValueError):
+    """Something in the Blender scene that cannot be rendered; the message says what to fix."""
+
+
+def load_space(settings) -> spaces.Space:
+    """The space chosen in the settings, cached by preset id or by file path and modification time."""
+    if settings.space == "FILE":
+        path = bpy.path.abspath(settings.space_file)
+        if not settings.space_file:
+            raise ExportError("Space is set to a space file, but no file is chosen")
+        try:
+            key = (path, os.path.getmtime(path))
+        except OSError:
+            raise ExportError(f"space file {path!r} cannot be read") from None
+    else:
+        key = (settings.space, None)
+    if key not in _space_cache:
+        try:
+            _space_cache[key] = spaces.load(key[0])
+        except spaces.SpaceError as exc:
+            raise ExportError(str(exc)) from None
+    return _space_cache[key]
+
+
+def render_settings(settings, width: int, height: int, projection: str = "perspective") -> render.Settings:
+    return render.Settings(
+        width=width, height=height, projection=projection, quality=settings.quality, shading=settings.shading,
+        max_distance=settings.max_distance or None,
+        max_crossings=None if settings.max_crossings < 0 else settings.max_crossings,
+        fog=settings.fog or None, threads=settings.threads)
+
+
+def _material_colors(obj):
+    """Base colour and emission from the first material: Principled BSDF or Emission node inputs
+    (constant values; linked inputs fall back to the material's viewport colour)."""
+    mat = obj.active_material
+    if mat is None:
+        return np.array(scenes.DEFAULT_COLOR), np.zeros(3)
+    color, emission = np.array(mat.diffuse_color[:3], float), np.zeros(3)
+    if mat.use_nodes and mat.node_tree:
+        for node in mat.node_tree.nodes:
+            if node.type == "BSDF_PRINCIPLED":
+                base = node.inputs["Base Color"]
+                if not base.is_linked:
+                    color = np.array(base.default_value[:3], float)
+                em = node.inputs.get("Emission Color") or node.inputs.get("Emission")
+                strength = node.inputs.get("Emission Strength")
+                if em is not None and not em.is_linked:
+                    emission = np.array(em.default_value[:3], float) * (strength.default_value if strength else 1.0)
+                break
+            if node.type == "EMISSION":
+                em, strength = node.inputs["Color"], node.inputs["Strength"]
+                color = np.zeros(3)
+                emission = np.array(em.default_value[:3], float) * strength.default_value
+                break
+    return color, emission
+
+
+def _is_guide(obj) -> bool:
+    return bool(obj.get(GUIDE_TAG)) or any(c.get(GUIDE_TAG) for c in obj.users_collection)
+
+
+def export_scene(depsgraph, scale: float, notes: list[str]) -> scenes.Scene:
+    """Mesh objects and instances (modifiers applied, world matrices), materials and point lights,
+    in chart coordinates (world / scale). Skipped things are described in `notes`."""
+    scene = scenes.Scene()
+    skipped: dict[str, list[str]] = {}
+    for inst in depsgraph.object_instances:
+        obj = inst.object
+        original = obj.original
+        if _is_guide(original) or original.hide_render:
+            continue
+        if obj.type == "MESH":
+            mesh = obj.data if not inst.is_instance else obj.data
+            mesh.calc_loop_triangles()
+            nv, nt = len(mesh.vertices), len(mesh.loop_triangles)
+            if nt == 0:
+                skipped.setdefault("no faces", []).append(original.name)
+                continue
+            co = np.empty(nv * 3, np.float64)
+            mesh.vertices.foreach_get("co", co)
+            tri = np.empty(nt * 3, np.int32)
+            mesh.loop_triangles.foreach_get("vertices", tri)
+            M = np.array(inst.matrix_world, float)
+            V = co.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+            color, emission = _material_colors(obj)
+            name = original.name if not inst.is_instance else f"{original.name} ({inst.parent.original.name})"
+            try:
+                scene.objects.append(scenes.clean(scenes.SceneObject(name, V / scale, tri.reshape(-1, 3), color, emission), "Blender"))
+            except scenes.SceneError as exc:
+                raise ExportError(str(exc)) from None
+        elif obj.type == "LIGHT":
+            light = obj.data
+            if light.type != "POINT":
+                skipped.setdefault(f"{light.type.lower()} lights (only point lights)", []).append(original.name)
+                continue
+            pos = np.array(inst.matrix_world.translation, float) / scale
+            # Blender's power (W) radiates over 4 pi sr; chart distances are world distances / scale
+            intensity = light.energy / (4 * math.pi) / scale**2
+            scene.lights.append(scenes.PointLight(pos, np.array(light.color[:3], float), intensity))
+        elif obj.type not in ("CAMERA", "EMPTY"):
+            skipped.setdefault(f"{obj.type.lower()} objects (only meshes)", []).append(original.name)
+    for what, names in skipped.items():
+        shown = ", ".join(sorted(set(names))[:5]) + (" ..." if len(set(names)) > 5 else "")
+        notes.append(f"skipped {what}: {shown}")
+    return scene
+
+
+def export_camera(bscene, scale: float, width: int, height: int) -> scenes.Camera:
+    cam = bscene.camera
+    if cam is None:
+        raise ExportError("the scene has no camera: add one (Add > Camera) and make it the scene camera")
+    M = np.array(cam.matrix_world, float)
+    position = M[:3, 3] / scale
+    forward, up = -M[:3, 2], M[:3, 1]
+    data = cam.data
+    if data.type != "PERSP":
+        raise ExportError(f"camera {cam.name!r} is {data.type.lower()}; only perspective cameras are supported")
+    # Blender's angle spans the larger image side under AUTO sensor fit
+    fit = data.sensor_fit
+    if fit == "VERTICAL" or (fit == "AUTO" and height > width):
+        fov = 2 * math.atan(math.tan(data.angle / 2) * width / height)
+    else:
+        fov = data.angle
+    return scenes.Camera(position, forward, up, math.degrees(fov))
+
+
+def resolution(bscene) -> tuple[int, int]:
+    r = bscene.render
+    return max(1, r.resolution_x * r.resolution_percentage // 100), max(1, r.resolution_y * r.resolution_percentage // 100)
+
+
+def collect(context_scene, depsgraph, width=None, height=None, projection="perspective"):
+    """Everything a render needs: (space, scene, camera, settings, notes)."""
+    settings = context_scene.thurston
+    space = load_space(settings)
+    w, h = (width, height) if width else resolution(context_scene)
+    notes: list[str] = []
+    scene = export_scene(depsgraph, settings.scale, notes)
+    if not scene.objects:
+        raise ExportError("nothing to render: the scene has no visible mesh objects (the domain guide does not count)")
+    camera = export_camera(context_scene, settings.scale, w, h)
+    rs = render_settings(settings, w, h, projection)
+    return space, scene, camera, rs, notes
+
+
+def store_stats(settings, result: render.Result):
+    s = settings.stats
+    st = result.stats
+    s.valid = True
+    s.seconds, s.rays, s.crossings_per_ray = st["seconds"], st["rays"], st["crossings_per_ray"]
+    s.footprint, s.geodesic_error = st["footprint"], st["geodesic_error"]
+    s.summary = result.summary()

@@ -1,0 +1,231 @@
+"""Operators: Render View to Image, Bake Panorama, Preview. Each runs synchronously in background
+mode (bpy.app.background: no modal handlers tick there) and, in the UI, on a worker thread with
+progress in the status bar and Esc to cancel."""
+from __future__ import annotations
+
+import threading
+
+import bpy
+import numpy as np
+
+from .. import images, render
+from . import export
+
+IMAGE_TAG = "thurston_image"
+
+
+# --- results into Blender ----------------------------------------------------------------------------
+def store_image(name: str, color: np.ndarray):
+    """Write a linear float image datablock. Only an image this add-on created is reused; a user's
+    image with the same name is left alone (a new name is taken)."""
+    h, w = color.shape[:2]
+    image = bpy.data.images.get(name)
+    if image is None or not image.get(IMAGE_TAG):
+        image = bpy.data.images.new(name, w, h, alpha=True, float_buffer=True)
+        image[IMAGE_TAG] = True
+    elif tuple(image.size) != (w, h):
+        image.scale(w, h)
+    image.colorspace_settings.name = "Linear Rec.709" if "Linear Rec.709" in _colorspaces(image) else "Linear"
+    rgba = np.ones((h, w, 4), np.float32)
+    rgba[..., :3] = np.nan_to_num(color)
+    image.pixels.foreach_set(rgba[::-1].ravel())  # Blender's rows are bottom-up
+    image.update()
+    return image
+
+
+def _colorspaces(image):
+    return {item.identifier for item in image.colorspace_settings.bl_rna.properties["name"].enum_items}
+
+
+def show_image(context, image):
+    screen = getattr(context, "screen", None)
+    for area in (screen.areas if screen else []):
+        if area.type == "IMAGE_EDITOR":
+            area.spaces.active.image = image
+            area.tag_redraw()
+
+
+def save_if_asked(settings, result: render.Result, report):
+    if not settings.save_path:
+        return
+    path = bpy.path.abspath(settings.save_path)
+    out = images.check_output(path, settings.overwrite)
+    names = [p.lower() for p in settings.passes] or ["color"]
+    images.write(out, result.passes, names=names, metadata={"summary": result.summary()})
+    report({"INFO"}, f"Saved {out}")
+
+
+def set_world_panorama(bscene, image):
+    """Environment Texture with the panorama in the World's node tree. Nodes are created only if
+    missing; the user's other nodes stay."""
+    world = bscene.world
+    if world is None:
+        world = bpy.data.worlds.new("World")
+        bscene.world = world
+    world.use_nodes = True
+    nodes, links = world.node_tree.nodes, world.node_tree.links
+    output = next((n for n in nodes if n.type == "OUTPUT_WORLD" and n.is_active_output), None) or \
+        next((n for n in nodes if n.type == "OUTPUT_WORLD"), None)
+    if output is None:
+        output = nodes.new("ShaderNodeOutputWorld")
+    surface = output.inputs["Surface"]
+    background = surface.links[0].from_node if surface.is_linked else None
+    if background is None or background.type != "BACKGROUND":
+        background = next((n for n in nodes if n.type == "BACKGROUND"), None) or nodes.new("ShaderNodeBackground")
+        links.new(background.outputs["Background"], surface)
+    env = nodes.get("Thurston Panorama")
+    if env is None:
+        env = nodes.new("ShaderNodeTexEnvironment")
+        env.name = env.label = "Thurston Panorama"
+        env.location = (background.location.x - 300, background.location.y)
+    env.image = image
+    links.new(env.outputs["Color"], background.inputs["Color"])
+    return env
+
+
+# --- the operators -----------------------------------------------------------------------------------
+class _RenderJob:
+    """Shared by the operators: export now (main thread), trace on demand (any thread)."""
+
+    def __init__(self, context, width=None, height=None, projection="perspective", quality=None, camera=None):
+        depsgraph = context.evaluated_depsgraph_get()
+        self.space, self.scene, self.camera, self.settings, self.notes = export.collect(
+            context.scene, depsgraph, width, height, projection)
+        if quality:
+            self.settings.quality = quality
+        if camera is not None:
+            self.camera = camera
+        self.cancelled = False
+        self.fraction = 0.0
+        self.result = None
+        self.error = None
+
+    def progress(self, done, total):
+        self.fraction = done / max(total, 1)
+        return not self.cancelled
+
+    def run(self):
+        try:
+            self.result = render.render(self.space, self.scene, self.settings, camera=self.camera, progress=self.progress)
+        except (render.Cancelled, Exception) as exc:  # reported on the main thread
+            self.error = exc
+
+
+class _ThurstonRenderOperator(bpy.types.Operator):
+    bl_options = {"REGISTER"}
+    image_name = "Thurston View"
+
+    _job: _RenderJob | None = None
+    _thread = None
+    _timer = None
+
+    def make_job(self, context) -> _RenderJob:
+        raise NotImplementedError
+
+    def finish(self, context, job: _RenderJob):
+        raise NotImplementedError
+
+    def execute(self, context):
+        try:
+            job = self.make_job(context)
+        except (export.ExportError, render.RenderError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        for note in job.notes:
+            self.report({"WARNING"}, note)
+        if bpy.app.background:
+            job.run()
+            return self._conclude(context, job)
+        self._job = job
+        self._thread = threading.Thread(target=job.run, daemon=True)
+        self._thread.start()
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.1, window=context.window)
+        wm.modal_handler_add(self)
+        wm.progress_begin(0, 100)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        wm = context.window_manager
+        if event.type == "ESC":
+            self._job.cancelled = True
+        if event.type != "TIMER":
+            return {"RUNNING_MODAL"}
+        wm.progress_update(int(self._job.fraction * 100))
+        context.workspace.status_text_set(f"Thurston: {self.bl_label} {self._job.fraction * 100:.0f}% (Esc to cancel)")
+        if self._thread.is_alive():
+            return {"RUNNING_MODAL"}
+        wm.event_timer_remove(self._timer)
+        wm.progress_end()
+        context.workspace.status_text_set(None)
+        return self._conclude(context, self._job)
+
+    def _conclude(self, context, job):
+        if isinstance(job.error, render.Cancelled):
+            self.report({"WARNING"}, "Thurston render cancelled")
+            return {"CANCELLED"}
+        if job.error is not None:
+            self.report({"ERROR"}, f"Thurston render failed: {job.error}")
+            return {"CANCELLED"}
+        export.store_stats(context.scene.thurston, job.result)
+        try:
+            self.finish(context, job)
+            save_if_asked(context.scene.thurston, job.result, self.report)
+        except (images.OutputError, OSError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, job.result.summary())
+        return {"FINISHED"}
+
+
+class THURSTON_OT_render_view(_ThurstonRenderOperator):
+    """Render the camera's view inside the space into an image (linear float)"""
+
+    bl_idname = "thurston.render_view"
+    bl_label = "Render View to Image"
+
+    def make_job(self, context):
+        return _RenderJob(context)
+
+    def finish(self, context, job):
+        image = store_image(self.image_name, job.result.passes["color"])
+        show_image(context, image)
+
+
+class THURSTON_OT_preview(_ThurstonRenderOperator):
+    """A quick low-resolution render at preview quality"""
+
+    bl_idname = "thurston.preview"
+    bl_label = "Preview"
+    image_name = "Thurston Preview"
+
+    def make_job(self, context):
+        w, h = export.resolution(context.scene)
+        k = max(1, max(w, h) // 320)
+        return _RenderJob(context, width=max(1, w // k), height=max(1, h // k), quality="preview")
+
+    def finish(self, context, job):
+        image = store_image(self.image_name, job.result.passes["color"])
+        show_image(context, image)
+
+
+class THURSTON_OT_bake_panorama(_ThurstonRenderOperator):
+    """Bake the 360° view from the camera point into an equirectangular image and use it as the World background"""
+
+    bl_idname = "thurston.bake_panorama"
+    bl_label = "Bake Panorama"
+    image_name = "Thurston Panorama"
+
+    def make_job(self, context):
+        w = context.scene.thurston.panorama_width
+        job = _RenderJob(context, width=w, height=max(1, w // 2), projection="equirect")
+        # Blender's equirectangular mapping: image centre looks along -X, up is +Z (world axes)
+        job.camera.forward, job.camera.up = np.array([-1.0, 0, 0]), np.array([0, 0, 1.0])
+        return job
+
+    def finish(self, context, job):
+        image = store_image(self.image_name, job.result.passes["color"])
+        set_world_panorama(context.scene, image)
+
+
+CLASSES = (THURSTON_OT_render_view, THURSTON_OT_preview, THURSTON_OT_bake_panorama)

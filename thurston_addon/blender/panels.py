@@ -1,0 +1,86 @@
+"""The panel in the render properties, and a presets menu for its settings."""
+import bpy
+from bl_operators.presets import AddPresetBase
+
+from . import guide
+
+PRESET_SUBDIR = "thurston"
+
+
+class THURSTON_MT_presets(bpy.types.Menu):
+    bl_label = "Thurston Presets"
+    preset_subdir = PRESET_SUBDIR
+    preset_operator = "script.execute_preset"
+    draw = bpy.types.Menu.draw_preset
+
+
+class THURSTON_OT_add_preset(AddPresetBase, bpy.types.Operator):
+    """Save the Thurston settings as a preset, or remove one"""
+
+    bl_idname = "thurston.add_preset"
+    bl_label = "Add Thurston Preset"
+    preset_menu = "THURSTON_MT_presets"
+    preset_subdir = PRESET_SUBDIR
+    preset_defines = ["settings = bpy.context.scene.thurston"]
+    preset_values = [f"settings.{name}" for name in (
+        "space", "space_file", "scale", "quality", "shading", "max_distance", "max_crossings", "fog",
+        "passes", "panorama_width")]
+
+
+class THURSTON_PT_render(bpy.types.Panel):
+    bl_label = "Thurston"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+
+    def draw_header_preset(self, context):
+        row = self.layout.row(align=True)
+        row.menu(THURSTON_MT_presets.__name__, text=THURSTON_MT_presets.bl_label)
+        row.operator(THURSTON_OT_add_preset.bl_idname, text="", icon="ADD")
+        row.operator(THURSTON_OT_add_preset.bl_idname, text="", icon="REMOVE").remove_active = True
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        s = context.scene.thurston
+        col = layout.column()
+        col.prop(s, "space")
+        if s.space == "FILE":
+            col.prop(s, "space_file")
+        col.prop(s, "scale")
+        col.operator(guide.THURSTON_OT_domain_guide.bl_idname, icon="MESH_ICOSPHERE")
+        if guide.camera_outside(context.scene):
+            box = layout.box()
+            box.label(text="The camera is outside the domain", icon="ERROR")
+            box.operator(guide.THURSTON_OT_camera_inside.bl_idname, icon="CAMERA_DATA")
+
+        col = layout.column(heading="Accuracy")
+        col.prop(s, "quality")
+        col.prop(s, "max_distance")
+        col.prop(s, "max_crossings")
+        col = layout.column()
+        col.prop(s, "shading")
+        col.prop(s, "fog")
+        col.prop(s, "passes")
+        col.prop(s, "save_path")
+        col.prop(s, "overwrite")
+        col.prop(s, "panorama_width")
+
+        row = layout.row(align=True)
+        row.operator("thurston.render_view", icon="RENDER_STILL")
+        row.operator("thurston.bake_panorama", icon="WORLD")
+        row.operator("thurston.preview", icon="HIDE_OFF")
+
+        st = s.stats
+        if st.valid:
+            box = layout.box()
+            box.label(text="Last render")
+            grid = box.grid_flow(columns=2, even_columns=True)
+            grid.label(text=f"Time: {st.seconds:.2f} s")
+            grid.label(text=f"Rays: {st.rays:,}")
+            grid.label(text=f"Crossings/ray: {st.crossings_per_ray:.2f}")
+            grid.label(text=f"Pixel footprint: {st.footprint:.2e}")
+            grid.label(text=f"Geodesic error ≤ {st.geodesic_error:.1e}")
+
+
+CLASSES = (THURSTON_MT_presets, THURSTON_OT_add_preset, THURSTON_PT_render)
