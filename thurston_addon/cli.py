@@ -140,6 +140,22 @@ def cmd_trace(args):
     print(f"{out}: {len(rays)} rays, {hit.mean() * 100:.1f}% hits, {result['crossings'].mean():.2f} crossings/ray")
 
 
+def cmd_render_blend(args):
+    try:
+        from .blender import batch, export
+    except ImportError:
+        raise CommandError("render-blend needs Blender's Python module: pip install bpy==5.0.1, "
+                           "or run inside Blender: blender -b FILE.blend -E THURSTON -f 1") from None
+    out_dir = Path(args.out)
+    if not out_dir.is_dir():
+        raise CommandError(f"output folder {str(out_dir)!r} does not exist")
+    try:
+        batch.render_frames(Path(args.blend), args.frames, out_dir, args.format, args.overwrite,
+                            lambda label: Progress(label), lambda line: print(line))
+    except export.ExportError as exc:
+        raise CommandError(str(exc)) from None
+
+
 def build_parser():
     p = argparse.ArgumentParser(prog="thurston", description="Inside views of 3-manifolds modeled on Thurston's geometries.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -175,6 +191,14 @@ def build_parser():
     t.add_argument("--rays", required=True, metavar="RAYS.npy")
     t.add_argument("--out", required=True, metavar="HITS.npz")
     t.set_defaults(run=cmd_trace)
+
+    b = sub.add_parser("render-blend", help="render a .blend file's frames with its Thurston settings (needs bpy)")
+    b.add_argument("blend", metavar="FILE.blend")
+    b.add_argument("--frames", metavar="A..B", help="frame or range (default: the scene's frame range)")
+    b.add_argument("--out", default=".", metavar="DIR", help="folder for <name>_<frame>.<format> (default: .)")
+    b.add_argument("--format", choices=("exr", "png"), default="exr")
+    b.add_argument("--overwrite", action="store_true", help="replace existing frame files")
+    b.set_defaults(run=cmd_render_blend)
     return p
 
 
