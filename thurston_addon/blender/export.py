@@ -87,7 +87,7 @@ def export_scene(depsgraph, scale: float, notes: list[str]) -> scenes.Scene:
         if _is_guide(original) or original.hide_render:
             continue
         if obj.type == "MESH":
-            mesh = obj.data if not inst.is_instance else obj.data
+            mesh = obj.data  # evaluated: modifiers applied
             mesh.calc_loop_triangles()
             nv, nt = len(mesh.vertices), len(mesh.loop_triangles)
             if nt == 0:

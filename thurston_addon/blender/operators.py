@@ -107,7 +107,7 @@ class _RenderJob:
     def run(self):
         try:
             self.result = render.render(self.space, self.scene, self.settings, camera=self.camera, progress=self.progress)
-        except (render.Cancelled, Exception) as exc:  # reported on the main thread
+        except Exception as exc:  # cancelled or failed: reported on the main thread
             self.error = exc
 
 
