@@ -93,7 +93,7 @@ def cmd_render(args):
         args.fov if args.fov is not None else cam.fov,
     )
     w, h = args.size
-    settings = render.Settings(width=w, height=h, projection=args.projection, quality=args.quality,
+    settings = render.Settings(width=w, height=h, projection=args.projection, quality=args.quality, samples=args.samples,
                                shading=args.shading, max_distance=args.max_distance,
                                max_crossings=args.max_crossings, fog=args.fog, threads=args.threads)
     result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
@@ -181,6 +181,7 @@ def build_parser():
     r.add_argument("--projection", choices=("perspective", "equirect"), default="perspective")
     r.add_argument("--passes", type=_passes, help=f"EXR passes, comma separated (default all: {','.join(render.PASSES)})")
     r.add_argument("--quality", choices=tuple(render.QUALITY), default="standard", help="samples per pixel: " + ", ".join(f"{k} {v}" for k, v in render.QUALITY.items()))
+    r.add_argument("--samples", type=int, help="samples per pixel (overrides --quality)")
     r.add_argument("--shading", choices=render.SHADING, default="lambert")
     r.add_argument("--fog", type=float, help="distance at which colour falls to 1/e")
     r.add_argument("--out", required=True, metavar="FILE")

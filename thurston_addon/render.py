@@ -35,6 +35,7 @@ class Settings:
     height: int = 360
     projection: str = "perspective"  # or "equirect"
     quality: str = "standard"
+    samples: int | None = None  # samples per pixel; None: the quality's
     shading: str = "lambert"
     max_distance: float | None = None  # None: the space's default
     max_crossings: int | None = None
@@ -48,6 +49,8 @@ class Settings:
             raise RenderError(f"unknown projection {self.projection!r} (perspective, equirect)")
         if self.quality not in QUALITY:
             raise RenderError(f"unknown quality {self.quality!r} ({', '.join(QUALITY)})")
+        if self.samples is not None and not 1 <= self.samples <= 4096:
+            raise RenderError(f"samples per pixel must be between 1 and 4096, got {self.samples}")
         if self.shading not in SHADING:
             raise RenderError(f"unknown shading {self.shading!r} ({', '.join(SHADING)})")
         if self.max_distance is not None and not (self.max_distance > 0 and math.isfinite(self.max_distance)):
@@ -206,7 +209,7 @@ def render(space: Space, scene: Scene, settings: Settings, camera: Camera | None
     max_crossings = space.max_crossings if settings.max_crossings is None else settings.max_crossings
     t0 = time.perf_counter()
     tracer = tracer or make_tracer(space, scene, settings.threads)
-    offsets = _sample_offsets(QUALITY[settings.quality])
+    offsets = _sample_offsets(settings.samples or QUALITY[settings.quality])
     total = len(offsets) * settings.width * settings.height
     shade = settings.shading == "lambert"
     color_sum = None
