@@ -124,3 +124,185 @@ def test_operators_and_f12_match_core(tmp_path, space, scale):
                              extra=["--camera-forward=-1,0,0", "--camera-up=0,0,1"]))
     assert bpy.ops.thurston.bake_panorama() == {"FINISHED"}
     close(bh.image_pixels(bpy.data.images["Thurston Panorama"])[..., :3], pano)
+
+
+def same_points(a, b, tol=1e-6):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    d = np.linalg.norm(a[:, None] - b[None], axis=-1)
+    return len(a) == len(b) and d.min(axis=0).max() < tol and d.min(axis=1).max() < tol
+
+
+# --- 3. export from a real depsgraph ---------------------------------------------------------------
+def exported(scale=1.0):
+    notes = []
+    scene = export.export_scene(bpy.context.evaluated_depsgraph_get(), scale, notes)
+    return {o.name: o for o in scene.objects}, scene, notes
+
+
+def test_export_applies_modifiers():
+    bh.fresh_scene()
+    sub = bh.box("Sub", 0.1, (0, 0.2, 0))
+    mod = sub.modifiers.new("subsurf", "SUBSURF")
+    mod.levels = mod.render_levels = 1
+    arr = bh.box("Arr", 0.1, (0, -0.2, 0))
+    a = arr.modifiers.new("array", "ARRAY")
+    a.count = 3
+    a.relative_offset_displace = (1.5, 0, 0)
+    objs, _, _ = exported()
+    # Catmull-Clark level 1 of a cube: 24 quads = 48 triangles (the cube alone: 12)
+    assert len(objs["Sub"].triangles) == 48
+    # three copies 1.5 sizes apart: 36 triangles spanning x in [-0.05, 0.05 + 2 * 0.15]
+    assert len(objs["Arr"].triangles) == 36
+    V = objs["Arr"].vertices
+    np.testing.assert_allclose(V.min(axis=0), [-0.05, -0.25, -0.05], atol=1e-6)
+    np.testing.assert_allclose(V.max(axis=0), [0.35, -0.15, 0.05], atol=1e-6)
+
+
+def test_export_instances_hidden_and_guide():
+    sc = bh.fresh_scene(scale=2.0)
+    src = bpy.data.collections.new("Src")  # not linked to the scene: seen only through instances
+    b = bh.box("Inst", 0.1, (0.05, 0, 0))
+    sc.collection.objects.unlink(b)
+    src.objects.link(b)
+    empties = []
+    for k, loc in enumerate([(0.2, 0.3, 0.0), (-0.4, 0.0, 0.2)]):
+        e = bpy.data.objects.new(f"Empty{k}", None)
+        e.instance_type = "COLLECTION"
+        e.instance_collection = src
+        e.location = loc
+        e.rotation_euler = (0, 0, math.pi / 2 * k)
+        bh.link(e)
+        empties.append(e)
+    hidden = bh.box("Hidden", 0.1, (0, 0, 0.3))
+    hidden.hide_render = True
+    bh.box("Shown", 0.1, (0, 0, -0.3))
+    assert bpy.ops.thurston.domain_guide() == {"FINISHED"}
+    guide = bpy.data.objects["Thurston Domain"]
+    assert guide.hide_render
+    objs, scene, _ = exported(scale=2.0)
+    assert "Hidden" not in objs and not any("Thurston" in n for n in objs)
+    assert len(scene.objects) == 3
+    np.testing.assert_allclose(objs["Shown"].vertices.mean(axis=0), [0, 0, -0.15], atol=1e-9)  # world / scale
+    inst = sorted((o for n, o in objs.items() if n.startswith("Inst")), key=lambda o: o.vertices[:, 0].mean())
+    assert len(inst) == 2
+    box_local = np.array([(x, y, z) for x in (0.0, 0.1) for y in (-0.05, 0.05) for z in (-0.05, 0.05)])
+    for o, e in zip(sorted(inst, key=lambda o: -o.vertices[:, 0].mean()), empties):
+        M = np.array(e.matrix_world)
+        want = (box_local @ M[:3, :3].T + M[:3, 3]) / 2.0
+        assert same_points(o.vertices, want)
+
+
+@pytest.mark.xfail(strict=True, reason="export_scene notes curve/text objects as skipped but still exports their "
+                   "evaluated meshes as instances named 'Curve (Curve)' / 'Text (Text)'")
+def test_export_skips_non_mesh_objects_with_a_note():
+    bh.fresh_scene()
+    bh.box("B", 0.1, (0, 0.3, 0))
+    cu = bpy.data.curves.new("Curve", "CURVE")
+    sp = cu.splines.new("BEZIER")
+    sp.bezier_points.add(1)
+    sp.bezier_points[1].co = (0.1, 0, 0)
+    cu.bevel_depth = 0.01
+    bh.link(bpy.data.objects.new("Curve", cu))
+    bh.link(bpy.data.objects.new("Text", bpy.data.curves.new("Text", "FONT")))
+    objs, _, notes = exported()
+    text = " ".join(notes)
+    assert "Curve" in text and "Text" in text
+    assert list(objs) == ["B"], list(objs)
+
+
+def test_export_materials():
+    bh.fresh_scene()
+    bh.box("P", 0.1, (0, 0.3, 0), color=(0.1, 0.2, 0.3), emission=(0.5, 0.25, 1.0), strength=3.0)
+    e = bh.box("E", 0.1, (0, -0.3, 0))
+    e.data.materials[0] = bh.material("em", emission=(0.2, 0.4, 0.6), strength=5.0, kind="emission")
+    n = bh.box("N", 0.1, (0.3, 0, 0))
+    n.data.materials.clear()
+    objs, _, _ = exported()
+    np.testing.assert_allclose(objs["P"].color, [0.1, 0.2, 0.3], atol=1e-6)
+    np.testing.assert_allclose(objs["P"].emission, [1.5, 0.75, 3.0], atol=1e-6)
+    np.testing.assert_allclose(objs["E"].emission, [1.0, 2.0, 3.0], atol=1e-6)
+    np.testing.assert_allclose(objs["N"].emission, [0, 0, 0])
+
+
+# --- 4. domain guide ----------------------------------------------------------------------------------
+def guide_points():
+    obj = bpy.data.objects["Thurston Domain"]
+    return obj, np.array([tuple(v.co) for v in obj.data.vertices])
+
+
+def test_domain_guide_follows_space_and_scale():
+    sc = bh.fresh_scene("torus")
+    assert bpy.ops.thurston.domain_guide() == {"FINISHED"}
+    obj, pts = guide_points()
+    dom = spaces.load("torus").domain
+    assert (len(obj.data.vertices), len(obj.data.edges)) == (len(dom.vertices), len(dom.edges)) == (8, 12)
+    assert obj.name in bpy.data.collections["Thurston Guide"].objects
+    assert "Thurston Guide" in sc.collection.children
+    assert same_points(pts, dom.vertices)
+    sc.thurston.space = "poincare"
+    obj, pts = guide_points()
+    dom = spaces.load("poincare").domain
+    assert (len(obj.data.vertices), len(obj.data.edges)) == (len(dom.vertices), len(dom.edges)) == (20, 30)
+    sc.thurston.scale = 2.5
+    obj, pts = guide_points()
+    assert same_points(pts, dom.vertices * 2.5)
+    assert len([o for o in bpy.data.objects if o.name.startswith("Thurston Domain")]) == 1
+
+
+# --- 5. Render View to Image --------------------------------------------------------------------------
+def test_render_view_image_reuse_and_save(tmp_path):
+    sc = build_scene()
+    assert bpy.ops.thurston.render_view() == {"FINISHED"}
+    img = bpy.data.images["Thurston View"]
+    assert img.is_float and "Linear" in img.colorspace_settings.name
+    assert tuple(img.size) == (bh.W, bh.H)
+    first = bh.image_pixels(img)
+    ptr = img.as_pointer()
+    bpy.data.objects["Red"].location.x += 0.05
+    assert bpy.ops.thurston.render_view() == {"FINISHED"}
+    assert bpy.data.images["Thurston View"].as_pointer() == ptr
+    assert "Thurston View.001" not in bpy.data.images
+    assert not np.allclose(bh.image_pixels(img), first)  # the datablock holds the new render
+
+    out = tmp_path / "view.exr"
+    sc.thurston.save_path = str(out)
+    assert bpy.ops.thurston.render_view() == {"FINISHED"}
+    chans = bh.read_exr(out)
+    px = bh.image_pixels(img)
+    np.testing.assert_allclose(bh.rgb(chans), px[..., :3], rtol=1e-6, atol=1e-7)
+    assert "Z" in chans and np.isfinite(chans["Z"]).mean() > 0.5
+
+    before = out.read_bytes()
+    with pytest.raises(RuntimeError, match="exists"):
+        bpy.ops.thurston.render_view()
+    assert out.read_bytes() == before
+    sc.thurston.overwrite = True
+    bpy.data.objects["Red"].location.x -= 0.1
+    assert bpy.ops.thurston.render_view() == {"FINISHED"}
+    assert out.read_bytes() != before
+
+
+def user_image():
+    img = bpy.data.images.new("Thurston View", 4, 4, float_buffer=True)
+    img.pixels.foreach_set(np.full(64, 0.25, np.float32))
+    return img
+
+
+def test_render_view_leaves_users_image_alone():
+    build_scene()
+    mine = user_image()
+    assert bpy.ops.thurston.render_view() == {"FINISHED"}
+    assert tuple(mine.size) == (4, 4) and np.all(bh.image_pixels(mine) == 0.25)
+    made = [im for im in bpy.data.images if im.name.startswith("Thurston View") and im != mine]
+    assert len(made) == 1 and tuple(made[0].size) == (bh.W, bh.H)
+
+
+@pytest.mark.xfail(strict=True, reason="operators.store_image looks the image up by name only: with a user's "
+                   "'Thurston View' present, every render makes a new image (.001, .002, ...)")
+def test_render_view_reuses_its_own_image_next_to_users():
+    build_scene()
+    user_image()
+    bpy.ops.thurston.render_view()
+    bpy.ops.thurston.render_view()
+    names = sorted(im.name for im in bpy.data.images if im.name.startswith("Thurston View"))
+    assert names == ["Thurston View", "Thurston View.001"]
