@@ -520,3 +520,40 @@ def test_camera_inside_error_names_the_camera():
         bpy.ops.thurston.camera_inside()
     msg = str(info.value)
     assert "nan" not in msg and "camera" in msg.lower() and "3" in msg
+
+
+# --- 9. background batch renders of a saved .blend ----------------------------------------------------
+def test_render_blend_subprocess(tmp_path):
+    scale = 2.0
+    sc = build_scene("poincare", scale)
+    sc.thurston.passes = {"COLOR", "DEPTH"}
+    cam = sc.camera
+    sc.frame_start, sc.frame_end = 1, 5
+    cam.keyframe_insert("location", frame=1)
+    cam.location.x += 0.15 * scale
+    cam.keyframe_insert("location", frame=2)
+    blend = tmp_path / "anim.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    # the truth for frame 1: the same scene as files, rendered by the core in the space saved in the file
+    sc.frame_set(1)
+    files = tmp_path / "files"
+    files.mkdir()
+    truth = bh.rgb(cli_render(files, bh.write_scene_files(sc, files, scale), "poincare", "truth"))
+
+    out = tmp_path / "out"
+    out.mkdir()
+    cmd = [str(THURSTON), "render-blend", str(blend), "--frames", "1..2", "--out", str(out)]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    frames = [out / "anim_0001.exr", out / "anim_0002.exr"]
+    assert sorted(out.iterdir()) == frames
+    one, two = (bh.read_exr(f) for f in frames)
+    assert set(one) == {"R", "G", "B", "Z"}  # the passes saved in the file
+    close(bh.rgb(one), truth)
+    assert np.abs(bh.rgb(one) - bh.rgb(two)).max() > 0.05  # the camera moved
+
+    stamp = [(f.read_bytes(), f.stat().st_mtime_ns) for f in frames]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2
+    assert "exists" in run.stderr and "Traceback" not in run.stderr
+    assert [(f.read_bytes(), f.stat().st_mtime_ns) for f in frames] == stamp
