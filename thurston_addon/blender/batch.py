@@ -54,6 +54,7 @@ def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, ov
         for note in notes:
             log(f"frame {frame}: {note}")
         result = render.render(space, scene, settings, camera=camera, progress=progress_for(f"frame {frame}"))
-        images.write(out, result.passes, names=names, metadata={"frame": frame, "summary": result.summary()})
+        images.write(out, export.blender_passes(result, bscene.thurston.scale), names=names,
+                     metadata={"frame": frame, "summary": result.summary()})
         log(f"{out}: {result.summary()}")
     return outputs

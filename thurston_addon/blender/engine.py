@@ -67,7 +67,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         self.write_result(bscene, result, w, h)
 
     def write_result(self, bscene, result, w, h):
-        passes = result.passes
+        passes = export.blender_passes(result, bscene.thurston.scale)
         out = self.begin_result(0, 0, w, h)
         layer = out.layers[0]
         rgba = np.ones((h, w, 4), np.float32)
@@ -75,7 +75,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         values = {
             "Combined": rgba,
             # Blender's Z pass holds a large value where nothing is hit
-            "Depth": np.where(np.isfinite(passes["depth"]), passes["depth"] * bscene.thurston.scale, 1e10)[..., None],
+            "Depth": np.where(np.isfinite(passes["depth"]), passes["depth"], 1e10)[..., None],
             "Normal": np.nan_to_num(passes["normal"]),
             "IndexOB": passes["object"][..., None].astype(np.float32),
             CROSSINGS_AOV: passes["crossings"][..., None].astype(np.float32),

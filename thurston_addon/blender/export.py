@@ -86,6 +86,8 @@ def export_scene(depsgraph, scale: float, notes: list[str]) -> scenes.Scene:
         original = obj.original
         if _is_guide(original) or original.hide_render:
             continue
+        if inst.is_instance and inst.parent.original.type not in ("MESH", "EMPTY"):
+            continue  # geometry of a curve, text, ... object: skipped (and noted) as that object
         if obj.type == "MESH":
             mesh = obj.data  # evaluated: modifiers applied
             mesh.calc_loop_triangles()
@@ -158,6 +160,14 @@ def collect(context_scene, depsgraph, width=None, height=None, projection="persp
     camera = export_camera(context_scene, settings.scale, w, h)
     rs = render_settings(settings, w, h, projection)
     return space, scene, camera, rs, notes
+
+
+def blender_passes(result: render.Result, scale: float) -> dict:
+    """Passes in Blender's units: depth and position in world units (chart units x scale)."""
+    passes = dict(result.passes)
+    passes["depth"] = passes["depth"] * scale
+    passes["position"] = passes["position"] * scale
+    return passes
 
 
 def store_stats(settings, result: render.Result):

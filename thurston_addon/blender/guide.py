@@ -1,6 +1,7 @@
 """The domain guide: a wireframe of the fundamental domain, in its own collection, excluded from
 export and from Blender's own renders."""
 import bpy
+import mathutils
 import numpy as np
 
 from . import export
@@ -93,9 +94,9 @@ class THURSTON_OT_camera_inside(bpy.types.Operator):
             space = export.load_space(scene.thurston)
             moved = inside_matrix(space, np.array(cam.matrix_world, float), scene.thurston.scale)
         except (export.ExportError, ValueError) as exc:
-            self.report({"ERROR"}, str(exc))
+            self.report({"ERROR"}, f"camera {cam.name!r}: {exc}")
             return {"CANCELLED"}
-        cam.matrix_world = [list(r) for r in moved]
+        cam.matrix_world = mathutils.Matrix(moved.tolist())
         return {"FINISHED"}
 
 
@@ -104,6 +105,8 @@ def inside_matrix(space, M, scale):
     differential (re-orthonormalised in the chart, where Blender shows the camera)."""
     g = space.geometry
     p = M[:3, 3] / scale
+    if not g.in_chart(p):
+        raise ValueError(f"camera position {p.tolist()} is not a point of {g.name}")
     X = g.to_model(p)
     if not space.domain.contains(X):
         X2, _, A = space.bring_inside(X)

@@ -19,10 +19,10 @@ def store_image(name: str, color: np.ndarray):
     """Write a linear float image datablock. Only an image this add-on created is reused; a user's
     image with the same name is left alone (a new name is taken)."""
     h, w = color.shape[:2]
-    image = bpy.data.images.get(name)
-    if image is None or not image.get(IMAGE_TAG):
+    image = next((im for im in bpy.data.images if im.get(IMAGE_TAG) == name), None)
+    if image is None:
         image = bpy.data.images.new(name, w, h, alpha=True, float_buffer=True)
-        image[IMAGE_TAG] = True
+        image[IMAGE_TAG] = name
     elif tuple(image.size) != (w, h):
         image.scale(w, h)
     image.colorspace_settings.name = "Linear Rec.709" if "Linear Rec.709" in _colorspaces(image) else "Linear"
@@ -51,7 +51,7 @@ def save_if_asked(settings, result: render.Result, report):
     path = bpy.path.abspath(settings.save_path)
     out = images.check_output(path, settings.overwrite)
     names = [p.lower() for p in settings.passes] or ["color"]
-    images.write(out, result.passes, names=names, metadata={"summary": result.summary()})
+    images.write(out, export.blender_passes(result, settings.scale), names=names, metadata={"summary": result.summary()})
     report({"INFO"}, f"Saved {out}")
 
 
