@@ -53,7 +53,8 @@ def _material_colors(obj):
     if mat is None:
         return np.array(scenes.DEFAULT_COLOR), np.zeros(3)
     color, emission = np.array(mat.diffuse_color[:3], float), np.zeros(3)
-    if mat.use_nodes and mat.node_tree:
+    # Blender 5 always uses material nodes (use_nodes is deprecated there)
+    if mat.node_tree and (bpy.app.version >= (5, 0, 0) or mat.use_nodes):
         for node in mat.node_tree.nodes:
             if node.type == "BSDF_PRINCIPLED":
                 base = node.inputs["Base Color"]

@@ -62,7 +62,8 @@ def set_world_panorama(bscene, image):
     if world is None:
         world = bpy.data.worlds.new("World")
         bscene.world = world
-    world.use_nodes = True
+    if bpy.app.version < (5, 0, 0):  # Blender 5 always uses world nodes
+        world.use_nodes = True
     nodes, links = world.node_tree.nodes, world.node_tree.links
     output = next((n for n in nodes if n.type == "OUTPUT_WORLD" and n.is_active_output), None) or \
         next((n for n in nodes if n.type == "OUTPUT_WORLD"), None)
