@@ -549,3 +549,18 @@ def test_render_blend_subprocess(tmp_path):
     assert run.returncode == 2
     assert "exists" in run.stderr and "Traceback" not in run.stderr
     assert [(f.read_bytes(), f.stat().st_mtime_ns) for f in frames] == stamp
+
+
+def test_settings_presets_round_trip(tmp_path, monkeypatch):
+    """A preset saved from the panel's menu restores every setting it names."""
+    monkeypatch.setenv("BLENDER_USER_SCRIPTS", str(tmp_path))
+    bh.fresh_scene()
+    s = bpy.context.scene.thurston
+    s.space, s.quality, s.scale, s.fog, s.passes = "seifert_weber", "final", 2.5, 3.0, {"COLOR", "DEPTH"}
+    assert bpy.ops.thurston.add_preset(name="Night Walk") == {"FINISHED"}
+    preset = next(tmp_path.glob("**/presets/thurston/Night_Walk.py"), None) or next(
+        Path(bpy.utils.resource_path("USER")).glob("**/presets/thurston/Night_Walk.py"))
+    s.space, s.quality, s.scale, s.fog, s.passes = "torus", "draft", 1.0, 0.0, {"NORMAL"}
+    assert bpy.ops.script.execute_preset(filepath=str(preset), menu_idname="THURSTON_MT_presets") == {"FINISHED"}
+    assert (s.space, s.quality, s.scale, s.fog, set(s.passes)) == ("seifert_weber", "final", 2.5, 3.0, {"COLOR", "DEPTH"})
+    preset.unlink()
