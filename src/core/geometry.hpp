@@ -69,7 +69,10 @@ struct Space {
     Xv = k == 0 ? V : lin4(k > 0 ? -u.s : u.s, P, u.c, V);
   }
 
-  static Vec3 chart(const Vec4& X) { return {X[0] / X[3], X[1] / X[3], X[2] / X[3]}; }
+  static Vec3 chart(const Vec4& X) {
+    const double w = 1.0 / X[3];
+    return {X[0] * w, X[1] * w, X[2] * w};
+  }
 
   Vec4 model(const Vec3& x) const {
     const Vec4 Y{x[0], x[1], x[2], 1.0};
@@ -105,15 +108,44 @@ struct Space {
     const double outside = b > 0.0 ? 1.0 : kInf;
     return a > 0.0 ? outside : inside;
   }
-  void exit_orders(const double* a, const double* b, double* order, std::size_t n) const {
+  // The exit search's key: exit_order's in E3 and H3; in S3 one division, -cot t = b / a, for the
+  // usual exits t in (0, pi) from inside (a < 0), -inf for t = 0 and +inf for the rest (t >= pi or
+  // none), which a valid domain never leaves by first: when every key is +inf, the search falls back
+  // to exit_order.
+  double exit_key(double a, double b) const {
+    if (k <= 0) return exit_order(a, b);
+    const double special = (b > 0.0) | ((a > 0.0) & (b >= 0.0)) ? -kInf : kInf;
+    return a < 0.0 ? b / a : special;
+  }
+  void exit_keys(const double* a, const double* b, double* key, std::size_t n) const {
     // One loop per curvature, so that each is a straight-line body.
     if (k == 0)
-      for (std::size_t j = 0; j < n; ++j) order[j] = Space{0}.exit_order(a[j], b[j]);
+      for (std::size_t j = 0; j < n; ++j) key[j] = Space{0}.exit_key(a[j], b[j]);
     else if (k > 0)
-      for (std::size_t j = 0; j < n; ++j) order[j] = Space{1}.exit_order(a[j], b[j]);
+      for (std::size_t j = 0; j < n; ++j) key[j] = Space{1}.exit_key(a[j], b[j]);
     else
-      for (std::size_t j = 0; j < n; ++j) order[j] = Space{-1}.exit_order(a[j], b[j]);
+      for (std::size_t j = 0; j < n; ++j) key[j] = Space{-1}.exit_key(a[j], b[j]);
   }
+  // S3, for a finite exit_key(a, b) (a < 0): the turn to the exit without a transcendental
+  // function: cos t and sin t exactly, t itself only to within kTurnEstimateError (turn_length
+  // gives it exactly).
+  static constexpr double kTurnEstimateError = 2e-5;
+  static Turn s3_exit_turn(double a, double b) {
+    const double r = 1.0 / std::sqrt(a * a + b * b);
+    const double c = b * r, s = -a * r;
+    return {estimate_angle(c, s), c, s};
+  }
+  // An estimate of the angle t in [0, pi] with (cos t, sin t) = (c, s), s >= 0, to within 1.2e-5
+  // (Abramowitz and Stegun 4.4.49 on the octant).
+  static double estimate_angle(double c, double s) {
+    const double ac = std::abs(c), lo = std::min(ac, s), hi = std::max(ac, s);
+    const double z = hi > 0.0 ? lo / hi : 0.0, z2 = z * z;
+    double p = z * (0.9998660 + z2 * (-0.3302995 + z2 * (0.1801410 + z2 * (-0.0851330 +
+                                                                           z2 * 0.0208351))));
+    p = s > ac ? 0.5 * kPi - p : p;
+    return c < 0.0 ? kPi - p : p;
+  }
+
   Turn exit_turn(double a, double b) const {  // requires a finite exit_order(a, b)
     if (k == 0) return turn(std::max(0.0, -a / b));
     if (k > 0) {

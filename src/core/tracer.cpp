@@ -62,6 +62,8 @@ Tracer::Tracer(SceneData scene, unsigned threads)
       pool_(threads) {
   for (const Vec4& c : scene.face_covectors)
     for (int a = 0; a < 4; ++a) face_components_[a].push_back(c[a]);
+  while (face_components_[0].size() % 4 != 0)  // zero covectors: never an exit
+    for (int a = 0; a < 4; ++a) face_components_[a].push_back(0.0);
   bounds_lo_ = {kInf, kInf, kInf};
   bounds_hi_ = {-kInf, -kInf, -kInf};
   triangle_planes_.reserve(triangles_.size());
@@ -137,9 +139,11 @@ Tracer::SceneHandle Tracer::build_scene(const std::vector<std::uint32_t>& triang
 
 // The face through which the geodesic leaves the domain first (lowest index on ties). In S3 the
 // edge of the gnomonic chart's hemisphere X[3] > 0 competes as a pseudo-face (it loses ties): a
-// valid domain is left through a face before it, and chords must stop (just) short of it.
+// valid domain is left through a face before it, and chords must stop (just) short of it. In S3
+// the turn of a usual exit (exact == false) has exact cosine and sine but an estimated t.
 Tracer::Exit Tracer::find_exit(const Vec4& P, const Vec4& V) const {
-  // Blocks of faces on the stack, each pass a simple loop that the compiler vectorises.
+  // Blocks of faces on the stack, each pass a simple loop that the compiler vectorises; the face
+  // arrays are padded with zero covectors (never an exit) to a multiple of 4.
   constexpr std::size_t kBlock = 16;
   const std::size_t faces = face_components_[0].size();
   const double *c0 = face_components_[0].data(), *c1 = face_components_[1].data(),
@@ -148,25 +152,57 @@ Tracer::Exit Tracer::find_exit(const Vec4& P, const Vec4& V) const {
   int face = -1;
   for (std::size_t begin = 0; begin < faces; begin += kBlock) {
     const std::size_t n = std::min(kBlock, faces - begin);
-    double a[kBlock], b[kBlock], order[kBlock];
-    for (std::size_t j = 0; j < n; ++j) {
-      const std::size_t f = begin + j;
-      a[j] = c0[f] * P[0] + c1[f] * P[1] + c2[f] * P[2] + c3[f] * P[3];
-      b[j] = c0[f] * V[0] + c1[f] * V[1] + c2[f] * V[2] + c3[f] * V[3];
-    }
-    space_.exit_orders(a, b, order, n);
+    double a[kBlock], b[kBlock], key[kBlock];
+    for (std::size_t g = 0; g < n; g += 4)
+      for (std::size_t j = g; j < g + 4; ++j) {
+        const std::size_t f = begin + j;
+        a[j] = c0[f] * P[0] + c1[f] * P[1] + c2[f] * P[2] + c3[f] * P[3];
+        b[j] = c0[f] * V[0] + c1[f] * V[1] + c2[f] * V[2] + c3[f] * V[3];
+      }
+    space_.exit_keys(a, b, key, n);
     for (std::size_t j = 0; j < n; ++j)
-      if (order[j] < best) {
-        best = order[j];
+      if (key[j] < best) {
+        best = key[j];
         best_a = a[j];
         best_b = b[j];
         face = int(begin + j);
       }
   }
-  if (space_.k > 0 && space_.exit_order(-P[3], -V[3]) < best)
-    return {space_.exit_turn(-P[3], -V[3]), kChartEdge};
-  if (face < 0) return {{kInf, 0.0, 0.0}, -1};
-  return {space_.exit_turn(best_a, best_b), face};
+  if (space_.k > 0) {
+    if (best == kInf) return find_exit_exact(P, V);  // no usual exit: only the general search
+    if (space_.exit_key(-P[3], -V[3]) < best) {
+      if (P[3] > 0.0) return {space_.s3_exit_turn(-P[3], -V[3]), kChartEdge, false};
+      return {space_.exit_turn(-P[3], -V[3]), kChartEdge, true};
+    }
+    if (best == -kInf) return {{0.0, 1.0, 0.0}, face, true};
+    return {space_.s3_exit_turn(best_a, best_b), face, false};
+  }
+  if (face < 0) return {{kInf, 0.0, 0.0}, -1, true};
+  return {space_.exit_turn(best_a, best_b), face, true};
+}
+
+// S3's exit search for the unusual case of no exit in [0, pi): exact turns, keys in [0, 3).
+Tracer::Exit Tracer::find_exit_exact(const Vec4& P, const Vec4& V) const {
+  const std::size_t faces = face_components_[0].size();
+  double best = kInf, best_a = 0.0, best_b = 0.0;
+  int face = -1;
+  for (std::size_t f = 0; f < faces; ++f) {
+    const double a = face_components_[0][f] * P[0] + face_components_[1][f] * P[1] +
+                     face_components_[2][f] * P[2] + face_components_[3][f] * P[3];
+    const double b = face_components_[0][f] * V[0] + face_components_[1][f] * V[1] +
+                     face_components_[2][f] * V[2] + face_components_[3][f] * V[3];
+    const double order = space_.exit_order(a, b);
+    if (order < best) {
+      best = order;
+      best_a = a;
+      best_b = b;
+      face = int(f);
+    }
+  }
+  if (space_.exit_order(-P[3], -V[3]) < best)
+    return {space_.exit_turn(-P[3], -V[3]), kChartEdge, true};
+  if (face < 0) return {{kInf, 0.0, 0.0}, -1, true};
+  return {space_.exit_turn(best_a, best_b), face, true};
 }
 
 // E3 only: a chord from x0 longer than this leaves the scene's bounding ball for good.
@@ -195,43 +231,100 @@ bool Tracer::may_hit(const Segment& seg) const {
   return !triangles_.empty();
 }
 
+namespace {
+
+// The geodesic length travelled across a walk's crossings. Exact turns add up as numbers; S3's
+// usual turns, whose t is only estimated, multiply as unit complex numbers (cos t, sin t), which
+// fixes their sum modulo 2 pi, and the sum of the estimates picks the multiple of 2 pi (it is off by
+// at most kFold * kTurnEstimateError, far below pi) and bounds the total from above.
+class Odometer {
+ public:
+  void add_exact(double t) { exact_ += t; }
+  void add_turn(const Space::Turn& u) {
+    const double c = c_ * u.c - s_ * u.s, s = s_ * u.c + c_ * u.s;
+    c_ = c;
+    s_ = s;
+    estimate_ += u.t;
+    if (++turns_ == kFold) fold();
+  }
+  // An upper bound of the distance after one more estimated turn of `t`.
+  double upper_after(double t) const {
+    return exact_ + estimate_ + t + (turns_ + 1) * Space::kTurnEstimateError;
+  }
+  double value() const {
+    if (turns_ == 0) return exact_;
+    const double theta = std::atan2(s_, c_);
+    const double wraps = std::nearbyint((estimate_ - theta) * (0.5 / kPi));
+    return exact_ + (theta + 2.0 * kPi * wraps);
+  }
+
+ private:
+  static constexpr int kFold = 1024;
+  void fold() {
+    exact_ = value();
+    c_ = 1.0;
+    s_ = estimate_ = 0.0;
+    turns_ = 0;
+  }
+  double exact_ = 0.0, c_ = 1.0, s_ = 0.0, estimate_ = 0.0;
+  int turns_ = 0;
+};
+
+}  // namespace
+
 // Follows the geodesic (P, V) for `length` through the domain and its face pairings, calling
 // query(segment, tnear) on each chart chord that may meet the scene until it reports a hit. The
 // first chord skips its first `first_skip` of chart length (shadow rays leaving a surface).
 template <class Query>
 Tracer::WalkEnd Tracer::walk(Vec4 P, Vec4 V, double length, int max_crossings,
                              double first_skip, Query&& query) const {
-  double dist = 0.0;
+  Odometer odometer;
   int crossings = 0;
   for (bool first = true;; first = false) {
-    const Exit exit = find_exit(P, V);
-    // How far the chart can follow the geodesic: S3 to its hemisphere's edge, H3 until the point
-    // is indistinguishable from the sphere at infinity.
-    const double reach = exit.face == kChartEdge ? exit.turn.t * (1.0 - 1e-6)
-                         : space_.k < 0              ? kH3Reach
-                                                     : kInf;
-    const double limit = std::min(length - dist, reach);
-    const bool crosses = exit.face >= 0 && exit.turn.t <= limit;
-    const Vec3 x0 = Space::chart(P);
-    // A ray that leaves no face ends in this copy; nothing lies beyond the scene's extent.
-    const Space::Turn u = crosses ? exit.turn : space_.turn(std::min(limit, scene_escape(x0)));
-    const double t = u.t;
+    Exit exit = find_exit(P, V);
+    // Whether the walk crosses the exit face within its length: an estimated turn decides from
+    // the odometer's bound while that is clear of the length, else from the exact numbers.
+    bool crosses;
+    double dist = kNaN;  // the distance before this step, where computed
+    if (exit.face >= 0 && !exit.exact && odometer.upper_after(exit.turn.t) <= length) {
+      crosses = true;
+    } else {
+      if (!exit.exact) {
+        exit.turn.t = std::atan2(exit.turn.s, exit.turn.c);
+        exit.exact = true;
+      }
+      dist = odometer.value();
+      // How far the chart can follow the geodesic: S3 to its hemisphere's edge, H3 until the
+      // point is indistinguishable from the sphere at infinity.
+      const double reach = exit.face == kChartEdge ? exit.turn.t * (1.0 - 1e-6)
+                           : space_.k < 0              ? kH3Reach
+                                                       : kInf;
+      const double limit = std::min(length - dist, reach);
+      crosses = exit.face >= 0 && exit.turn.t <= limit;
+      // A ray that leaves no face ends in this copy; nothing lies beyond the scene's extent.
+      if (!crosses) exit.turn = space_.turn(std::min(limit, scene_escape(Space::chart(P))));
+    }
+    const Space::Turn& u = exit.turn;
     Vec4 X, Xv;
     space_.advance(P, V, u, X, Xv);
-    if (t > 0.0) {
-      const Segment seg{P, V, x0, Space::chart(X), t};
+    if (u.t > 0.0) {
+      const Segment seg{P, V, Space::chart(P), Space::chart(X), u, exit.exact};
       const Vec3 d = sub3(seg.x1, seg.x0);
       const double tnear = first ? first_skip / std::sqrt(dot3(d, d)) : 0.0;
-      if (tnear < 1.0 && may_hit(seg) && query(seg, float(tnear))) return {kHit, dist, crossings};
+      if (tnear < 1.0 && may_hit(seg) && query(seg, float(tnear)))
+        return {kHit, std::isnan(dist) ? odometer.value() : dist, crossings};
     }
     if (!crosses) return {kDistanceLimit, length, crossings};
-    dist += t;
-    if (crossings == max_crossings) return {kCrossingLimit, dist, crossings};
+    if (exit.exact)
+      odometer.add_exact(u.t);
+    else
+      odometer.add_turn(u);
+    if (crossings == max_crossings) return {kCrossingLimit, odometer.value(), crossings};
     ++crossings;
     const Mat4& M = face_maps_[exit.face];
     P = mat_vec(M, X);
     V = mat_vec(M, Xv);
-    if (!space_.renormalise(P, V)) return {kDistanceLimit, dist, crossings};
+    if (!space_.renormalise(P, V)) return {kDistanceLimit, odometer.value(), crossings};
   }
 }
 
@@ -316,7 +409,7 @@ void Tracer::trace_ray(std::size_t i, const Vec4& origin, const Vec4& direction,
   u = std::clamp(u, 0.0, 1.0);
   const Vec3 xh{hit.x0[0] + u * d[0], hit.x0[1] + u * d[1], hit.x0[2] + u * d[2]};
   const Vec4 H = space_.model(xh);
-  const double s = std::clamp(space_.arclength(hit.P, hit.V, H), 0.0, hit.length);
+  const double s = std::clamp(space_.arclength(hit.P, hit.V, H), 0.0, hit.length());
   out.depth[i] = end.distance + s;
   out.distance[i] = out.depth[i];
 

@@ -98,12 +98,15 @@ class Tracer {
   static constexpr int kChartEdge = -2;
   struct Exit {
     Space::Turn turn;
-    int face;  // a face, -1 if none lies ahead, or kChartEdge
+    int face;    // a face, -1 if none lies ahead, or kChartEdge
+    bool exact;  // whether turn.t is exact (else an estimate: S3's usual exits)
   };
   struct Segment {
     Vec4 P, V;   // start point and unit velocity
     Vec3 x0, x1; // chart endpoints
-    double length;
+    Space::Turn turn;  // to x1
+    bool exact;        // whether turn.t is exact
+    double length() const { return exact ? turn.t : std::atan2(turn.s, turn.c); }
   };
   struct WalkEnd {
     Stop stop;
@@ -120,6 +123,7 @@ class Tracer {
   SceneHandle build_scene(const std::vector<std::uint32_t>& triangle_ids) const;
 
   Exit find_exit(const Vec4& P, const Vec4& V) const;
+  Exit find_exit_exact(const Vec4& P, const Vec4& V) const;
   double scene_escape(const Vec3& x0) const;
   bool may_hit(const Segment& seg) const;
   template <class Query>
