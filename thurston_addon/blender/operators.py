@@ -124,7 +124,8 @@ class _ThurstonRenderOperator(bpy.types.Operator):
         raise NotImplementedError
 
     def finish(self, context, job: _RenderJob):
-        raise NotImplementedError
+        image = store_image(self.image_name, job.result.passes["color"])
+        show_image(context, image)
 
     def execute(self, context):
         try:
@@ -188,10 +189,6 @@ class THURSTON_OT_render_view(_ThurstonRenderOperator):
     def make_job(self, context):
         return _RenderJob(context)
 
-    def finish(self, context, job):
-        image = store_image(self.image_name, job.result.passes["color"])
-        show_image(context, image)
-
 
 class THURSTON_OT_preview(_ThurstonRenderOperator):
     """A quick low-resolution render at preview quality"""
@@ -204,10 +201,6 @@ class THURSTON_OT_preview(_ThurstonRenderOperator):
         w, h = export.resolution(context.scene)
         k = max(1, max(w, h) // 320)
         return _RenderJob(context, width=max(1, w // k), height=max(1, h // k), quality="preview")
-
-    def finish(self, context, job):
-        image = store_image(self.image_name, job.result.passes["color"])
-        show_image(context, image)
 
 
 class THURSTON_OT_bake_panorama(_ThurstonRenderOperator):
