@@ -51,5 +51,14 @@ spec.loader.exec_module(core)
 print("check_embree4: thurston_core built with Embree", core.EMBREE_VERSION)
 assert core.EMBREE_VERSION.startswith("4."), core.EMBREE_VERSION
 import pytest
-sys.exit(pytest.main(["-q", "-p", "no:cacheprovider", "tests/test_core.py"]))
+status = pytest.main(["-q", "-p", "no:cacheprovider", "tests/test_core.py"])
+
+# EMBREE_VERSION is the headers' version: check which libraries the process really mapped.
+with open("/proc/self/maps") as maps:
+    loaded = sorted({line.split()[-1] for line in maps
+                     if "libembree" in line or "libtbb" in line})
+print("check_embree4: loaded", *loaded, sep="\n  ")
+assert any("libembree4" in path for path in loaded), loaded
+assert not any("libembree3" in path for path in loaded), loaded
+sys.exit(status)
 PY
