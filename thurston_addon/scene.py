@@ -374,5 +374,5 @@ def default_scene(space) -> Scene:
                                (0.3, 0.6, 0.95)))
     # behind and above the camera; bright enough to light the walls one domain away
     position = np.asarray(cam.position, float) + 0.3 * inr * (up - 0.5 * forward)
-    light = PointLight(position, np.ones(3), float(1.5 / space.geometry.falloff(space.inradius)))
+    light = PointLight(position, np.ones(3), float(0.5 / space.geometry.falloff(space.inradius)))
     return Scene(objects=objects, lights=[light])
