@@ -223,6 +223,21 @@ def test_straddling_ball_on_torus_vertex(space_cache):
     check_against_balls(space, V, F, centre, rho, sag, P, D, 3.0)
 
 
+def test_object_reaching_two_domains_away_is_whole(space_cache):
+    """A bar at y = 0.2 spanning x in [1.05, 1.55] lies outside the torus's domain; its parts come
+    back through one (x - 1) and two (x - 2) face crossings. A ray along +y at x = -0.48 can only
+    meet the part two domains away, at depth 0.2 - 0.025."""
+    space = space_cache("torus")
+    g = space.geometry
+    bar = trimesh.creation.box(extents=[0.5, 0.05, 0.05])
+    bar.apply_translation([1.3, 0.2, 0.0])
+    tracer = render.make_tracer(space, Scene(objects=[SceneObject("bar", bar.vertices, bar.faces)]))
+    P, D = model_rays(g, np.array([[-0.48, 0, 0], [0.3, 0, 0], [-0.3, 0, 0]]), np.array([[0, 1.0, 0]] * 3))
+    out = tracer.trace(P, D, 0.5, 4, shade=False)
+    np.testing.assert_allclose(out["depth"][:2], 0.175, atol=1e-9)
+    assert out["stop"][2] == 1  # x = -0.3 maps to 0.7 and 1.7: the bar is not there
+
+
 def test_straddling_ball_on_poincare_face(space_cache):
     space = space_cache("poincare")
     g = space.geometry

@@ -74,6 +74,34 @@ class Result:
 
 
 # --- compiling the scene -------------------------------------------------------------------------------
+# Copies of the domain searched for an object's parts: rings of copies around D, more for larger
+# objects; hyperbolic rings grow too fast for more than one.
+MAX_RINGS = {1: 3, 0: 3, -1: 1}
+
+
+def _object_copies(space: Space, obj, C):
+    """The copies g(obj) that can reach the domain, each as (model vertices, kept triangles), and
+    whether every vertex of the object is brought into the domain by one of them."""
+    g = space.geometry
+    X = g.to_model(obj.vertices)
+    T = obj.triangles
+    for rings in range(1, MAX_RINGS[g.curvature] + 1):
+        copies = []
+        covered = np.zeros(len(X), bool)
+        for M in space.neighbourhood(rings):
+            Y = X @ M.T
+            ok = Y[:, 3] > 1e-9 * np.linalg.norm(Y, axis=1)  # the copy stays on the chart's side
+            outside = (Y / np.linalg.norm(Y, axis=1)[:, None]) @ C.T > 1e-9
+            covered |= ok & ~outside.any(axis=1)
+            # drop triangles wholly outside one face plane: they cannot meet the domain
+            keep = ~np.any(outside[T[:, 0]] & outside[T[:, 1]] & outside[T[:, 2]], axis=1) & ok[T].all(axis=1)
+            if keep.any():
+                copies.append((Y, T[keep]))
+        if covered.all():
+            break
+    return copies, covered
+
+
 def compile_scene(space: Space, scene: Scene):
     """Tracer arrays: triangles of every object and of its copies g(object) that can reach the domain
     (parts sticking out re-enter through the paired faces), and the lights' copies near the domain."""
@@ -86,25 +114,18 @@ def compile_scene(space: Space, scene: Scene):
     for index, obj in enumerate(scene.objects):
         if not np.all(g.in_chart(obj.vertices)):
             raise SceneError(f"object {obj.name!r} has vertices outside the chart of {g.name} (the Klein chart is the open unit ball)")
-        X = g.to_model(obj.vertices)
-        shown = 0
-        for M in elements:
-            Y = X @ M.T
-            ok = Y[:, 3] > 1e-9 * np.linalg.norm(Y, axis=1)  # the copy stays on the chart's side
-            s = (Y / np.linalg.norm(Y, axis=1)[:, None]) @ C.T
-            outside = s > 1e-9
-            T = obj.triangles
-            keep = ~np.any(outside[T[:, 0]] & outside[T[:, 1]] & outside[T[:, 2]], axis=1) & ok[T].all(axis=1)
-            if not keep.any():
-                continue
-            used, local = np.unique(T[keep], return_inverse=True)
+        copies, covered = _object_copies(space, obj, C)
+        for Y, T in copies:
+            used, local = np.unique(T, return_inverse=True)
             verts.append(g.to_chart(Y[used]))
             tris.append(local.reshape(-1, 3) + offset)
-            owner.append(np.full(int(keep.sum()), index, np.int32))
+            owner.append(np.full(len(T), index, np.int32))
             offset += len(used)
-            shown += 1
-        if shown == 0:
+        if not copies:
             warnings.warn(f"object {obj.name!r} lies outside the domain and its neighbouring copies: not shown", stacklevel=2)
+        elif not covered.all():
+            warnings.warn(f"object {obj.name!r} reaches beyond the copies of the domain around it: "
+                          f"{int((~covered).sum())} of its vertices are farther out and parts of it are missing", stacklevel=2)
     V = np.vstack(verts) if verts else np.zeros((0, 3))
     T = np.vstack(tris).astype(np.int32) if tris else np.zeros((0, 3), np.int32)
     O = np.concatenate(owner) if owner else np.zeros(0, np.int32)
@@ -114,7 +135,10 @@ def compile_scene(space: Space, scene: Scene):
     for i, light in enumerate(scene.lights):
         if not np.all(g.in_chart(light.position)):
             raise SceneError(f"light {i} at {light.position} is outside the chart of {g.name}")
-        L = g.to_model(light.position)
+        try:  # its copies are taken around the domain, so start from the copy inside
+            L, _, _ = space.bring_inside(g.to_model(light.position))
+        except SpaceError as exc:
+            raise SceneError(f"light {i}: {exc}") from None
         for M in elements:
             Y = M @ L
             lifts.append(Y)
