@@ -191,7 +191,7 @@ def write_scene_files(scene, folder: Path, scale: float):
     for obj in scene.objects:
         if obj.type == "LIGHT":
             pos = np.array(obj.matrix_world.translation) / scale
-            power = obj.data.energy / (4 * math.pi) / scale**2
+            power = obj.data.energy / (4 * math.pi**2) / scale**2  # radiant intensity x albedo / pi
             toml += ["[[light]]", f"position = [{', '.join(map(repr, map(float, pos)))}]",
                      f"color = [{', '.join(map(repr, map(float, obj.data.color)))}]", f"power = {power!r}"]
     cam = scene.camera

@@ -564,3 +564,33 @@ def test_settings_presets_round_trip(tmp_path, monkeypatch):
     assert bpy.ops.script.execute_preset(filepath=str(preset), menu_idname="THURSTON_MT_presets") == {"FINISHED"}
     assert (s.space, s.quality, s.scale, s.fog, set(s.passes)) == ("seifert_weber", "final", 2.5, 3.0, {"COLOR", "DEPTH"})
     preset.unlink()
+
+
+def test_point_light_brightness_matches_cycles(tmp_path):
+    """A Lambert plane lit head-on by a point light of P watts at distance r has radiance
+    rho / pi * P / (4 pi r^2) (closed form); THURSTON's F12 gives that, and so does Cycles."""
+    sc = bh.fresh_scene("torus", size=(16, 16))
+    rho, watts, r = 0.8, 10.0, 0.3
+    plane = bh.box("Plane", (0.4, 0.001, 0.4), (0, r, 0), color=(rho, rho, rho))
+    plane.active_material.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = 1.0
+    plane.active_material.node_tree.nodes["Principled BSDF"].inputs["Specular IOR Level"].default_value = 0.0
+    light = bh.point_light((0, 0, 0), energy=watts)
+    light.data.shadow_soft_size = 0.0
+    bh.camera(location=(0, -0.1, 0))
+    sc.view_settings.view_transform = "Standard"
+    sc.thurston.quality = "draft"  # one sample, through the pixel centre
+    # the ray through the centre of pixel (row 8, column 8) of 16: half a pixel off the axis each way
+    t = math.tan(sc.camera.data.angle / 2) / 16
+    direction = np.array([t, 1.0, -t])
+    hit = np.array([0, -0.1, 0]) + direction * (r - 0.0005 + 0.1)  # the plane's front at y = r - 0.0005
+    dist = np.linalg.norm(hit)
+    expected = rho / math.pi * watts / (4 * math.pi) * (hit[1] / dist) / dist**2
+    thurston = bh.rgb(bh.f12(sc, tmp_path / "thurston.exr"), "ViewLayer.Combined.")[8, 8]
+    np.testing.assert_allclose(thurston, expected, rtol=1e-4)
+    sc.render.engine = "CYCLES"
+    sc.cycles.samples = 64
+    sc.cycles.device = "CPU"
+    sc.render.filepath = str(tmp_path / "cycles.exr")  # the multilayer EXR settings of f12 stay
+    bpy.ops.render.render(write_still=True)
+    cycles = bh.rgb(bh.read_exr(tmp_path / "cycles.exr"), "ViewLayer.Combined.")
+    np.testing.assert_allclose(cycles[7:9, 7:9].mean(axis=(0, 1)), expected, rtol=0.03)

@@ -114,8 +114,9 @@ def export_scene(depsgraph, scale: float, notes: list[str]) -> scenes.Scene:
                 skipped.setdefault(f"{light.type.lower()} lights (only point lights)", []).append(original.name)
                 continue
             pos = np.array(inst.matrix_world.translation, float) / scale
-            # Blender's power (W) radiates over 4 pi sr; chart distances are world distances / scale
-            intensity = light.energy / (4 * math.pi) / scale**2
+            # Blender's power (W) radiates over 4 pi sr, and a Lambert surface of albedo rho sends
+            # rho / pi of its irradiance back (as Cycles does); chart distances are world / scale
+            intensity = light.energy / (4 * math.pi**2) / scale**2
             scene.lights.append(scenes.PointLight(pos, np.array(light.color[:3], float), intensity))
         elif obj.type not in ("CAMERA", "EMPTY"):
             skipped.setdefault(f"{obj.type.lower()} objects (only meshes)", []).append(original.name)
