@@ -31,6 +31,7 @@ class SceneObject:
     color: np.ndarray = field(default_factory=lambda: np.array(DEFAULT_COLOR))
     emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
     pieces: np.ndarray | None = None  # (m,) piece index per triangle: parts placed separately (edge tubes)
+    pass_index: int = 0  # a user's index for the object (Blender's pass_index), kept for compositing
 
     def __post_init__(self):
         self.vertices = np.asarray(self.vertices, dtype=np.float64).reshape(-1, 3)
