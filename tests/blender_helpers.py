@@ -162,17 +162,21 @@ def material_values(obj):
     return kd, ke
 
 
+def exported_names(scene):
+    """Names of the mesh objects write_scene_files writes, in its order (the core's object numbers)."""
+    return [obj.name for obj in scene.objects if obj.type == "MESH" and not obj.hide_render]
+
+
 def write_scene_files(scene, folder: Path, scale: float):
     """OBJ+MTL (world vertices / scale, Kd, Ke) of the scene's mesh objects, and a TOML scene file with
-    the point lights (position / scale, power = energy / 4 pi / scale^2) and the camera (position /
+    the point lights (position / scale, power = energy / 4 pi^2 / scale^2) and the camera (position /
     scale, forward = -Z column, up = +Y column, horizontal fov from lens and sensor width)."""
     b = bpy()
     depsgraph = b.context.evaluated_depsgraph_get()
     obj_lines, mtl_lines = ["mtllib scene.mtl"], []
     base = 1
-    for obj in scene.objects:
-        if obj.type != "MESH" or obj.hide_render:
-            continue
+    for name in exported_names(scene):
+        obj = scene.objects[name]
         ev = obj.evaluated_get(depsgraph)
         mesh = ev.to_mesh()
         M = np.array(ev.matrix_world)

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import bpy
 
-from .. import images, render
-from . import export
+from .. import images
+from . import engine, export
 
 
 def ensure_registered():
@@ -39,22 +39,53 @@ def frame_range(spec: str | None, bscene) -> range:
     return range(first, last + 1)
 
 
+def _configure_output(bscene, suffix: str):
+    """The THURSTON engine, the view layer passes that the settings ask for, and the file format."""
+    bscene.render.engine = "THURSTON"
+    wanted = set(bscene.thurston.passes)
+    layer = bscene.view_layers[0]
+    layer.use_pass_z = "DEPTH" in wanted
+    layer.use_pass_normal = "NORMAL" in wanted
+    layer.use_pass_object_index = "OBJECT" in wanted
+    if "CROSSINGS" in wanted and engine.CROSSINGS_AOV not in layer.aovs:
+        aov = layer.aovs.add()
+        aov.name, aov.type = engine.CROSSINGS_AOV, "VALUE"
+    settings = bscene.render.image_settings
+    if suffix == "exr":
+        if hasattr(settings, "media_type"):  # Blender 5
+            settings.media_type = "MULTI_LAYER_IMAGE"
+        settings.file_format = "OPEN_EXR_MULTILAYER"
+        settings.color_depth = "32"
+    else:
+        if hasattr(settings, "media_type"):
+            settings.media_type = "IMAGE"
+        settings.file_format = "PNG"
+        settings.color_depth = "8"
+    bscene.render.use_file_extension = False
+
+
 def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, overwrite: bool, progress_for, log):
-    """Render each frame (animated cameras and objects follow the timeline) to out_dir/<name>_<frame>.<suffix>."""
+    """Render each frame through the THURSTON engine, as `blender -b FILE -E THURSTON -f N` would (render
+    visibility, render modifier levels, animated cameras and objects), to out_dir/<name>_<frame>.<suffix>:
+    a multilayer EXR with the passes the settings ask for, or a PNG of the view-transformed colour."""
     open_blend(path)
     bscene = bpy.context.scene
     outputs = [out_dir / f"{path.stem}_{f:04d}.{suffix}" for f in frame_range(frames, bscene)]
     for out in outputs:  # refuse before spending time on any frame
         images.check_output(out, overwrite)
-    names = [p.lower() for p in bscene.thurston.passes] or ["color"]
+    _configure_output(bscene, suffix)
     for frame, out in zip(frame_range(frames, bscene), outputs):
         bscene.frame_set(frame)
-        depsgraph = bpy.context.evaluated_depsgraph_get()
-        space, scene, camera, settings, notes = export.collect(bscene, depsgraph)
-        for note in notes:
-            log(f"frame {frame}: {note}")
-        result = render.render(space, scene, settings, camera=camera, progress=progress_for(f"frame {frame}"))
-        images.write(out, export.blender_passes(result, bscene.thurston.scale), names=names,
-                     metadata={"frame": frame, "summary": result.summary()})
-        log(f"{out}: {result.summary()}")
+        bscene.render.filepath = str(out)
+        listener = progress_for(f"frame {frame}")
+        engine.progress_listeners.append(listener)
+        try:
+            bpy.ops.render.render(write_still=True)
+        except RuntimeError as exc:  # the engine's self.report(ERROR) arrives here
+            raise export.ExportError(f"frame {frame}: {str(exc).strip()}") from None
+        finally:
+            engine.progress_listeners.remove(listener)
+        if not out.exists():
+            raise export.ExportError(f"frame {frame}: Blender wrote no file to {out}")
+        log(f"{out}: {bscene.thurston.stats.summary}")
     return outputs

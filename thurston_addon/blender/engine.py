@@ -10,6 +10,8 @@ from .. import render
 from . import export
 
 CROSSINGS_AOV = "Crossings"
+# Callables (done, total) told of the progress of final renders; batch renders show it on the terminal.
+progress_listeners: list = []
 
 
 def _flip_rows(a):
@@ -44,7 +46,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         bscene = depsgraph.scene
         w, h = export.resolution(bscene)
         try:
-            space, scene, camera, settings, notes = export.collect(bscene, depsgraph, w, h)
+            space, scene, camera, settings, notes = export.collect(bscene, depsgraph, w, h, camera_object=self.camera_override)
         except (export.ExportError, render.RenderError) as exc:
             self.report({"ERROR"}, f"Thurston: {exc}")
             return
@@ -53,6 +55,8 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
 
         def progress(done, total):
             self.update_progress(done / max(total, 1))
+            for listener in progress_listeners:
+                listener(done, total)
             return not self.test_break()
 
         try:
@@ -64,9 +68,9 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
             return
         export.store_stats(bscene.thurston, result)
         self.update_stats("Thurston", result.summary())
-        self.write_result(bscene, result, w, h)
+        self.write_result(bscene, result, scene, w, h)
 
-    def write_result(self, bscene, result, w, h):
+    def write_result(self, bscene, result, scene, w, h):
         passes = export.blender_passes(result, bscene.thurston.scale)
         out = self.begin_result(0, 0, w, h)
         layer = out.layers[0]
@@ -77,7 +81,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
             # Blender's Z pass holds a large value where nothing is hit
             "Depth": np.where(np.isfinite(passes["depth"]), passes["depth"], 1e10)[..., None],
             "Normal": np.nan_to_num(passes["normal"]),
-            "IndexOB": passes["object"][..., None].astype(np.float32),
+            "IndexOB": export.index_pass(result, scene)[..., None],
             CROSSINGS_AOV: passes["crossings"][..., None].astype(np.float32),
         }
         for rp in layer.passes:
@@ -129,10 +133,13 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         space = export.load_space(bscene.thurston)
         notes: list[str] = []
         scene = export.export_scene(depsgraph, bscene.thurston.scale, notes)
-        view = np.array(context.region_data.view_matrix.inverted(), float)
+        region = context.region_data
+        if not region.is_perspective:
+            raise render.RenderError("the viewport is orthographic; Thurston shows perspective views only")
+        view = np.array(region.view_matrix.inverted(), float)
         scale = bscene.thurston.scale
-        lens = context.space_data.lens
-        fov = 2 * np.degrees(np.arctan(36.0 / 2 / lens)) if w >= h else 2 * np.degrees(np.arctan(36.0 / 2 / lens * w / h))
+        # the field of view the viewport itself shows (its lens, sensor and camera zoom)
+        fov = 2 * np.degrees(np.arctan(1.0 / region.window_matrix[0][0]))
         camera = scenes.Camera(view[:3, 3] / scale, -view[:3, 2], view[:3, 1], float(fov))
         settings = export.render_settings(bscene.thurston, w, h)
         settings.quality = "draft"

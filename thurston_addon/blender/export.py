@@ -41,9 +41,10 @@ def load_space(settings) -> spaces.Space:
 def render_settings(settings, width: int, height: int, projection: str = "perspective") -> render.Settings:
     return render.Settings(
         width=width, height=height, projection=projection, quality=settings.quality, shading=settings.shading,
-        max_distance=settings.max_distance or None,
+        # the panel's distances are in Blender units; the tracer's in chart units
+        max_distance=settings.max_distance / settings.scale or None,
         max_crossings=None if settings.max_crossings < 0 else settings.max_crossings,
-        fog=settings.fog or None, threads=settings.threads)
+        fog=settings.fog / settings.scale or None, threads=settings.threads)
 
 
 def _material_colors(obj):
@@ -77,15 +78,47 @@ def _is_guide(obj) -> bool:
     return bool(obj.get(GUIDE_TAG)) or any(c.get(GUIDE_TAG) for c in obj.users_collection)
 
 
+def _render_disabled(obj, hidden_collections) -> bool:
+    """Disabled in renders: the object, or every collection it is in (directly or by a parent)."""
+    return obj.hide_render or (bool(obj.users_collection) and all(c in hidden_collections for c in obj.users_collection))
+
+
+def _hidden_collections(bscene):
+    """Collections whose contents Blender does not render: hide_render on them or on a parent,
+    or excluded from the view layer."""
+    hidden = set()
+
+    def walk(coll, parent_hidden):
+        h = parent_hidden or coll.hide_render
+        if h:
+            hidden.add(coll)
+        for child in coll.children:
+            walk(child, h)
+
+    walk(bscene.collection, False)
+
+    def excluded(layer_coll):
+        if layer_coll.exclude:
+            hidden.add(layer_coll.collection)
+            hidden.update(layer_coll.collection.children_recursive)
+        for child in layer_coll.children:
+            excluded(child)
+
+    for view_layer in bscene.view_layers[:1]:
+        excluded(view_layer.layer_collection)
+    return hidden
+
+
 def export_scene(depsgraph, scale: float, notes: list[str]) -> scenes.Scene:
     """Mesh objects and instances (modifiers applied, world matrices), materials and point lights,
     in chart coordinates (world / scale). Skipped things are described in `notes`."""
     scene = scenes.Scene()
     skipped: dict[str, list[str]] = {}
+    hidden_collections = _hidden_collections(depsgraph.scene.original)
     for inst in depsgraph.object_instances:
         obj = inst.object
         original = obj.original
-        if _is_guide(original) or original.hide_render:
+        if _is_guide(original) or _render_disabled(original, hidden_collections):
             continue
         if inst.is_instance and inst.parent.original.type not in ("MESH", "EMPTY"):
             continue  # geometry of a curve, text, ... object: skipped (and noted) as that object
@@ -105,7 +138,8 @@ def export_scene(depsgraph, scale: float, notes: list[str]) -> scenes.Scene:
             color, emission = _material_colors(obj)
             name = original.name if not inst.is_instance else f"{original.name} ({inst.parent.original.name})"
             try:
-                scene.objects.append(scenes.clean(scenes.SceneObject(name, V / scale, tri.reshape(-1, 3), color, emission), "Blender"))
+                scene.objects.append(scenes.clean(scenes.SceneObject(
+                    name, V / scale, tri.reshape(-1, 3), color, emission, pass_index=original.pass_index), "Blender"))
             except scenes.SceneError as exc:
                 raise ExportError(str(exc)) from None
         elif obj.type == "LIGHT":
@@ -116,7 +150,7 @@ def export_scene(depsgraph, scale: float, notes: list[str]) -> scenes.Scene:
             pos = np.array(inst.matrix_world.translation, float) / scale
             # Blender's power (W) radiates over 4 pi sr, and a Lambert surface of albedo rho sends
             # rho / pi of its irradiance back (as Cycles does); chart distances are world / scale
-            intensity = light.energy / (4 * math.pi**2) / scale**2
+            intensity = light.energy * 2.0 ** getattr(light, "exposure", 0.0) / (4 * math.pi**2) / scale**2
             scene.lights.append(scenes.PointLight(pos, np.array(light.color[:3], float), intensity))
         elif obj.type not in ("CAMERA", "EMPTY"):
             skipped.setdefault(f"{obj.type.lower()} objects (only meshes)", []).append(original.name)
@@ -126,10 +160,12 @@ def export_scene(depsgraph, scale: float, notes: list[str]) -> scenes.Scene:
     return scene
 
 
-def export_camera(bscene, scale: float, width: int, height: int) -> scenes.Camera:
-    cam = bscene.camera
+def export_camera(bscene, depsgraph, scale: float, width: int, height: int, camera_object=None) -> scenes.Camera:
+    """The scene camera as evaluated in this depsgraph (animated cameras move with the frame)."""
+    cam = camera_object or bscene.camera
     if cam is None:
         raise ExportError("the scene has no camera: add one (Add > Camera) and make it the scene camera")
+    cam = cam.evaluated_get(depsgraph)
     M = np.array(cam.matrix_world, float)
     position = M[:3, 3] / scale
     forward, up = -M[:3, 2], M[:3, 1]
@@ -150,7 +186,7 @@ def resolution(bscene) -> tuple[int, int]:
     return max(1, r.resolution_x * r.resolution_percentage // 100), max(1, r.resolution_y * r.resolution_percentage // 100)
 
 
-def collect(context_scene, depsgraph, width=None, height=None, projection="perspective"):
+def collect(context_scene, depsgraph, width=None, height=None, projection="perspective", camera_object=None):
     """Everything a render needs: (space, scene, camera, settings, notes)."""
     settings = context_scene.thurston
     space = load_space(settings)
@@ -159,7 +195,7 @@ def collect(context_scene, depsgraph, width=None, height=None, projection="persp
     scene = export_scene(depsgraph, settings.scale, notes)
     if not scene.objects:
         raise ExportError("nothing to render: the scene has no visible mesh objects (the domain guide does not count)")
-    camera = export_camera(context_scene, settings.scale, w, h)
+    camera = export_camera(context_scene, depsgraph, settings.scale, w, h, camera_object)
     rs = render_settings(settings, w, h, projection)
     return space, scene, camera, rs, notes
 
@@ -170,6 +206,12 @@ def blender_passes(result: render.Result, scale: float) -> dict:
     passes["depth"] = passes["depth"] * scale
     passes["position"] = passes["position"] * scale
     return passes
+
+
+def index_pass(result: render.Result, scene) -> np.ndarray:
+    """Blender's IndexOB: each object's pass_index where it is seen, 0 where nothing is hit."""
+    lookup = np.array([o.pass_index for o in scene.objects] + [0], np.float32)  # object -1 -> the 0 at the end
+    return lookup[result.passes["object"]]
 
 
 def store_stats(settings, result: render.Result):

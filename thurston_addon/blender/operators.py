@@ -45,11 +45,14 @@ def show_image(context, image):
             area.tag_redraw()
 
 
+def check_save_path(settings):
+    return images.check_output(bpy.path.abspath(settings.save_path), settings.overwrite) if settings.save_path else None
+
+
 def save_if_asked(settings, result: render.Result, report):
-    if not settings.save_path:
+    out = check_save_path(settings)
+    if out is None:
         return
-    path = bpy.path.abspath(settings.save_path)
-    out = images.check_output(path, settings.overwrite)
     names = [p.lower() for p in settings.passes] or ["color"]
     images.write(out, export.blender_passes(result, settings.scale), names=names, metadata={"summary": result.summary()})
     report({"INFO"}, f"Saved {out}")
@@ -130,7 +133,8 @@ class _ThurstonRenderOperator(bpy.types.Operator):
     def execute(self, context):
         try:
             job = self.make_job(context)
-        except (export.ExportError, render.RenderError) as exc:
+            check_save_path(context.scene.thurston)  # refuse before the render, not after it
+        except (export.ExportError, render.RenderError, images.OutputError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         for note in job.notes:
@@ -151,8 +155,9 @@ class _ThurstonRenderOperator(bpy.types.Operator):
         wm = context.window_manager
         if event.type == "ESC":
             self._job.cancelled = True
-        if event.type != "TIMER":
             return {"RUNNING_MODAL"}
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}  # the UI stays usable while the worker traces
         wm.progress_update(int(self._job.fraction * 100))
         context.workspace.status_text_set(f"Thurston: {self.bl_label} {self._job.fraction * 100:.0f}% (Esc to cancel)")
         if self._thread.is_alive():
@@ -213,8 +218,9 @@ class THURSTON_OT_bake_panorama(_ThurstonRenderOperator):
     def make_job(self, context):
         w = context.scene.thurston.panorama_width
         job = _RenderJob(context, width=w, height=max(1, w // 2), projection="equirect")
-        # Blender's equirectangular mapping: image centre looks along -X, up is +Z (world axes)
-        job.camera.forward, job.camera.up = np.array([-1.0, 0, 0]), np.array([0, 0, 1.0])
+        # Blender's equirectangular mapping: the image centre looks along +X, the right half of the
+        # image towards -Y, up is +Z (world axes)
+        job.camera.forward, job.camera.up = np.array([1.0, 0, 0]), np.array([0, 0, 1.0])
         return job
 
     def finish(self, context, job):
