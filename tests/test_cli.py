@@ -376,3 +376,81 @@ def test_trace_bad_limits_exit_2(tmp_path, capsys, option):
     assert code == 2
     assert "max" in error_line(err)
     assert not (tmp_path / "h.npz").exists()
+
+
+# --- bad input that used to end in a traceback ------------------------------------------------------------
+TORUS_GENERATORS = """
+[[generator]]
+matrix = [[1, 0, 0, 1], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+[[generator]]
+matrix = [[1, 0, 0, 0], [0, 1, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1]]
+[[generator]]
+matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]]
+"""
+
+
+@pytest.mark.parametrize("head,tail,word", [
+    ('geometry = "E3"\ngenerator = [1, 2]\n', "", "generator"),
+    ('geometry = "E3"\ncamera = 5\n', TORUS_GENERATORS, "camera"),
+    ('geometry = "E3"\nmax_crossings = "many"\n', TORUS_GENERATORS, "max_crossings"),
+    ('geometry = "E3"\nmax_crossings = 2.7\n', TORUS_GENERATORS, "max_crossings"),
+    ('geometry = "E3"\nmax_crossings = -5\n', TORUS_GENERATORS, "max_crossings"),
+    ('geometry = "E3"\nmax_distance = -3\n', TORUS_GENERATORS, "max_distance"),
+    ('geometry = "E3"\n[camera]\nforward = [0, 1, 0]\nup = [0, -3, 0]\n', TORUS_GENERATORS, "parallel"),
+])
+@pytest.mark.parametrize("command", ["render", "trace"])
+def test_bad_space_file_fields_exit_2(tmp_path, capsys, head, tail, word, command):
+    space = tmp_path / "odd.toml"
+    space.write_text(head + tail)
+    np.save(tmp_path / "rays.npy", np.array([[0, 0, 0, 1, 0, 0.0]]))
+    out = tmp_path / ("x.png" if command == "render" else "h.npz")
+    extra = ["--size", "4x4"] if command == "render" else ["--rays", tmp_path / "rays.npy"]
+    code, _, err = run([command, "--space", space, *extra, "--out", out], capsys)
+    assert code == 2, err
+    line = error_line(err)
+    assert "odd.toml" in line and word in line, line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["render", "trace"])
+def test_negative_threads_exit_2(tmp_path, capsys, command):
+    np.save(tmp_path / "rays.npy", np.array([[0, 0, 0, 1, 0, 0.0]]))
+    out = tmp_path / ("x.png" if command == "render" else "h.npz")
+    extra = ["--size", "4x4"] if command == "render" else ["--rays", tmp_path / "rays.npy"]
+    code, _, err = run([command, "--space", "torus", *extra, "--threads", "-1", "--out", out], capsys)
+    assert code == 2, err
+    assert "threads" in error_line(err)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["render", "trace"])
+def test_core_value_error_is_a_clean_error(tmp_path, capsys, monkeypatch, command):
+    """Backstop: input the Python checks let through but the C++ core rejects (here: negative
+    threads, with the check switched off) ends as `thurston: error:` and exit 2, not a traceback."""
+    monkeypatch.setattr(render.Settings, "check", lambda self: None)
+    np.save(tmp_path / "rays.npy", np.array([[0, 0, 0, 1, 0, 0.0]]))
+    out = tmp_path / ("x.png" if command == "render" else "h.npz")
+    extra = ["--size", "4x4"] if command == "render" else ["--rays", tmp_path / "rays.npy"]
+    code, _, err = run([command, "--space", "torus", *extra, "--threads", "-1", "--out", out], capsys)
+    assert code == 2, err
+    assert "threads must be >= 0" in error_line(err)
+
+
+def test_trace_wrapper_passes_progress_errors_through():
+    """render.trace turns the core's ValueError into RenderError, but an exception raised by the
+    progress callback is the caller's own and passes through unchanged."""
+    space = spaces.load("torus")
+    tracer = render.make_tracer(space, default_scene(space))
+    X = np.tile([0.0, 0.0, 0.0, 1.0], (4, 1))
+    V = np.tile([0.0, 1.0, 0.0, 0.0], (4, 1))
+    with pytest.raises(render.RenderError, match="max_crossings"):
+        render.trace(tracer, X, V, 5.0, -1)
+    with pytest.raises(render.RenderError, match="dtype"):
+        render.trace(tracer, X.astype(np.float32), V, 5.0, 3)
+
+    def progress(done, total):
+        raise ValueError("mine")
+
+    with pytest.raises(ValueError, match="mine") as info:
+        render.trace(tracer, X, V, 5.0, 3, progress=progress)
+    assert not isinstance(info.value, render.RenderError)

@@ -800,3 +800,52 @@ def test_quaternionic_space_loads(tmp_path):
     assert {tuple(np.round(v, 12) + 0.0) for v in s.domain.vertices} == corners
     assert s.volume == pytest.approx(2 * math.pi ** 2 / 8, abs=1e-9)
     assert tetra_volume_integral(s, 16) == pytest.approx(2 * math.pi ** 2 / 8, abs=1e-6)
+
+
+# --- fields of the wrong type or out of range: SpaceError naming the file and the field -------------
+BAD_FIELDS = [
+    ("generator = [1, 2]\n", "generator"),
+    ("camera = 5\n", "camera"),
+    ('max_crossings = "many"\n', "max_crossings"),
+    ("max_crossings = 2.7\n", "max_crossings"),
+    ("max_crossings = -5\n", "max_crossings"),
+    ("max_crossings = true\n", "max_crossings"),
+    ("max_crossings = 3000000000\n", "max_crossings"),
+    ("max_distance = -3\n", "max_distance"),
+    ("max_distance = 0\n", "max_distance"),
+    ('max_distance = "inf"\n', "max_distance"),
+    ("geometry = 5\n", "geometry"),
+    ("[camera]\nforward = [0, 1, 0]\nup = [0, 2, 0]\n", "parallel"),
+    ("[camera]\nforward = [0, 0, 0]\n", "camera.forward"),
+    ("[camera]\nup = [0, 0, 0]\n", "camera.up"),
+    ('[camera]\nforward = [1, "nan", 0]\n', "camera.forward"),
+    ("[camera]\nfov = 0\n", "camera.fov"),
+    ("[camera]\nfov = 180\n", "camera.fov"),
+    ("[camera]\nfov = -30\n", "camera.fov"),
+    ('[camera]\nposition = [0, 0, "1/0"]\n', "camera.position"),
+]
+
+
+@pytest.mark.parametrize("field,word", BAD_FIELDS)
+def test_bad_fields_raise_space_error(tmp_path, field, word):
+    # top-level keys before the [[generator]] tables; a replaced generator list or geometry goes first
+    # (TOML: a key defined twice is an error, so the box torus' own keys are dropped where replaced)
+    body = BOX_TORUS
+    if field.startswith("generator"):
+        body = 'geometry = "E3"\n'
+    elif field.startswith("geometry"):
+        body = BOX_TORUS.replace('geometry = "E3"\n', "")
+    text = field + body if not field.startswith("[camera]") else body + field
+    expect_error(write(tmp_path, text), word)
+
+
+def test_camera_outside_the_h3_chart_is_rejected(tmp_path):
+    text = (spaces.PRESET_DIR / "seifert_weber.toml").read_text()
+    assert "position = [0.05, -0.08, 0.03]" in text
+    text = text.replace("position = [0.05, -0.08, 0.03]", "position = [1.5, 0, 0]")
+    expect_error(write(tmp_path, text, "far.toml"), "camera.position", "chart")
+
+
+def test_whole_float_max_crossings_is_accepted(tmp_path):
+    s = spaces.load(write(tmp_path, "max_crossings = 12.0\nmax_distance = 7\n" + BOX_TORUS, "ok.toml"))
+    assert s.max_crossings == 12 and isinstance(s.max_crossings, int) and s.max_distance == 7.0

@@ -127,9 +127,10 @@ def cmd_trace(args):
     inside = space.domain.contains(X)
     for i in np.nonzero(~inside)[0]:
         X[i], V[i], _ = space.bring_inside(X[i], V[i])
-    render.Settings(max_distance=args.max_distance, max_crossings=args.max_crossings).check()
+    render.Settings(max_distance=args.max_distance, max_crossings=args.max_crossings, threads=args.threads).check()
+    # make_tracer and trace raise what the core rejects as RenderError (exit 2)
     tracer = render.make_tracer(space, scene, args.threads)
-    result = tracer.trace(np.ascontiguousarray(X), np.ascontiguousarray(V),
+    result = render.trace(tracer, np.ascontiguousarray(X), np.ascontiguousarray(V),
                           space.max_distance if args.max_distance is None else args.max_distance,
                           space.max_crossings if args.max_crossings is None else args.max_crossings,
                           shade=False, progress=Progress(f"trace {len(rays)} rays"))

@@ -55,8 +55,14 @@ class Settings:
             raise RenderError(f"unknown shading {self.shading!r} ({', '.join(SHADING)})")
         if self.max_distance is not None and not (self.max_distance > 0 and math.isfinite(self.max_distance)):
             raise RenderError(f"max distance must be a positive number, got {self.max_distance}")
-        if self.max_crossings is not None and self.max_crossings < 0:
-            raise RenderError(f"max crossings must be >= 0, got {self.max_crossings}")
+        if self.max_crossings is not None and not (_whole(self.max_crossings) and 0 <= self.max_crossings <= 2**31 - 1):
+            raise RenderError(f"max crossings must be a whole number >= 0, got {self.max_crossings}")
+        if not (_whole(self.threads) and 0 <= self.threads <= 2**31 - 1):
+            raise RenderError(f"threads must be a whole number >= 0 (0: all cores), got {self.threads}")
+
+
+def _whole(n) -> bool:
+    return isinstance(n, (int, np.integer)) and not isinstance(n, bool)
 
 
 @dataclass
@@ -155,9 +161,35 @@ def compile_scene(space: Space, scene: Scene):
 
 
 def make_tracer(space: Space, scene: Scene, threads: int = 0):
+    """The C++ tracer for a scene; what the core rejects (ValueError) is raised as RenderError."""
     import thurston_core
 
-    return thurston_core.Tracer(**compile_scene(space, scene), threads=threads)
+    data = compile_scene(space, scene)
+    try:
+        return thurston_core.Tracer(**data, threads=threads)
+    except ValueError as exc:
+        raise RenderError(f"the tracer rejected the scene: {exc}") from None
+
+
+def trace(tracer, origins, directions, max_distance, max_crossings, shade=True, progress=None):
+    """tracer.trace, with what the core rejects (ValueError) raised as RenderError. Exceptions
+    from the progress callback pass through unchanged (they are the caller's, not the input's)."""
+    raised = []
+
+    def report(done, total):
+        try:
+            return progress(done, total)
+        except BaseException as exc:
+            raised.append(exc)
+            raise
+
+    try:
+        return tracer.trace(origins, directions, max_distance, max_crossings, shade=shade,
+                            progress=None if progress is None else report)
+    except ValueError as exc:
+        if raised:
+            raise
+        raise RenderError(f"the tracer rejected the rays: {exc}") from None
 
 
 # --- camera --------------------------------------------------------------------------------------------
@@ -242,7 +274,7 @@ def render(space: Space, scene: Scene, settings: Settings, camera: Camera | None
         origins, directions = camera_rays(space, camera, settings, jitter)
         base = k * len(origins)
         report = None if progress is None else (lambda done, _n, base=base: progress(base + done, total))
-        out = tracer.trace(origins, directions, max_distance, max_crossings, shade=shade, progress=report)
+        out = trace(tracer, origins, directions, max_distance, max_crossings, shade=shade, progress=report)
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
         chords += int(out["chords"])

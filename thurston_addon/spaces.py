@@ -75,6 +75,20 @@ def _vector(value, n, where):
     return np.array([evaluate(v, f"{where}[{i}]") for i, v in enumerate(value)])
 
 
+_INT32_MAX = 2**31 - 1  # the tracer's counters are 32-bit
+
+
+def _count(value, where) -> int:
+    """A whole number >= 0 (an integral float such as 64.0 is accepted, 2.7 is not)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SpaceError(f"{where}: expected a whole number >= 0, got {value!r}")
+    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+        raise SpaceError(f"{where}: expected a whole number >= 0, got {value!r}")
+    if not 0 <= value <= _INT32_MAX:
+        raise SpaceError(f"{where}: expected a whole number between 0 and {_INT32_MAX}, got {value!r}")
+    return int(value)
+
+
 # --- the space ---------------------------------------------------------------------------------
 @dataclass
 class CameraDefaults:
@@ -129,10 +143,14 @@ class Space:
     def __init__(self, data: dict, source: str):
         self.source = source
         where = source
+        if not isinstance(data, dict):
+            raise SpaceError(f"{where}: expected a table of fields, got {type(data).__name__}")
+        if "geometry" not in data:
+            raise SpaceError(f"{where}: missing field 'geometry' (E3, S3 or H3)")
+        if not isinstance(data["geometry"], str):
+            raise SpaceError(f"{where}: geometry must be a string (E3, S3 or H3), got {data['geometry']!r}")
         try:
             self.geometry = geometries.get(data["geometry"])
-        except KeyError:
-            raise SpaceError(f"{where}: missing field 'geometry' (E3, S3 or H3)") from None
         except ValueError as exc:
             raise SpaceError(f"{where}: {exc}") from None
         self.id = str(data.get("id") or Path(source).stem)
@@ -140,13 +158,17 @@ class Space:
         self.description = str(data.get("description", ""))
         self.scale = evaluate(data.get("scale", 1.0), f"{where}: scale")
         self.max_distance = evaluate(data.get("max_distance", 20.0), f"{where}: max_distance")
-        self.max_crossings = int(data.get("max_crossings", 64))
+        if not self.max_distance > 0:  # evaluate() already rejects non-finite values
+            raise SpaceError(f"{where}: max_distance must be a positive number, got {self.max_distance:g}")
+        self.max_crossings = _count(data.get("max_crossings", 64), f"{where}: max_crossings")
         gens = data.get("generator")
         if not isinstance(gens, list) or not gens:
             raise SpaceError(f"{where}: no [[generator]] tables: a space needs generator matrices")
         self.generators = []
         self.generator_names = []
         for i, gen in enumerate(gens):
+            if not isinstance(gen, dict):
+                raise SpaceError(f"{where}: generator {i} must be a [[generator]] table with a 'matrix', got {gen!r}")
             name = str(gen.get("name", f"g{i}"))
             w = f"{where}: generator {name!r}"
             rows = gen.get("matrix")
@@ -157,16 +179,32 @@ class Space:
                 raise SpaceError(f"{w}: the matrix is not an isometry of {self.geometry.name}")
             self.generators.append(self.geometry.reorthonormalize(M))
             self.generator_names.append(name)
-        cam = data.get("camera", {})
-        self.camera = CameraDefaults(
-            position=_vector(cam.get("position", [0, 0, 0]), 3, f"{where}: camera.position"),
-            forward=_vector(cam.get("forward", [0, 1, 0]), 3, f"{where}: camera.forward"),
-            up=_vector(cam.get("up", [0, 0, 1]), 3, f"{where}: camera.up"),
-            fov=evaluate(cam.get("fov", 90.0), f"{where}: camera.fov"),
-        )
+        self.camera = self._camera(data.get("camera", {}), f"{where}: camera")
         self._elements: list[np.ndarray] = [np.eye(4)]
         self._radius = 0.0
         self._dirichlet_domain()
+
+    def _camera(self, cam, where) -> CameraDefaults:
+        """The [camera] table: a point of the chart, finite non-zero non-parallel forward and up,
+        a horizontal field of view strictly between 0 and 180 degrees."""
+        if not isinstance(cam, dict):
+            raise SpaceError(f"{where}: expected a [camera] table (position, forward, up, fov), got {cam!r}")
+        g = self.geometry
+        position = _vector(cam.get("position", [0, 0, 0]), 3, f"{where}.position")
+        forward = _vector(cam.get("forward", [0, 1, 0]), 3, f"{where}.forward")
+        up = _vector(cam.get("up", [0, 0, 1]), 3, f"{where}.up")
+        fov = evaluate(cam.get("fov", 90.0), f"{where}.fov")
+        if not g.in_chart(position):
+            raise SpaceError(f"{where}.position {position.tolist()} is not a point of the chart of {g.name}")
+        for label, v in (("forward", forward), ("up", up)):
+            if not np.linalg.norm(v) > 0:
+                raise SpaceError(f"{where}.{label} must be a non-zero vector, got {v.tolist()}")
+        side = np.cross(forward, up)
+        if not np.linalg.norm(side) > 1e-9 * np.linalg.norm(forward) * np.linalg.norm(up):
+            raise SpaceError(f"{where}: up {up.tolist()} is parallel to forward {forward.tolist()}")
+        if not 0 < fov < 180:
+            raise SpaceError(f"{where}.fov must be between 0 and 180 degrees (exclusive), got {fov:g}")
+        return CameraDefaults(position=position, forward=forward, up=up, fov=fov)
 
     # --- group elements ------------------------------------------------------------------------
     def _key(self, M):
