@@ -28,6 +28,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._viewport = None  # (key, level, pixels) of the progressive viewport render
+        self._viewport_world = None  # (space, tracer) of the scene as last exported, or the error
 
     def update_render_passes(self, scene=None, renderlayer=None):
         self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", "COLOR")
@@ -96,7 +97,15 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
 
     # --- viewport: progressive refinement, coarse first ---------------------------------------------
     def view_update(self, context, depsgraph):
+        """The scene changed: export it and build the tracer once, for all refinement levels."""
         self._viewport = None
+        bscene = depsgraph.scene
+        try:
+            space = export.load_space(bscene.thurston)
+            scene = export.export_scene(depsgraph, bscene.thurston.scale, [])
+            self._viewport_world = (space, render.make_tracer(space, scene, bscene.thurston.threads))
+        except (export.ExportError, render.RenderError) as exc:
+            self._viewport_world = exc
         self.tag_redraw()
 
     def view_draw(self, context, depsgraph):
@@ -130,9 +139,9 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         from .. import scene as scenes
 
         bscene = depsgraph.scene
-        space = export.load_space(bscene.thurston)
-        notes: list[str] = []
-        scene = export.export_scene(depsgraph, bscene.thurston.scale, notes)
+        if isinstance(self._viewport_world, Exception):
+            raise self._viewport_world
+        space, tracer = self._viewport_world
         region = context.region_data
         if not region.is_perspective:
             raise render.RenderError("the viewport is orthographic; Thurston shows perspective views only")
@@ -143,7 +152,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         camera = scenes.Camera(view[:3, 3] / scale, -view[:3, 2], view[:3, 1], float(fov))
         settings = export.render_settings(bscene.thurston, w, h)
         settings.quality = "draft"
-        result = render.render(space, scene, settings, camera=camera)
+        result = render.render(space, None, settings, camera=camera, tracer=tracer)
         rgba = np.ones((h, w, 4), np.float32)
         rgba[..., :3] = np.nan_to_num(result.passes["color"])
         return _flip_rows(rgba)
