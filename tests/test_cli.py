@@ -454,3 +454,12 @@ def test_trace_wrapper_passes_progress_errors_through():
     with pytest.raises(ValueError, match="mine") as info:
         render.trace(tracer, X, V, 5.0, 3, progress=progress)
     assert not isinstance(info.value, render.RenderError)
+
+
+@pytest.mark.parametrize("fog", ["nan", "-0.5", "0", "inf"])
+def test_render_bad_fog_exit_2(tmp_path, capsys, fog):
+    out = tmp_path / "x.png"
+    code, _, err = run(["render", "--space", "torus", "--size", "4x4", "--fog", fog, "--out", out], capsys)
+    assert code == 2, err
+    assert "fog" in error_line(err)
+    assert not out.exists()

@@ -482,7 +482,8 @@ def test_render_cancel(space_cache):
 def test_bad_settings_raise(space_cache):
     space = space_cache("torus")
     for kw in (dict(width=0), dict(projection="fisheye"), dict(quality="ultra"), dict(shading="toon"),
-               dict(max_distance=float("nan")), dict(max_crossings=-1)):
+               dict(max_distance=float("nan")), dict(max_crossings=-1), dict(fog=float("nan")),
+               dict(fog=-0.5), dict(fog=0.0), dict(fog=float("inf")), dict(threads=-1), dict(max_crossings=2.7)):
         with pytest.raises(render.RenderError):
             render.render(space, Scene(), render.Settings(**{"width": 4, "height": 4, **kw}))
 
@@ -533,3 +534,10 @@ def test_camera_several_cells_away(space_cache):
     b = render.render(space, scene, settings, camera=Camera(np.array([0.1, -0.2, 0.05]), f, u))
     np.testing.assert_array_equal(a.passes["object"], b.passes["object"])
     np.testing.assert_allclose(a.passes["depth"], b.passes["depth"], rtol=1e-9)
+
+
+def test_negative_light_power_is_rejected(space_cache):
+    space = space_cache("torus")
+    for power in (-5.0, float("nan")):
+        with pytest.raises(render.SceneError, match="light 0: power"):
+            render.compile_scene(space, Scene(lights=[PointLight(np.zeros(3), np.ones(3), power)]))

@@ -304,6 +304,8 @@ def test_bad_obj(tmp_path, body, pattern):
     ('[[object]]\nprimitive = "sphere"\nsubdivisions = "many"\n', "object 0.*subdivisions"),
     ("[[object]]\nfile = 3\n", "object 0.*file"),
     ("object = 5\n", "object"),
+    ('[[light]]\nposition = [0, 0, 0]\npower = -5\n', "light 0.*power must be >= 0"),
+    ('[[light]]\nposition = [0, 0, 0]\n[[light]]\nposition = [0, 0, 0]\npower = -0.5\n', "light 1.*power"),
 ])
 def test_bad_toml(tmp_path, body, pattern):
     path = tmp_path / "bad.toml"

@@ -57,6 +57,8 @@ class Settings:
             raise RenderError(f"max distance must be a positive number, got {self.max_distance}")
         if self.max_crossings is not None and not (_whole(self.max_crossings) and 0 <= self.max_crossings <= 2**31 - 1):
             raise RenderError(f"max crossings must be a whole number >= 0, got {self.max_crossings}")
+        if self.fog is not None and not (self.fog > 0 and math.isfinite(self.fog)):
+            raise RenderError(f"fog distance must be a positive number (None: no fog), got {self.fog}")
         if not (_whole(self.threads) and 0 <= self.threads <= 2**31 - 1):
             raise RenderError(f"threads must be a whole number >= 0 (0: all cores), got {self.threads}")
 
@@ -141,6 +143,8 @@ def compile_scene(space: Space, scene: Scene):
     for i, light in enumerate(scene.lights):
         if not np.all(g.in_chart(light.position)):
             raise SceneError(f"light {i} at {light.position} is outside the chart of {g.name}")
+        if not (math.isfinite(light.power) and light.power >= 0):
+            raise SceneError(f"light {i}: power must be a finite number >= 0, got {light.power}")
         try:  # its copies are taken around the domain, so start from the copy inside
             L, _, _ = space.bring_inside(g.to_model(light.position))
         except SpaceError as exc:
@@ -330,7 +334,7 @@ def _colorize(out, settings: Settings, space: Space):
         idx = out["object"]
         hue = (idx * 0.618034) % 1.0
         color = np.where(hit[:, None], np.stack([_hue(hue + o) for o in (0, 1 / 3, 2 / 3)], axis=1), 0.0)
-    if settings.fog:
+    if settings.fog is not None:
         color = color * np.exp(-np.where(hit, out["depth"], 0.0) / settings.fog)[:, None]
     return color
 

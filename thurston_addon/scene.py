@@ -294,10 +294,13 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
         scene.objects += objs
     for i, spec in enumerate(data.get("light", [])):
         where = f"{path}: light {i}"
+        power = _number(spec, "power", 1.0, where)
+        if power < 0:
+            raise SceneError(f"{where}: power must be >= 0, got {power:g}")
         scene.lights.append(PointLight(
             _vec(spec.get("position"), f"{where}: position"),
             _vec(spec.get("color", [1, 1, 1]), f"{where}: color"),
-            _number(spec, "power", 1.0, where),
+            power,
         ))
     if "camera" in data:
         c = data["camera"]
