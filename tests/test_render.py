@@ -541,3 +541,92 @@ def test_negative_light_power_is_rejected(space_cache):
     for power in (-5.0, float("nan")):
         with pytest.raises(render.SceneError, match="light 0: power"):
             render.compile_scene(space, Scene(lights=[PointLight(np.zeros(3), np.ones(3), power)]))
+
+
+# --- antialiasing: stratified samples, centre-ray passes ---------------------------------------------
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 7, 9, 16, 64])
+def test_sample_offsets_cover_each_stratum_once_and_average_to_the_centre(n):
+    o = np.array(render._sample_offsets(n))
+    assert o.shape == (n, 2)
+    assert np.all((o >= 0) & (o < 1))
+    np.testing.assert_allclose(o.mean(axis=0), [0.5, 0.5], rtol=0, atol=1e-15)
+    k = math.isqrt(n)
+    if k * k == n:  # one sample in each of the k x k sub-squares
+        cells = {(int(x * k), int(y * k)) for x, y in o}
+        assert cells == {(a, b) for a in range(k) for b in range(k)}
+    else:  # n-rooks: one sample in each column and each row of width 1/n
+        assert sorted(int(x * n) for x in o[:, 0]) == list(range(n))
+        assert sorted(int(y * n) for y in o[:, 1]) == list(range(n))
+    assert len({tuple(p) for p in o}) == n  # no sample counted twice
+
+
+@pytest.mark.parametrize("samples", [4, 9, 16, 3])
+def test_colour_of_a_linear_ramp_is_its_value_at_the_pixel_centre(space_cache, samples):
+    """A wall at constant depth seen head-on, shaded by chart position: the colour is linear in
+    the screen coordinates across each pixel, so an unbiased pixel average equals the value at
+    the pixel centre (x = y0 * sx, z = y0 * sy, the pinhole's closed form)."""
+    space = space_cache("torus")
+    y0, half = 0.3, 0.45
+    V = np.array([[-half, y0, -half], [half, y0, -half], [half, y0, half], [-half, y0, half]])
+    scene = Scene(objects=[SceneObject("wall", V, np.array([[0, 1, 2], [0, 2, 3]]))])
+    cam = Camera(np.zeros(3), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), 60.0)
+    W, H = 9, 7
+    res = render.render(space, scene, render.Settings(width=W, height=H, samples=samples, shading="position",
+                                                      max_distance=1.0), camera=cam)
+    assert np.all(res.passes["object"] == 0)
+    lo, hi = space.domain.vertices.min(axis=0), space.domain.vertices.max(axis=0)
+    t = math.tan(math.radians(30))
+    j, i = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+    x = y0 * (2 * j / W - 1) * t
+    z = y0 * (1 - 2 * i / H) * t * H / W
+    expected = (np.stack([x, np.full_like(x, y0), z], axis=-1) - lo) / (hi - lo)
+    np.testing.assert_allclose(res.passes["color"], expected, rtol=0, atol=2e-6)
+
+
+@pytest.mark.parametrize("samples", [1, 4, 9])
+def test_passes_are_the_unshaded_centre_ray_trace(space_cache, samples):
+    """Depth, normal, position, object, crossings and stop come from the pinhole ray through the
+    pixel centre (closed form here), traced with shade=False."""
+    space = space_cache("torus")
+    g = space.geometry
+    V, F, _, _ = ball_mesh(g, [0, 1, 0], 0.0, 0.2, subdivisions=3)
+    scene = Scene(objects=[SceneObject("ball", V + [0.1, 0.3, 0.05], F, (0.5, 0.5, 0.5))],
+                  lights=[PointLight(np.array([0.0, 0.0, 0.2]), np.ones(3), 1.0)])
+    W, H = 13, 9
+    cam = Camera(np.array([0.0, -0.2, 0.0]), np.array([0.2, 1.0, 0.1]), np.array([0.0, 0.0, 1.0]), 80.0)
+    tracer = render.make_tracer(space, scene)
+    res = render.render(space, scene, render.Settings(width=W, height=H, samples=samples, max_distance=3.0),
+                        camera=cam, tracer=tracer)
+    f = cam.forward / np.linalg.norm(cam.forward)
+    r = np.cross(f, cam.up)
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    t = math.tan(math.radians(40))
+    j, i = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+    d = f + ((2 * j / W - 1) * t)[..., None] * r + ((1 - 2 * i / H) * t * H / W)[..., None] * u
+    P, D = model_rays(g, np.broadcast_to(cam.position, (H * W, 3)), d.reshape(-1, 3))
+    out = tracer.trace(np.ascontiguousarray(P), np.ascontiguousarray(D), 3.0, space.max_crossings, shade=False)
+    p = res.passes
+    assert (out["stop"] == 0).sum() > 20 and (out["stop"] != 0).sum() > 20
+    np.testing.assert_array_equal(p["object"].ravel(), out["object"])
+    np.testing.assert_array_equal(p["stop"].ravel(), out["stop"])
+    np.testing.assert_array_equal(p["crossings"].ravel(), out["crossings"])
+    np.testing.assert_allclose(p["depth"].ravel(), out["depth"], rtol=1e-12)
+    np.testing.assert_allclose(p["position"].reshape(-1, 3), out["position"], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(p["normal"].reshape(-1, 3), out["normal"], rtol=0, atol=1e-6)
+    assert res.stats["rays"] == samples * W * H
+    assert res.stats["rays_traced"] == (samples + (samples % 2 == 0)) * W * H
+
+
+def test_camera_frame_once_per_render(space_cache, monkeypatch):
+    space = space_cache("poincare")
+    calls = []
+    frame = render.camera_frame
+
+    def counting(*a, **k):
+        calls.append(1)
+        return frame(*a, **k)
+
+    monkeypatch.setattr(render, "camera_frame", counting)
+    render.render(space, Scene(), render.Settings(width=4, height=3, samples=16))
+    assert len(calls) == 1

@@ -74,9 +74,10 @@ class Result:
 
     def summary(self) -> str:
         s = self.stats
-        return (f"{s['rays']} rays, {s['crossings_per_ray']:.2f} crossings/ray, {s['chords']} chords, "
+        rays = s.get("rays_traced", s["rays"])
+        return (f"{rays} rays, {s['crossings_per_ray']:.2f} crossings/ray, {s['chords']} chords, "
                 f"{s['hit_fraction'] * 100:.1f}% hits, {s['seconds']:.2f} s "
-                f"({s['rays'] / max(s['seconds'], 1e-9) / 1e6:.2f} Mrays/s, {s['threads']} threads); "
+                f"({rays / max(s['seconds'], 1e-9) / 1e6:.2f} Mrays/s, {s['threads']} threads); "
                 f"accuracy: {s['samples_per_pixel']} samples/pixel, pixel footprint {s['footprint']:.2e} "
                 f"chart units at median depth, geodesic error <= {s['geodesic_error']:.1e}")
 
@@ -223,9 +224,10 @@ def camera_frame(space: Space, camera: Camera):
     return X, basis
 
 
-def camera_rays(space: Space, camera: Camera, settings: Settings, jitter=(0.5, 0.5)):
-    """Origins and unit directions (model) for every pixel, rows top-down."""
-    X, (f, r, u) = camera_frame(space, camera)
+def camera_rays(space: Space, camera: Camera, settings: Settings, jitter=(0.5, 0.5), frame=None):
+    """Origins and unit directions (model) for every pixel, rows top-down. `frame`: the result of
+    camera_frame(space, camera), computed once per render and passed in for every sample."""
+    X, (f, r, u) = frame if frame is not None else camera_frame(space, camera)
     W, H = settings.width, settings.height
     j = (np.arange(W) + jitter[0]) / W
     i = (np.arange(H) + jitter[1]) / H
@@ -247,20 +249,54 @@ def camera_rays(space: Space, camera: Camera, settings: Settings, jitter=(0.5, 0
     return origins, np.ascontiguousarray(D.reshape(-1, 4))
 
 
+CENTRE = (0.5, 0.5)
+
+
 def _sample_offsets(n):
-    """Stratified sub-pixel positions, the pixel centre first (it also gives the non-colour passes)."""
-    if n == 1:
-        return [(0.5, 0.5)]
-    k = int(math.ceil(math.sqrt(n)))
+    """n sub-pixel positions (x, y in [0, 1)) for the colour, stratified and jittered, the jitter
+    antithetic: every sample is paired with its mirror image through the pixel centre, so the mean
+    position is exactly the centre and no part of the pixel counts twice.
+    n = k * k (the quality levels 1, 4, 16): one sample in each of the k x k sub-squares.
+    Other n: n-rooks (a Latin square): one sample in each of n columns and in each of n rows of
+    width 1/n, the rows a random permutation of the columns that commutes with the mirror.
+    A stratum that is its own mirror image (odd k, odd n) has its sample at the centre."""
     rng = np.random.default_rng(12345)
-    cells = [((a + rng.random()) / k, (b + rng.random()) / k) for a in range(k) for b in range(k)]
-    return [(0.5, 0.5)] + cells[: n - 1]
+    k = math.isqrt(n)
+    if k * k == n:
+        m = k
+        strata = [(a, b) for a in range(k) for b in range(k)]
+    else:  # n-rooks: column i, row sigma(i), sigma(n - 1 - i) = n - 1 - sigma(i)
+        m = n
+        half = n // 2
+        pi = rng.permutation(half)
+        flip = rng.random(half) < 0.5
+        sigma = np.empty(n, int)
+        for i in range(half):
+            sigma[i] = n - 1 - pi[i] if flip[i] else pi[i]
+            sigma[n - 1 - i] = n - 1 - sigma[i]
+        if n % 2:
+            sigma[half] = half
+        strata = [(i, int(sigma[i])) for i in range(n)]
+    index = {s: i for i, s in enumerate(strata)}
+    offsets = [None] * n
+    for i, (a, b) in enumerate(strata):
+        mirror = index[(m - 1 - a, m - 1 - b)]
+        if mirror == i:
+            offsets[i] = CENTRE
+        elif mirror > i:
+            ja, jb = rng.random(2)
+            offsets[i] = ((a + ja) / m, (b + jb) / m)
+            offsets[mirror] = ((m - 1 - a + 1 - ja) / m, (m - 1 - b + 1 - jb) / m)
+    return offsets
 
 
 # --- rendering -----------------------------------------------------------------------------------------
 def render(space: Space, scene: Scene, settings: Settings, camera: Camera | None = None,
            progress=None, tracer=None) -> Result:
-    """Render a view. progress(done, total) -> bool is called during tracing (False cancels)."""
+    """Render a view. progress(done, total) -> bool is called during tracing (False cancels).
+    Colour: the average of the stratified samples of _sample_offsets. The other passes (depth,
+    normal, position, object, crossings, stop): the ray through the pixel centre, traced unshaded
+    on its own unless a colour sample lies at the centre (one sample per pixel, odd counts)."""
     settings.check()
     camera = camera or scene.camera or Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
     if not (0 < camera.fov < 180):
@@ -268,24 +304,39 @@ def render(space: Space, scene: Scene, settings: Settings, camera: Camera | None
     max_distance = settings.max_distance or space.max_distance
     max_crossings = space.max_crossings if settings.max_crossings is None else settings.max_crossings
     t0 = time.perf_counter()
+    frame = camera_frame(space, camera)  # once: bring_inside and the re-orthonormalised frame
     tracer = tracer or make_tracer(space, scene, settings.threads)
     offsets = _sample_offsets(settings.samples or QUALITY[settings.quality])
-    total = len(offsets) * settings.width * settings.height
     shade = settings.shading == "lambert"
+    # (jitter, shade, is colour sample): the centre pass first where no colour sample gives it
+    jobs = [(o, shade, True) for o in offsets]
+    if CENTRE not in offsets:
+        jobs.insert(0, (CENTRE, False, False))
+    pixels = settings.width * settings.height
+    total = len(jobs) * pixels
     color_sum = None
+    first = None
     chords = 0
-    for k, jitter in enumerate(offsets):
-        origins, directions = camera_rays(space, camera, settings, jitter)
-        base = k * len(origins)
+    for k, (jitter, shaded, colour) in enumerate(jobs):
+        origins, directions = camera_rays(space, camera, settings, jitter, frame=frame)
+        base = k * pixels
         report = None if progress is None else (lambda done, _n, base=base: progress(base + done, total))
-        out = trace(tracer, origins, directions, max_distance, max_crossings, shade=shade, progress=report)
+        out = trace(tracer, origins, directions, max_distance, max_crossings, shade=shaded, progress=report)
+        del origins, directions
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
         chords += int(out["chords"])
-        if k == 0:
+        if jitter == CENTRE:
             first = out
-        color = _colorize(out, settings, space)
-        color_sum = color if color_sum is None else color_sum + color
+        if colour:
+            color = _colorize(out, settings, space)
+            if color_sum is None:
+                color_sum = color
+            else:
+                color_sum += color
+            del color
+        if jitter != CENTRE:
+            del out
     H, W = settings.height, settings.width
     seconds = time.perf_counter() - t0
     passes = {
@@ -301,7 +352,8 @@ def render(space: Space, scene: Scene, settings: Settings, camera: Camera | None
     median_depth = float(np.median(depth)) if len(depth) else 0.0
     fov = math.radians(camera.fov) if settings.projection == "perspective" else 2 * math.pi
     stats = {
-        "rays": total, "chords": chords, "seconds": seconds, "threads": tracer.num_threads,
+        "rays": len(offsets) * pixels, "rays_traced": total, "chords": chords, "seconds": seconds,
+        "threads": tracer.num_threads,
         "crossings_per_ray": float(first["crossings"].mean()), "hit_fraction": float((first["stop"] == 0).mean()),
         "samples_per_pixel": len(offsets), "triangles": tracer.num_triangles,
         # angular size of a pixel over sqrt(samples), at the median hit depth, in chart-scale units
