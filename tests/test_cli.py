@@ -463,3 +463,11 @@ def test_render_bad_fog_exit_2(tmp_path, capsys, fog):
     assert code == 2, err
     assert "fog" in error_line(err)
     assert not out.exists()
+
+
+def test_huge_size_is_refused_with_a_message(tmp_path, capsys):
+    out = tmp_path / "x.png"
+    code, _, err = run(["render", "--space", "torus", "--size", "40000x40000", "--out", out], capsys)
+    assert code == 2, err
+    assert "40000x40000" in error_line(err)
+    assert not out.exists()

@@ -2,6 +2,13 @@
 closed forms: ray-sphere distances to every copy of a geodesic ball under the group, lattice
 crossing counts, Lambert shading, and the behaviour of render() itself."""
 import math
+import os
+import subprocess
+import sys
+import textwrap
+import time
+import tracemalloc
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,6 +18,7 @@ from thurston_addon import render, spaces
 from thurston_addon.scene import Camera, PointLight, Scene, SceneObject, default_scene
 
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
+REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -630,3 +638,69 @@ def test_camera_frame_once_per_render(space_cache, monkeypatch):
     monkeypatch.setattr(render, "camera_frame", counting)
     render.render(space, Scene(), render.Settings(width=4, height=3, samples=16))
     assert len(calls) == 1
+
+
+# --- memory: sizes this machine cannot hold are refused before anything is allocated -------------------
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="VmHWM in /proc/self/status: Linux")
+def test_bytes_per_pixel_estimate_covers_the_measured_peak():
+    """The estimate behind the refusal, against the peak resident memory of a real render
+    (subprocess, 1000 x 800, 4 samples, after a warm-up render)."""
+    # the peak (VmHWM) is reset first: a child starts with its parent's high-water mark
+    code = textwrap.dedent("""
+        import gc
+        from thurston_addon import render, spaces, scene as scenes
+        def status(key):
+            for line in open("/proc/self/status"):
+                if line.startswith(key):
+                    return int(line.split()[1]) * 1024
+        space = spaces.load("torus"); sc = scenes.default_scene(space)
+        t = render.make_tracer(space, sc)
+        render.render(space, sc, render.Settings(width=64, height=64, samples=4), tracer=t)
+        gc.collect()
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        base = status("VmRSS")
+        assert status("VmHWM") < base + 2**20, "could not reset the high-water mark"
+        for shading, projection in (("lambert", "perspective"), ("object", "equirect")):
+            res = render.render(space, sc, render.Settings(width=1000, height=800, samples=4, shading=shading, max_distance=0.5,
+                                                           projection=projection), tracer=t)
+            del res
+        print((status("VmHWM") - base) / 8e5)
+    """)
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    measured = float(proc.stdout.split()[-1])
+    assert 100 < measured <= render.BYTES_PER_PIXEL, measured
+    assert render.BYTES_PER_PIXEL < 2 * measured  # not so cautious that usable sizes are refused
+
+
+@pytest.mark.skipif(not hasattr(os, "sysconf"), reason="physical memory from sysconf")
+def test_size_beyond_memory_is_refused_quickly_without_allocating(space_cache):
+    space = space_cache("torus")
+    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    pixels = 0.8 * memory / render.BYTES_PER_PIXEL  # the most that may be rendered
+    W = 65536
+    H_over = math.floor(pixels / W) + 1
+    H_under = math.floor(pixels / W) - 1
+    render.Settings(width=W, height=H_under).check()  # just under: accepted
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(render.RenderError) as info:
+            render.render(space, Scene(), render.Settings(width=W, height=H_over, quality="draft"))
+        seconds = time.perf_counter() - t0
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    msg = str(info.value)
+    assert f"{W}x{H_over}" in msg and "memory" in msg and f"{memory / 2**30:.1f} GiB" in msg, msg
+    assert seconds < 1.0 and peak < 10 * 2**20
+
+
+def test_memory_error_during_render_is_a_render_error(space_cache, monkeypatch):
+    def no_memory(*a, **k):
+        raise MemoryError
+
+    monkeypatch.setattr(render, "camera_rays", no_memory)
+    with pytest.raises(render.RenderError, match="out of memory rendering 8x4"):
+        render.render(space_cache("torus"), Scene(), render.Settings(width=8, height=4, quality="draft"))

@@ -4,6 +4,7 @@ render's statistics (cost and accuracy)."""
 from __future__ import annotations
 
 import math
+import os
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -19,6 +20,26 @@ QUALITY = {"draft": 1, "preview": 1, "standard": 4, "final": 16}
 SHADING = ("lambert", "normal", "position", "depth", "crossings", "object")
 PASSES = ("color", "depth", "normal", "position", "object", "crossings", "stop")
 STOP_REASONS = ("hit", "distance", "crossings", "cancelled")
+
+
+# Peak memory of render() per pixel, whatever the sample count (samples are traced one after the
+# other): the rays of one sample (origins, directions and their temporaries), the tracer's output
+# for it and for the centre ray, and the colour sum. Measured at about 245 bytes (2000 x 1000, all
+# shading modes and projections; tests/test_render.py measures it again); rounded up.
+BYTES_PER_PIXEL = 300
+MEMORY_FRACTION = 0.8  # refuse renders that would need more than this share of physical memory
+
+
+def memory_needed(width: int, height: int) -> int:
+    return BYTES_PER_PIXEL * int(width) * int(height)
+
+
+def physical_memory() -> int | None:
+    """Bytes of physical memory, None where the system does not tell (no sysconf)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return None
 
 
 class RenderError(ValueError):
@@ -43,8 +64,14 @@ class Settings:
     threads: int = 0
 
     def check(self):
-        if self.width < 1 or self.height < 1 or self.width * self.height > 2**28:
+        if self.width < 1 or self.height < 1:
             raise RenderError(f"image size {self.width}x{self.height} is not usable")
+        need, have = memory_needed(self.width, self.height), physical_memory()
+        if have is not None and need > MEMORY_FRACTION * have:
+            raise RenderError(f"image size {self.width}x{self.height} needs about {need / 2**30:.1f} GiB of memory "
+                              f"to render, more than {MEMORY_FRACTION:.0%} of this machine's {have / 2**30:.1f} GiB")
+        if self.width * self.height > 2**28:
+            raise RenderError(f"image size {self.width}x{self.height} is not usable (more than 2^28 pixels)")
         if self.projection not in ("perspective", "equirect"):
             raise RenderError(f"unknown projection {self.projection!r} (perspective, equirect)")
         if self.quality not in QUALITY:
@@ -294,10 +321,21 @@ def _sample_offsets(n):
 def render(space: Space, scene: Scene, settings: Settings, camera: Camera | None = None,
            progress=None, tracer=None) -> Result:
     """Render a view. progress(done, total) -> bool is called during tracing (False cancels).
+    Raises RenderError for settings that cannot be rendered, a size too large for this machine's
+    memory (checked before anything is allocated) and a MemoryError on the way."""
+    settings.check()
+    try:
+        return _render(space, scene, settings, camera, progress, tracer)
+    except MemoryError:
+        raise RenderError(f"out of memory rendering {settings.width}x{settings.height} "
+                          f"(about {memory_needed(settings.width, settings.height) / 2**30:.1f} GiB needed)") from None
+
+
+def _render(space, scene, settings, camera, progress, tracer) -> Result:
+    """render() after the settings' check.
     Colour: the average of the stratified samples of _sample_offsets. The other passes (depth,
     normal, position, object, crossings, stop): the ray through the pixel centre, traced unshaded
     on its own unless a colour sample lies at the centre (one sample per pixel, odd counts)."""
-    settings.check()
     camera = camera or scene.camera or Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
     if not (0 < camera.fov < 180):
         raise RenderError(f"camera field of view must be between 0 and 180 degrees, got {camera.fov}")
