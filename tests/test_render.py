@@ -704,3 +704,67 @@ def test_memory_error_during_render_is_a_render_error(space_cache, monkeypatch):
     monkeypatch.setattr(render, "camera_rays", no_memory)
     with pytest.raises(render.RenderError, match="out of memory rendering 8x4"):
         render.render(space_cache("torus"), Scene(), render.Settings(width=8, height=4, quality="draft"))
+
+
+# --- lights in S3: the nearest copy over the whole group ----------------------------------------------
+def test_poincare_light_uses_the_nearest_of_all_120_copies(space_cache):
+    """A tiny facet near one vertex of the dodecahedron, lit by a light near another vertex and seen
+    from a point just in front of it: the Lambert closed form with the nearest copy of the light
+    found here over all 120 group elements (closed-form distances), for pairs where the copies
+    around the domain alone would miss the nearest one."""
+    space = space_cache("poincare")
+    g = space.geometry
+    group = space.elements_within(math.pi + 1e-6)
+    assert len(group) == 120
+    ring = space.neighbourhood(1)
+    Vd = space.domain.vertices
+    rng = np.random.default_rng(11)
+
+    def tangent(H, v):  # the part of an R^4 vector tangent to S3 at H, unit
+        v = v - (v @ H) * H
+        return v / np.linalg.norm(v)
+
+    cases = []
+    for _ in range(20000):
+        a, b = rng.integers(len(Vd), size=2)
+        # on the segments from O to two vertices, near the vertices (inside: the domain is star-shaped)
+        h = Vd[a] * (1 - 0.1 * rng.random() ** 2)
+        l = Vd[b] * (1 - 0.1 * rng.random() ** 2)
+        H, L = g.to_model(h), g.to_model(l)
+        copies = np.array([M @ L for M in group])
+        d = g.distance(H[None, :], copies)
+        near = copies[int(np.argmin(d))]
+        d_ring = min(float(g.distance(H, M @ L)) for M in ring)
+        room = -float(np.max(space.face_distances(H)))  # geodesic distance from H to the faces' planes
+        if d_ring > d.min() + 1e-3 and room > 1e-3:
+            cases.append((h, l, H, near, float(d.min()), room))
+        if len(cases) == 6:
+            break
+    assert len(cases) >= 3, "test set-up: too few pairs where the ring of copies misses the nearest light"
+    base, power = np.array([0.9, 0.6, 0.3]), 0.8
+    for h, l, H, near, r, room in cases:
+        # the facet's unit normal at H, tilted from the nearest light; in S3 a tangent N at H is the
+        # covector of its plane, so the chart plane is N[:3] . x + N[3] = 0 (through h)
+        N = tangent(H, g.direction_to(H, near) + 0.5 * tangent(H, rng.normal(size=4)))
+        cos = float(N @ tangent(H, g.direction_to(H, near)))
+        w = tangent(H, N + 0.7 * tangent(H, rng.normal(size=4)))  # the viewer's side
+        assert cos > 0.3 and N @ w > 0.3
+        delta = 0.5 * room  # the viewer Q = exp_H(delta w): inside the domain
+        Q = math.cos(delta) * H + math.sin(delta) * w
+        V = math.sin(delta) * H - math.cos(delta) * w  # unit tangent at Q towards H
+        n = N[:3] / np.linalg.norm(N[:3])
+        assert abs(n @ h + N[3] / np.linalg.norm(N[:3])) < 1e-9
+        e1 = np.cross(n, [0.3, 0.5, 0.8])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        s = 0.1 * delta
+        quad = np.array([h + s * (x * e1 + y * e2) for x, y in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+        scene = Scene(objects=[SceneObject("facet", quad, np.array([[0, 1, 2], [0, 2, 3]]), base)],
+                      lights=[PointLight(l, np.ones(3), power)])
+        tracer = render.make_tracer(space, scene)
+        out = tracer.trace(Q[None, :], V[None, :], 3.0, 200, shade=True)
+        assert out["stop"][0] == 0 and out["object"][0] == 0
+        assert out["depth"][0] == pytest.approx(delta, rel=1e-9)
+        np.testing.assert_allclose(out["position"][0], h, atol=1e-9)
+        expected = base * power * cos * g.falloff(r)
+        np.testing.assert_allclose(out["color"][0], expected, rtol=1e-4)

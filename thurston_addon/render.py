@@ -144,7 +144,15 @@ def compile_scene(space: Space, scene: Scene):
     g = space.geometry
     C = space.domain.covectors()
     C = C / np.linalg.norm(C, axis=1)[:, None]
-    elements = space.neighbourhood(1)
+    # Light copies: the tracer lights a point by each light's nearest copy among these. S3: the
+    # group is finite, so all of it (120 elements for Poincare) and the nearest copy is exact.
+    # E3: the copies around the domain hold the nearest copy (exact). H3: the same ring of copies,
+    # an approximation: for points near vertices a copy beyond it can be nearer (the ring grows
+    # exponentially, so more rings would cost much more per shaded point).
+    if g.curvature > 0:
+        elements = space.elements_within(math.pi + 1e-6)
+    else:
+        elements = space.neighbourhood(1)
     verts, tris, owner = [], [], []
     offset = 0
     for index, obj in enumerate(scene.objects):
