@@ -471,3 +471,26 @@ def test_huge_size_is_refused_with_a_message(tmp_path, capsys):
     assert code == 2, err
     assert "40000x40000" in error_line(err)
     assert not out.exists()
+
+
+def test_failed_image_write_leaves_no_partial_file(tmp_path):
+    """A write that OpenImageIO refuses (an ICO larger than 256 x 256) raises OutputError and leaves
+    neither the output nor its temporary file, even one a crashed earlier write left behind; a
+    directory that happens to have the temporary name is not removed."""
+    from thurston_addon import images
+
+    passes = {"color": np.zeros((300, 300, 3), np.float32)}
+    stale = tmp_path / ".old.ico.partial.ico"
+    stale.write_bytes(b"left by a crashed write")
+    for name in ("new.ico", "old.ico"):
+        with pytest.raises(images.OutputError, match="256"):
+            images.write(tmp_path / name, passes)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    blocker = tmp_path / ".x.png.partial.png"
+    blocker.mkdir()
+    with pytest.raises(images.OutputError):
+        images.write(tmp_path / "x.png", {"color": np.zeros((4, 4, 3), np.float32)})
+    assert blocker.is_dir() and not (tmp_path / "x.png").exists()
+    # and a write that works leaves only its output
+    images.write(tmp_path / "y.png", {"color": np.zeros((4, 4, 3), np.float32)})
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".x.png.partial.png", "y.png"]

@@ -68,13 +68,29 @@ def write(path: str | Path, passes: dict, names=None, metadata: dict | None = No
     for k, v in (metadata or {}).items():
         spec.attribute(f"thurston:{k}", str(v))
     tmp = path.with_name(f".{path.name}.partial{path.suffix}")
-    out = oiio.ImageOutput.create(str(tmp))
-    if out is None:
-        raise OutputError(f"cannot write {str(path)!r}: {oiio.geterror()}")
     try:
-        if not out.open(str(tmp), spec) or not out.write_image(pixels):
-            raise OutputError(f"cannot write {str(path)!r}: {out.geterror()}")
-    finally:
-        out.close()
-    os.replace(tmp, path)
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None:
+            raise OutputError(f"cannot write {str(path)!r}: {oiio.geterror()}")
+        try:
+            if not out.open(str(tmp), spec) or not out.write_image(pixels):
+                raise OutputError(f"cannot write {str(path)!r}: {out.geterror()}")
+        finally:
+            closed = out.close()
+        if not closed:
+            raise OutputError(f"cannot write {str(path)!r}: {out.geterror() or 'closing the file failed'}")
+        os.replace(tmp, path)
+    except BaseException:
+        _remove_partial(tmp)
+        raise
     return path
+
+
+def _remove_partial(tmp: Path):
+    """Remove the temporary file of a failed write (also one a crashed earlier write left behind);
+    never a directory that happens to have its name."""
+    try:
+        if tmp.is_symlink() or tmp.is_file():
+            tmp.unlink()
+    except OSError:
+        pass
