@@ -768,3 +768,38 @@ def test_poincare_light_uses_the_nearest_of_all_120_copies(space_cache):
         np.testing.assert_allclose(out["position"][0], h, atol=1e-9)
         expected = base * power * cos * g.falloff(r)
         np.testing.assert_allclose(out["color"][0], expected, rtol=1e-4)
+
+
+# --- the geodesic error: measured, and it sees a wrong pairing -------------------------------------------
+@pytest.mark.parametrize("sid", spaces.preset_ids())
+def test_geodesic_error_is_small_for_presets(space_cache, sid):
+    space = space_cache(sid)
+    res = render.render(space, default_scene(space), render.Settings(width=64, height=36, quality="draft"))
+    assert res.stats["hit_fraction"] > 0.5
+    assert 0 <= res.stats["geodesic_error"] < 1e-9, res.stats["geodesic_error"]
+    assert "geodesic error" in res.summary()
+
+
+def test_geodesic_error_sees_a_perturbed_pairing(space_cache):
+    """A tracer built by hand whose pairing of an x face of the torus also translates 1e-6 (then
+    1e-5) along y: each crossing of that face moves the ray sideways by that much, and the
+    measured error grows with the perturbation (about linearly), bounded by the number of
+    crossings times it."""
+    import thurston_core
+
+    space = space_cache("torus")
+    scene = default_scene(space)
+    data = render.compile_scene(space, scene)
+    face = next(i for i, f in enumerate(space.domain.faces) if abs(f.covector[0]) > 0.5)
+    settings = render.Settings(width=64, height=36, quality="draft")
+    errors = {}
+    for eps in (0.0, 1e-6, 1e-5):
+        maps = data["face_maps"].copy()
+        maps[face, 1, 3] += eps  # a translation off the lattice, across the face's normal
+        tracer = thurston_core.Tracer(**{**data, "face_maps": np.ascontiguousarray(maps)})
+        res = render.render(space, scene, settings, tracer=tracer)
+        errors[eps] = res.stats["geodesic_error"]
+        crossings = int(res.passes["crossings"].max())
+    assert errors[0.0] < 1e-12
+    assert 1e-6 <= errors[1e-6] <= crossings * 1e-6 * 1.01, errors
+    assert 5 < errors[1e-5] / errors[1e-6] < 20, errors
