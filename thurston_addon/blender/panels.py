@@ -80,7 +80,7 @@ class THURSTON_PT_render(bpy.types.Panel):
             grid.label(text=f"Rays: {st.rays:,}")
             grid.label(text=f"Crossings/ray: {st.crossings_per_ray:.2f}")
             grid.label(text=f"Pixel footprint: {st.footprint:.2e}")
-            grid.label(text=f"Geodesic error ≤ {st.geodesic_error:.1e}")
+            grid.label(text=f"Geodesic error: {st.geodesic_error:.1e} (measured)")
 
 
 CLASSES = (THURSTON_MT_presets, THURSTON_OT_add_preset, THURSTON_PT_render)

@@ -27,7 +27,7 @@ class ThurstonStats(bpy.types.PropertyGroup):
     rays: bpy.props.IntProperty(name="Rays")
     crossings_per_ray: bpy.props.FloatProperty(name="Crossings per Ray")
     footprint: bpy.props.FloatProperty(name="Pixel Footprint", description="Chart units covered by a pixel sample at the median depth")
-    geodesic_error: bpy.props.FloatProperty(name="Geodesic Error", description="Bound on the rounding error of the geodesics")
+    geodesic_error: bpy.props.FloatProperty(name="Geodesic Error", description="Largest distance, over sampled hits, between a traced hit and the exact geodesic (measured)")
     summary: bpy.props.StringProperty(name="Summary")
 
 
