@@ -6,6 +6,11 @@
 #include <stdexcept>
 #include <string>
 
+#if defined(__SSE2__) || defined(_M_X64)
+#include <emmintrin.h>  // SSE2: part of the x86-64 baseline
+#define THURSTON_SSE2 1
+#endif
+
 namespace thurston {
 namespace {
 
@@ -14,11 +19,28 @@ constexpr std::chrono::milliseconds kPollInterval{100};
 constexpr double kH3Reach = 40.0;  // beyond this a Klein chart point is within e^-80 of the sphere
 constexpr int kS3Renormalise = 8;
 
-Vec4 mat_vec(const Mat4& M, const Vec4& x) {
-  Vec4 y;
-  for (int r = 0; r < 4; ++r)
-    y[r] = M[4 * r] * x[0] + M[4 * r + 1] * x[1] + M[4 * r + 2] * x[2] + M[4 * r + 3] * x[3];
-  return y;
+// Y = M X and Yv = M Xv for a column-major M, each row summed left to right like a row-major
+// product (the same roundings).
+void mat_vec2(const Mat4& Mt, const Vec4& x, const Vec4& xv, Vec4& y, Vec4& yv) {
+  const double* m = Mt.data();
+#ifndef THURSTON_SSE2
+  for (int r = 0; r < 4; ++r) {
+    y[r] = m[r] * x[0] + m[4 + r] * x[1] + m[8 + r] * x[2] + m[12 + r] * x[3];
+    yv[r] = m[r] * xv[0] + m[4 + r] * xv[1] + m[8 + r] * xv[2] + m[12 + r] * xv[3];
+  }
+#else
+  for (int h = 0; h < 4; h += 2) {
+    __m128d s = _mm_mul_pd(_mm_loadu_pd(m + h), _mm_set1_pd(x[0]));
+    __m128d t = _mm_mul_pd(_mm_loadu_pd(m + h), _mm_set1_pd(xv[0]));
+    for (int c = 1; c < 4; ++c) {
+      const __m128d col = _mm_loadu_pd(m + 4 * c + h);
+      s = _mm_add_pd(s, _mm_mul_pd(col, _mm_set1_pd(x[c])));
+      t = _mm_add_pd(t, _mm_mul_pd(col, _mm_set1_pd(xv[c])));
+    }
+    _mm_storeu_pd(y.data() + h, s);
+    _mm_storeu_pd(yv.data() + h, t);
+  }
+#endif
 }
 
 RTCRay chord_ray(const Vec3& x0, const Vec3& x1, float tnear) {
@@ -53,6 +75,7 @@ void check_device(RTCDevice device, const char* what) {
 Tracer::Tracer(SceneData scene, unsigned threads)
     : space_{scene.curvature},
       face_maps_(std::move(scene.face_maps)),
+      face_maps_t_(face_maps_.size()),
       vertices_(std::move(scene.vertices)),
       triangles_(std::move(scene.triangles)),
       triangle_object_(std::move(scene.triangle_object)),
@@ -64,6 +87,9 @@ Tracer::Tracer(SceneData scene, unsigned threads)
     for (int a = 0; a < 4; ++a) face_components_[a].push_back(c[a]);
   while (face_components_[0].size() % 4 != 0)  // zero covectors: never an exit
     for (int a = 0; a < 4; ++a) face_components_[a].push_back(0.0);
+  for (std::size_t e = 0; e < face_maps_.size(); ++e)
+    for (int r = 0; r < 4; ++r)
+      for (int c = 0; c < 4; ++c) face_maps_t_[e][4 * c + r] = face_maps_[e][4 * r + c];
   bounds_lo_ = {kInf, kInf, kInf};
   bounds_hi_ = {-kInf, -kInf, -kInf};
   triangle_planes_.reserve(triangles_.size());
@@ -80,6 +106,13 @@ Tracer::Tracer(SceneData scene, unsigned threads)
   for (int a = 0; a < 3 && !triangles_.empty(); ++a)
     scale_ = std::max({scale_, std::abs(bounds_lo_[a]), std::abs(bounds_hi_[a]),
                        bounds_hi_[a] - bounds_lo_[a]});
+
+  const double margin = 1e-6 * scale_;
+  for (int a = 0; a < 3; ++a) {
+    // No triangles: an empty range, which no chord meets.
+    hit_lo_[a] = triangles_.empty() ? kInf : bounds_lo_[a] - margin;
+    hit_hi_[a] = triangles_.empty() ? -kInf : bounds_hi_[a] + margin;
+  }
 
   light_lifts_.resize(light_radiance_.size());
   for (std::size_t k = 0; k < scene.light_lifts.size(); ++k)
@@ -231,14 +264,13 @@ double Tracer::scene_escape(const Vec3& x0) const {
 // Whether the chord's bounding box meets the scene's; also keeps non-finite or float-overflowing
 // chords away from Embree.
 bool Tracer::may_hit(const Segment& seg) const {
-  const double margin = 1e-6 * scale_;
+  bool ok = true;
   for (int a = 0; a < 3; ++a) {
     const double u = seg.x0[a], v = seg.x1[a];
-    if (!(std::abs(u) < 1e30 && std::abs(v) < 1e30)) return false;
-    if (std::max(u, v) < bounds_lo_[a] - margin || std::min(u, v) > bounds_hi_[a] + margin)
-      return false;
+    ok &= std::abs(u) < 1e30 && std::abs(v) < 1e30;
+    ok &= !(std::max(u, v) < hit_lo_[a]) && !(std::min(u, v) > hit_hi_[a]);
   }
-  return !triangles_.empty();
+  return ok;
 }
 
 namespace {
@@ -331,9 +363,7 @@ Tracer::WalkEnd Tracer::walk(Vec4 P, Vec4 V, double length, int max_crossings,
       odometer.add_turn(u);
     if (crossings == max_crossings) return {kCrossingLimit, odometer.value(), crossings};
     ++crossings;
-    const Mat4& M = face_maps_[exit.face];
-    P = mat_vec(M, X);
-    V = mat_vec(M, Xv);
+    mat_vec2(face_maps_t_[exit.face], X, Xv, P, V);
     // S3's pairings are rotations and its turns unit complex numbers, so (P, V) stays orthonormal
     // to a few roundings per crossing; the exit points lie on the face planes whatever the scale.
     // Projecting back every kS3Renormalise crossings keeps the drift below 1e-14.

@@ -144,6 +144,7 @@ class Tracer {
   Space space_;
   std::array<std::vector<double>, 4> face_components_;  // covectors by component, for SIMD
   std::vector<Mat4> face_maps_;
+  std::vector<Mat4> face_maps_t_;  // the same, column-major, for SIMD
   std::vector<Vec3> vertices_;
   std::vector<std::array<std::uint32_t, 3>> triangles_;
   std::vector<Vec4> triangle_planes_;  // chart plane covectors (n, -n . p0)
@@ -154,6 +155,7 @@ class Tracer {
   std::vector<Rgb> light_radiance_;
   Vec3 bounds_lo_{}, bounds_hi_{};  // of the scene's chart coordinates
   double scale_ = 0.0;              // largest extent or coordinate magnitude of the scene
+  Vec3 hit_lo_{}, hit_hi_{};        // the bounds widened by may_hit's margin (empty: none)
 
   DeviceHandle device_;
   SceneHandle scene_;
