@@ -214,13 +214,15 @@ Tracer::Exit Tracer::find_exit(const Vec4& P, const Vec4& V) const {
   if (space_.k > 0) {
     if (best == kInf) return find_exit_exact(P, V);  // no usual exit: only the general search
     if (space_.exit_key(-P[3], -V[3]) < best) {
-      if (P[3] > 0.0) return {space_.s3_exit_turn(-P[3], -V[3]), kChartEdge, false};
+      if (P[3] > 0.0) return {space_.s3_exit_turn(-P[3], -V[3]), kChartEdge, false, -V[3], P[3]};
       return {space_.exit_turn(-P[3], -V[3]), kChartEdge, true};
     }
     if (best == -kInf) return {{0.0, 1.0, 0.0}, face, true};
-    return {space_.s3_exit_turn(best_a, best_b), face, false};
+    return {space_.s3_exit_turn(best_a, best_b), face, false, best_b, -best_a};
   }
   if (face < 0) return {{kInf, 0.0, 0.0}, -1, true};
+  if (space_.k < 0 && best_a <= 0.0)  // H3: (c, s) = (b, -a) / sqrt((b - a) (b + a))
+    return {space_.exit_turn(best_a, best_b), face, true, best_b, -best_a};
   return {space_.exit_turn(best_a, best_b), face, true};
 }
 
@@ -344,13 +346,20 @@ Tracer::WalkEnd Tracer::walk(Vec4 P, Vec4 V, double length, int max_crossings,
       const double limit = std::min(length - dist, reach);
       crosses = exit.face >= 0 && exit.turn.t <= limit;
       // A ray that leaves no face ends in this copy; nothing lies beyond the scene's extent.
-      if (!crosses) exit.turn = space_.turn(std::min(limit, scene_escape(Space::chart(P))));
+      if (!crosses) {
+        exit.turn = space_.turn(std::min(limit, scene_escape(Space::chart(P))));
+        exit.cu = exit.su = 0.0;
+      }
     }
     const Space::Turn& u = exit.turn;
     Vec4 X, Xv;
     space_.advance(P, V, u, X, Xv);
     if (u.t > 0.0) {
-      const Segment seg{P, V, Space::chart(P), Space::chart(X), u, exit.exact};
+      // The chord's end from (cu, su) where known, so that Embree need not wait for the turn.
+      const Vec3 x1 = exit.cu != 0.0 || exit.su != 0.0
+                          ? Space::chart(lin4(exit.cu, P, exit.su, V))
+                          : Space::chart(X);
+      const Segment seg{P, V, Space::chart(P), x1, u, exit.exact};
       const Vec3 d = sub3(seg.x1, seg.x0);
       const double tnear = first ? first_skip / std::sqrt(dot3(d, d)) : 0.0;
       if (tnear < 1.0 && may_hit(seg) && query(seg, float(tnear)))

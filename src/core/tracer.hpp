@@ -100,6 +100,9 @@ class Tracer {
     Space::Turn turn;
     int face;    // a face, -1 if none lies ahead, or kChartEdge
     bool exact;  // whether turn.t is exact (else an estimate: S3's usual exits)
+    // Where nonzero, (cu, su) = (c, s) / r for some r > 0, known before the turn's square root:
+    // cu P + su V has the exit point's chart image.
+    double cu = 0.0, su = 0.0;
   };
   struct Segment {
     Vec4 P, V;   // start point and unit velocity
