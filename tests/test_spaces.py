@@ -169,8 +169,9 @@ def jacobian(f, x, h=1e-6):
     return np.stack([(f(x + e) - f(x - e)) / (2 * h) for e in h * np.eye(3)], axis=-1)
 
 
-def close_group(gens, key_digits=6, limit=5000):
-    """All products of the generators (a finite group), by breadth-first closure."""
+def close_group(gens, key_digits=6, limit=5000, keep=lambda M: True):
+    """Products of the generators by breadth-first closure (all of a finite group, or those that
+    `keep` accepts)."""
     key = lambda M: tuple(np.round(M, key_digits).ravel() + 0.0)
     found = {key(np.eye(len(gens[0]))): np.eye(len(gens[0]))}
     frontier = list(found.values())
@@ -180,7 +181,7 @@ def close_group(gens, key_digits=6, limit=5000):
             for s in gens:
                 N = s @ M
                 k = key(N)
-                if k not in found:
+                if k not in found and keep(N):
                     found[k] = N
                     nxt.append(N)
         assert len(found) < limit
@@ -476,21 +477,8 @@ def test_holonomy_group_structure(pid):
 def lattice_of(space, reach=6.0):
     """Translations of the group (elements with trivial linear part), from words of generators."""
     gens = [*space.generators, *(np.linalg.inv(g) for g in space.generators)]
-    key = lambda M: tuple(np.round(M, 6).ravel() + 0.0)
-    found = {key(np.eye(4)): np.eye(4)}
-    frontier = [np.eye(4)]
-    while frontier:
-        nxt = []
-        for M in frontier:
-            for g in gens:
-                N = M @ g
-                k = key(N)
-                if k in found or np.linalg.norm(N[:3, 3]) > reach:
-                    continue
-                found[k] = N
-                nxt.append(N)
-        frontier = nxt
-    return [M[:3, 3] for M in found.values() if np.allclose(M[:3, :3], np.eye(3), atol=1e-9)]
+    near = close_group(gens, limit=100000, keep=lambda N: np.linalg.norm(N[:3, 3]) <= reach)
+    return [M[:3, 3] for M in near if np.allclose(M[:3, :3], np.eye(3), atol=1e-9)]
 
 
 @pytest.mark.parametrize("pid", FLAT)
