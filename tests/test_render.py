@@ -6,7 +6,6 @@ import os
 import subprocess
 import sys
 import textwrap
-import time
 import tracemalloc
 from pathlib import Path
 
@@ -675,7 +674,7 @@ def test_bytes_per_pixel_estimate_covers_the_measured_peak():
 
 
 @pytest.mark.skipif(not hasattr(os, "sysconf"), reason="physical memory from sysconf")
-def test_size_beyond_memory_is_refused_quickly_without_allocating(space_cache):
+def test_size_beyond_memory_is_refused_without_allocating(space_cache):
     space = space_cache("torus")
     memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     pixels = 0.8 * memory / render.BYTES_PER_PIXEL  # the most that may be rendered
@@ -684,17 +683,15 @@ def test_size_beyond_memory_is_refused_quickly_without_allocating(space_cache):
     H_under = math.floor(pixels / W) - 1
     render.Settings(width=W, height=H_under).check()  # just under: accepted
     tracemalloc.start()
-    t0 = time.perf_counter()
     try:
         with pytest.raises(render.RenderError) as info:
             render.render(space, Scene(), render.Settings(width=W, height=H_over, quality="draft"))
-        seconds = time.perf_counter() - t0
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
     msg = str(info.value)
     assert f"{W}x{H_over}" in msg and "memory" in msg and f"{memory / 2**30:.1f} GiB" in msg, msg
-    assert seconds < 1.0 and peak < 10 * 2**20
+    assert peak < 10 * 2**20  # refused before any image-sized allocation
 
 
 def test_memory_error_during_render_is_a_render_error(space_cache, monkeypatch):
