@@ -837,3 +837,19 @@ def test_camera_outside_the_h3_chart_is_rejected(tmp_path):
 def test_whole_float_max_crossings_is_accepted(tmp_path):
     s = spaces.load(write(tmp_path, "max_crossings = 12.0\nmax_distance = 7\n" + BOX_TORUS, "ok.toml"))
     assert s.max_crossings == 12 and isinstance(s.max_crossings, int) and s.max_distance == 7.0
+
+
+def test_move_inside_many_points_at_once():
+    """Torus: the representative of x in the unit cube centred at 0 is x - round(x), tangents unchanged;
+    extended precision goes in and comes out."""
+    s = load("torus")
+    g = s.geometry
+    rng = np.random.default_rng(9)
+    x = rng.uniform(-7.3, 7.3, size=(500, 3))
+    v = rng.normal(size=(500, 3))
+    X, V = s.move_inside(g.to_model(x).astype(np.longdouble), np.hstack([v, np.zeros((500, 1))]))
+    assert X.dtype == np.longdouble
+    np.testing.assert_allclose(np.asarray(g.to_chart(X), float), x - np.round(x), atol=1e-12)
+    np.testing.assert_allclose(np.asarray(V[:, :3], float), v / np.linalg.norm(v, axis=1)[:, None], atol=1e-12)
+    with pytest.raises(spaces.SpaceError, match="point 1 "):
+        s.move_inside(np.array([[0, 0, 0, 1.0], [np.nan, 0, 0, 1.0]]))

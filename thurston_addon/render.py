@@ -457,7 +457,10 @@ def geodesic_error(space: Space, origins, directions, depth, position) -> float:
         Y = np.cosh(t) * P + np.sinh(t) * V
     else:
         Y = P + t * V
-    Z = _into_domain(space, Y)
+    try:
+        Z, _ = space.move_inside(Y)
+    except SpaceError as exc:
+        raise RenderError(f"measuring the geodesic error: {exc}") from None
     X = np.asarray(g.to_model(np.asarray(position, float)), ld)
     best = np.full(len(X), np.inf)
     for M in space.neighbourhood(1):
@@ -468,33 +471,6 @@ def geodesic_error(space: Space, origins, directions, depth, position) -> float:
             chord = np.sqrt(np.sum(d[:, :3] ** 2, axis=1) + (d[:, 3] ** 2 if k > 0 else 0))
         best = np.minimum(best, chord.astype(float))
     return float(best.max())
-
-
-def _normalize(k, Y):
-    if k > 0:
-        return Y / np.sqrt(np.sum(Y * Y, axis=1))[:, None]
-    if k < 0:
-        return Y / np.sqrt(Y[:, 3] ** 2 - np.sum(Y[:, :3] ** 2, axis=1))[:, None]
-    return Y / Y[:, 3:4]
-
-
-def _into_domain(space: Space, Y, max_steps=100000):
-    """Model points (rows, any float type) moved into the domain by face pairings, all at once:
-    each step applies the pairing of the face a point is farthest outside of."""
-    k = space.geometry.curvature
-    C = np.asarray(space.domain.covectors(), Y.dtype)
-    C = C / np.sqrt(np.sum(C * C, axis=1))[:, None]
-    maps = np.asarray([f.pairing for f in space.domain.faces], Y.dtype)
-    Y = _normalize(k, Y.copy())
-    for _ in range(max_steps):
-        s = Y @ C.T
-        worst = np.argmax(s, axis=1)
-        out = s[np.arange(len(Y)), worst] > 1e-12 * np.sqrt(np.sum(Y * Y, axis=1))
-        if not out.any():
-            return Y
-        idx = np.flatnonzero(out)
-        Y[idx] = _normalize(k, np.einsum("nij,nj->ni", maps[worst[idx]], Y[idx]))
-    raise RenderError("a hit point could not be brought into the domain to measure the geodesic error")
 
 
 def _colorize(out, settings: Settings, space: Space):

@@ -518,6 +518,31 @@ class Space:
             X = g.normalize_point(self.domain.faces[worst].pairing @ X)
         raise SpaceError(f"the point {g.to_chart(X)} cannot be brought into the domain of {self.id!r}")
 
+    def move_inside(self, X, V=None, max_steps=10000):
+        """Model points (rows; extended precision is kept) and optionally their tangent vectors,
+        moved into the domain by the face pairings all at once: each step applies the pairing of
+        the face a point is farthest outside of. Raises SpaceError naming a point that cannot."""
+        g = self.geometry
+        X = g.normalize_point(np.array(X, copy=True))
+        bad = ~(np.all(np.isfinite(X), axis=1) & g.in_chart(np.asarray(g.to_chart(X), float)))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise SpaceError(f"point {i} is not a point of {g.name}; it cannot be brought into the domain of {self.id!r}")
+        C = np.asarray(self.domain.covectors(), X.dtype)
+        C = C / np.sqrt(np.sum(C * C, axis=1))[:, None]
+        maps = np.asarray([f.pairing for f in self.domain.faces], X.dtype)
+        V = None if V is None else np.array(V, dtype=X.dtype, copy=True)
+        for _ in range(max_steps):
+            s = X @ C.T
+            worst = np.argmax(s, axis=1)
+            idx = np.flatnonzero(s[np.arange(len(X)), worst] > 1e-12 * np.sqrt(np.sum(X * X, axis=1)))
+            if len(idx) == 0:
+                return X, (None if V is None else g.normalize_tangent(X, V))
+            X[idx] = g.normalize_point(np.einsum("nij,nj->ni", maps[worst[idx]], X[idx]))
+            if V is not None:
+                V[idx] = np.einsum("nij,nj->ni", maps[worst[idx]], V[idx])
+        raise SpaceError(f"point {int(idx[0])} cannot be brought into the domain of {self.id!r}")
+
     def summary(self) -> dict:
         return {
             "id": self.id, "name": self.name, "geometry": self.geometry.name, "description": self.description,

@@ -17,6 +17,12 @@ def _dot(a, b):
     return np.einsum("...i,...i->...", a, b)
 
 
+def _floats(a):
+    """As a float array, keeping extended precision (np.longdouble) where the input has it."""
+    a = np.asarray(a)
+    return a.astype(np.result_type(a.dtype, np.float64), copy=False)
+
+
 class ProjectiveGeometry:
     """Base class: subclasses set `name`, `curvature` and the form `form` (diagonal of the
     ambient bilinear form restricted as the metric sees it)."""
@@ -93,14 +99,14 @@ class ProjectiveGeometry:
 
     # --- staying on the model ----------------------------------------------------------------
     def normalize_point(self, X):
-        X = np.asarray(X, float)
+        X = _floats(X)
         if self.curvature == 0:
             return X / X[..., 3:4]
         return X / np.sqrt(self.curvature * self.inner(X, X))[..., None]
 
     def normalize_tangent(self, X, V):
         """Project V onto the tangent space at X and scale it to unit length in the metric."""
-        V = np.asarray(V, float)
+        V = _floats(V)
         if self.curvature == 0:
             V = V.copy()
             V[..., 3] = 0.0
