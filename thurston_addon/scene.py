@@ -30,7 +30,6 @@ class SceneObject:
     triangles: np.ndarray  # (m, 3) int32
     color: np.ndarray = field(default_factory=lambda: np.array(DEFAULT_COLOR))
     emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    pieces: np.ndarray | None = None  # (m,) piece index per triangle: parts placed separately (edge tubes)
     pass_index: int = 0  # a user's index for the object (Blender's pass_index), kept for compositing
 
     def __post_init__(self):
@@ -82,8 +81,6 @@ def clean(obj: SceneObject, where: str) -> SceneObject:
         if not keep.all():
             warnings.warn(f"{where}: object {obj.name!r}: skipped {int((~keep).sum())} degenerate triangle(s)", stacklevel=2)
             obj.triangles = T[keep]
-            if obj.pieces is not None:
-                obj.pieces = obj.pieces[keep]
     return obj
 
 
@@ -356,14 +353,9 @@ def default_scene(space) -> Scene:
     for e, (a, b, _, _) in enumerate(dom.edges):
         by_class.setdefault(edge_class[e], []).append((dom.vertices[a], dom.vertices[b]))
     for c, segments in sorted(by_class.items()):
-        verts, tris, pieces = [], [], []
-        for k, (p, q) in enumerate(segments):
-            tube = trimesh.creation.cylinder(radius=radius, segment=[p, q], sections=10)
-            tris.append(tube.faces + sum(len(v) for v in verts))
-            verts.append(tube.vertices)
-            pieces.append(np.full(len(tube.faces), k))
-        objects.append(SceneObject(f"edges {c}", np.vstack(verts), np.vstack(tris), palette[c % len(palette)],
-                                   pieces=np.concatenate(pieces)))
+        tubes = trimesh.util.concatenate([trimesh.creation.cylinder(radius=radius, segment=[p, q], sections=10)
+                                          for p, q in segments])
+        objects.append(SceneObject(f"edges {c}", tubes.vertices, tubes.faces, palette[c % len(palette)]))
     inr = space.inradius if space.geometry.curvature == 0 else math.tan(space.inradius) if space.geometry.curvature > 0 else math.tanh(space.inradius)
     cam = space.camera
     forward = np.asarray(cam.forward, float) / np.linalg.norm(cam.forward)
