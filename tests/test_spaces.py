@@ -847,7 +847,7 @@ def test_move_inside_many_points_at_once():
     rng = np.random.default_rng(9)
     x = rng.uniform(-7.3, 7.3, size=(500, 3))
     v = rng.normal(size=(500, 3))
-    X, V = s.move_inside(g.to_model(x).astype(np.longdouble), np.hstack([v, np.zeros((500, 1))]))
+    X, V, _ = s.move_inside(g.to_model(x).astype(np.longdouble), np.hstack([v, np.zeros((500, 1))]))
     assert X.dtype == np.longdouble
     np.testing.assert_allclose(np.asarray(g.to_chart(X), float), x - np.round(x), atol=1e-12)
     np.testing.assert_allclose(np.asarray(V[:, :3], float), v / np.linalg.norm(v, axis=1)[:, None], atol=1e-12)

@@ -124,7 +124,7 @@ def cmd_trace(args):
         raise CommandError(f"{args.rays}: ray {int(np.argmax(np.linalg.norm(rays[:, 3:], axis=1) == 0))} has a zero direction")
     X = g.to_model(rays[:, :3])
     V = g.normalize_tangent(X, g.tangent_to_model(rays[:, :3], rays[:, 3:]))
-    X, V = space.move_inside(X, V)
+    X, V, _ = space.move_inside(X, V)
     render.Settings(max_distance=args.max_distance, max_crossings=args.max_crossings, threads=args.threads).check()
     # make_tracer and trace raise what the core rejects as RenderError (exit 2)
     tracer = render.make_tracer(space, scene, args.threads)

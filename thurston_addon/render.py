@@ -458,7 +458,7 @@ def geodesic_error(space: Space, origins, directions, depth, position) -> float:
     else:
         Y = P + t * V
     try:
-        Z, _ = space.move_inside(Y)
+        Z, _, _ = space.move_inside(Y)
     except SpaceError as exc:
         raise RenderError(f"measuring the geodesic error: {exc}") from None
     X = np.asarray(g.to_model(np.asarray(position, float)), ld)

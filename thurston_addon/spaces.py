@@ -499,48 +499,38 @@ class Space:
         return list(found.values())
 
     # --- using the domain ---------------------------------------------------------------------
-    def bring_inside(self, X, V=None, max_steps=1000):
-        """Move a model point (and a tangent vector) into the domain by face pairings.
-        Returns (X, V, M) with M the accumulated isometry; raises SpaceError if it cannot."""
-        g = self.geometry
-        X = np.asarray(X, float)
-        x = g.to_chart(X)
-        if not (np.all(np.isfinite(X)) and g.in_chart(x)):
-            raise SpaceError(f"the point {x} is not a point of {g.name}; it cannot be brought into the domain of {self.id!r}")
-        M = np.eye(4)
-        C = self.domain.covectors()
-        for _ in range(max_steps):
-            out = (C @ X) / np.linalg.norm(C, axis=1)
-            worst = int(np.argmax(out))
-            if out[worst] <= 1e-12:
-                return X, (None if V is None else g.normalize_tangent(X, M @ V)), M
-            M = g.reorthonormalize(self.domain.faces[worst].pairing @ M)
-            X = g.normalize_point(self.domain.faces[worst].pairing @ X)
-        raise SpaceError(f"the point {g.to_chart(X)} cannot be brought into the domain of {self.id!r}")
+    def bring_inside(self, X, V=None):
+        """One model point (and a tangent vector) moved into the domain: (X, V, M) with M the
+        accumulated isometry; raises SpaceError if it cannot be."""
+        X, V, M = self.move_inside(np.asarray(X, float)[None], None if V is None else np.asarray(V, float)[None])
+        return X[0], (None if V is None else V[0]), self.geometry.reorthonormalize(M[0])
 
     def move_inside(self, X, V=None, max_steps=10000):
         """Model points (rows; extended precision is kept) and optionally their tangent vectors,
         moved into the domain by the face pairings all at once: each step applies the pairing of
-        the face a point is farthest outside of. Raises SpaceError naming a point that cannot."""
+        the face a point is farthest outside of. Returns (X, V, M), M the isometry applied to each
+        row; raises SpaceError naming a point that cannot be moved in."""
         g = self.geometry
         X = g.normalize_point(np.array(X, copy=True))
         bad = ~(np.all(np.isfinite(X), axis=1) & g.in_chart(np.asarray(g.to_chart(X), float)))
         if bad.any():
             i = int(np.argmax(bad))
-            raise SpaceError(f"point {i} is not a point of {g.name}; it cannot be brought into the domain of {self.id!r}")
+            raise SpaceError(f"point {i} ({np.asarray(g.to_chart(X[i]), float)}) is not a point of {g.name}; "
+                             f"it cannot be brought into the domain of {self.id!r}")
         C = np.asarray(self.domain.covectors(), X.dtype)
         C = C / np.sqrt(np.sum(C * C, axis=1))[:, None]
         maps = np.asarray([f.pairing for f in self.domain.faces], X.dtype)
-        V = None if V is None else np.array(V, dtype=X.dtype, copy=True)
+        M = np.broadcast_to(np.eye(4, dtype=X.dtype), (len(X), 4, 4)).copy()
         for _ in range(max_steps):
             s = X @ C.T
             worst = np.argmax(s, axis=1)
             idx = np.flatnonzero(s[np.arange(len(X)), worst] > 1e-12 * np.sqrt(np.sum(X * X, axis=1)))
             if len(idx) == 0:
-                return X, (None if V is None else g.normalize_tangent(X, V))
+                if V is not None:
+                    V = g.normalize_tangent(X, np.einsum("nij,nj->ni", M, np.asarray(V, X.dtype)))
+                return X, V, M
             X[idx] = g.normalize_point(np.einsum("nij,nj->ni", maps[worst[idx]], X[idx]))
-            if V is not None:
-                V[idx] = np.einsum("nij,nj->ni", maps[worst[idx]], V[idx])
+            M[idx] = maps[worst[idx]] @ M[idx]
         raise SpaceError(f"point {int(idx[0])} cannot be brought into the domain of {self.id!r}")
 
     def summary(self) -> dict:
