@@ -3,6 +3,7 @@ here, edge classes and dihedral angles computed here from the face covectors, gr
 holonomy groups from closing the generators here, volumes from a quadrature written here and from
 published invariants (Poincare 2 pi^2 / 120, Seifert-Weber 11.199064740...)."""
 import math
+import os
 import subprocess
 import sys
 import time
@@ -654,6 +655,24 @@ def test_user_space_file(tmp_path):
     assert len(s.domain.faces) == 6
     s2 = spaces.load(str(path))
     np.testing.assert_allclose(np.sort(s2.domain.vertices, axis=0), np.sort(s.domain.vertices, axis=0))
+
+
+def test_user_preset_folders_come_first(tmp_path, monkeypatch):
+    """$THURSTON_SPACE_PATH folders add presets (listed with the built-in ones) and shadow a built-in
+    id of the same name."""
+    mine, more = tmp_path / "mine", tmp_path / "more"
+    mine.mkdir()
+    more.mkdir()
+    (mine / "aaa_long_torus.toml").write_text(BOX_TORUS)
+    (more / "torus.toml").write_text(BOX_TORUS)
+    monkeypatch.setenv(spaces.SPACE_PATH_VARIABLE, f"{mine}{os.pathsep}{more}")
+    ids = spaces.preset_ids()
+    assert ids[0] == "aaa_long_torus" and "poincare" in ids and ids.count("torus") == 1
+    assert spaces.load("aaa_long_torus").volume == pytest.approx(2.0, rel=1e-12)
+    assert spaces.load("torus").volume == pytest.approx(2.0, rel=1e-12)  # the user's, not the unit cube
+    monkeypatch.delenv(spaces.SPACE_PATH_VARIABLE)
+    assert "aaa_long_torus" not in spaces.preset_ids()
+    assert spaces.load("torus").volume == pytest.approx(1.0, rel=1e-12)
 
 
 def write(tmp_path, text, name="bad.toml"):

@@ -12,6 +12,7 @@ from __future__ import annotations
 import ast
 import math
 import operator
+import os
 import tomllib
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -23,6 +24,8 @@ from scipy.spatial import ConvexHull, HalfspaceIntersection
 from . import geometries
 
 PRESET_DIR = Path(__file__).parent / "presets"
+# Folders of a user's own presets (os.pathsep-separated), searched before the built-in ones.
+SPACE_PATH_VARIABLE = "THURSTON_SPACE_PATH"
 _GROUP_LIMIT = 20000  # more elements than this within the needed radius: not a useful discrete group
 
 
@@ -540,12 +543,27 @@ class Space:
         }
 
 
+def preset_dirs() -> list[Path]:
+    """Where presets are found: the folders of $THURSTON_SPACE_PATH in order, then the built-in ones."""
+    extra = [Path(p) for p in os.environ.get(SPACE_PATH_VARIABLE, "").split(os.pathsep) if p]
+    return [*extra, PRESET_DIR]
+
+
+def preset_path(space_id: str) -> Path | None:
+    """The file of a preset id (the first folder of preset_dirs() that has it), None if there is none."""
+    for folder in preset_dirs():
+        path = folder / f"{space_id}.toml"
+        if path.is_file():
+            return path
+    return None
+
+
 def load(path_or_id: str | Path) -> Space:
     """A preset by id, or a space file by path."""
     path = Path(path_or_id)
     if not path.suffix and not path.exists():
-        path = PRESET_DIR / f"{path_or_id}.toml"
-        if not path.exists():
+        path = preset_path(str(path_or_id))
+        if path is None:
             raise SpaceError(f"unknown space {str(path_or_id)!r}: not a preset ({', '.join(preset_ids())}) and not a file")
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -559,4 +577,5 @@ def load(path_or_id: str | Path) -> Space:
 
 
 def preset_ids() -> list[str]:
-    return sorted(p.stem for p in PRESET_DIR.glob("*.toml"))
+    """Every preset id, the user's and the built-in ones, sorted."""
+    return sorted({p.stem for folder in preset_dirs() if folder.is_dir() for p in folder.glob("*.toml")})
