@@ -3,6 +3,7 @@ engine, export from the depsgraph, the domain guide, the panorama, errors and ba
 renders. Pixels are compared with independent truths: the core (`thurston render`) fed with mesh
 files written here from the Blender data, closed-form distances, and Blender's own conventions."""
 import math
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -14,7 +15,7 @@ bpy = pytest.importorskip("bpy")
 
 import thurston_addon  # noqa: E402
 from thurston_addon import cli, spaces  # noqa: E402
-from thurston_addon.blender import export  # noqa: E402
+from thurston_addon.blender import batch, export, properties  # noqa: E402
 from thurston_addon.blender.engine import ThurstonRenderEngine  # noqa: E402
 
 import blender_helpers as bh  # noqa: E402
@@ -78,6 +79,7 @@ def test_register_unregister_twice():
             left = [n for n in dir(bpy.types) if n.startswith("THURSTON_") or n.startswith("Thurston")]
             assert left == []
             assert not ThurstonRenderEngine.is_registered
+            assert properties.migrate_space_index not in bpy.app.handlers.load_post
             assert "THURSTON" not in engine_ids()
     finally:
         if not _registered():
@@ -615,6 +617,7 @@ def test_settings_presets_round_trip(tmp_path, monkeypatch):
     assert bpy.ops.thurston.add_preset(name="Night Walk") == {"FINISHED"}
     preset = next(tmp_path.glob("**/presets/thurston/Night_Walk.py"), None) or next(
         Path(bpy.utils.resource_path("USER")).glob("**/presets/thurston/Night_Walk.py"))
+    assert "settings.space_id = 'seifert_weber'" in preset.read_text()  # the id, not the enum's position
     s.space, s.quality, s.scale, s.fog, s.passes = "torus", "draft", 1.0, 0.0, {"NORMAL"}
     assert bpy.ops.script.execute_preset(filepath=str(preset), menu_idname="THURSTON_MT_presets") == {"FINISHED"}
     assert (s.space, s.quality, s.scale, s.fog, set(s.passes)) == ("seifert_weber", "final", 2.5, 3.0, {"COLOR", "DEPTH"})
@@ -702,3 +705,89 @@ def test_render_blend_renders_what_blender_renders(tmp_path):
     assert run.returncode == 0, run.stderr
     z = bh.read_exr(tmp_path / "vis_0001.exr")["ViewLayer.Depth.Z"]
     assert z[4, 4] == pytest.approx(0.29, abs=1e-6)
+
+
+# --- 10. the space is stored by id ----------------------------------------------------------------------
+def space_items(settings):
+    """The ids in the space dropdown: Blender's error for an unknown one lists them."""
+    with pytest.raises(TypeError) as info:
+        settings.space = "no_such_space"
+    return info.value.args[0]
+
+
+def user_presets(tmp_path, monkeypatch, name="aaa_first"):
+    """A folder of user presets on $THURSTON_SPACE_PATH holding a copy of the torus named `name`."""
+    folder = tmp_path / "user_presets"
+    folder.mkdir()
+    shutil.copy(ROOT / "thurston_addon" / "presets" / "torus.toml", folder / f"{name}.toml")
+    monkeypatch.setenv(spaces.SPACE_PATH_VARIABLE, str(folder))
+    return folder / f"{name}.toml"
+
+
+def test_new_scenes_default_to_poincare():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    assert bpy.context.scene.thurston.space == "poincare"
+    assert bpy.data.scenes.new("Another").thurston.space_id == "poincare"
+    assert export.load_space(bpy.context.scene.thurston).id == "poincare"
+
+
+def test_saved_file_keeps_its_space_when_a_preset_sorts_first(tmp_path, monkeypatch):
+    bh.fresh_scene("poincare")
+    blend = tmp_path / "walk.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    first = user_presets(tmp_path, monkeypatch)
+    assert spaces.preset_ids()[0] == "aaa_first"
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    s = bpy.context.scene.thurston
+    assert (s.space, s.space_id) == ("poincare", "poincare")
+    assert export.load_space(s).id == "poincare"
+    assert "'aaa_first'" in space_items(s)
+    s.space = "aaa_first"
+    assert s.space_id == "aaa_first" and export.load_space(s).source == str(first)
+    s.space = "FILE"
+    assert s.space_id == "FILE"
+
+
+@pytest.mark.parametrize("index,space_id", [(4, "seifert_weber"), (0, "half_turn"), (8, "FILE")])
+def test_files_saved_with_the_enum_index_are_migrated(tmp_path, index, space_id):
+    """Before the id was stored, a file held the enum's position under "space"; on load it becomes the id."""
+    sc = bh.fresh_scene()
+    own = str(tmp_path / "own.toml")
+    sc.thurston.space_file = own
+    name = sc.name
+    second = bpy.data.scenes.new("Second")
+    for settings, old in ((sc.thurston, index), (second.thurston, 7)):
+        settings.space = "torus"  # stores space_id: clear it, as in an old file
+        del settings["space_id"]
+        settings["space"] = old
+    blend = tmp_path / "old.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    s = bpy.data.scenes[name].thurston
+    assert (s.space, s.space_id, s.space_file) == (space_id, space_id, own)
+    assert bpy.data.scenes["Second"].thurston.space == "torus"
+    assert all("space" not in b.thurston.keys() for b in bpy.data.scenes)
+
+    # render-blend registers the add-on itself: before it opens the file, so old files are migrated too
+    thurston_addon.unregister()
+    batch.open_blend(blend)
+    assert bpy.data.scenes[name].thurston.space_id == space_id
+
+
+def test_a_space_whose_preset_is_gone(tmp_path, monkeypatch):
+    sc = bh.fresh_scene()
+    bh.box("B", 0.1, (0, 0.3, 0))
+    bh.camera()
+    s = sc.thurston
+    user_presets(tmp_path, monkeypatch, "my_torus")
+    s.space = "my_torus"
+    monkeypatch.delenv(spaces.SPACE_PATH_VARIABLE)
+    # still shown (as itself, marked missing) instead of a blank or another space
+    assert s.space == "my_torus" and properties.space_missing(s)
+    assert "'my_torus'" in space_items(s)
+    with pytest.raises(export.ExportError, match="'my_torus' not found"):
+        export.load_space(s)
+    with pytest.raises(RuntimeError, match="'my_torus' not found"):
+        bpy.ops.thurston.render_view()
+    s.space = "torus"
+    assert not properties.space_missing(s) and "'my_torus'" not in space_items(s)

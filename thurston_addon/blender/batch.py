@@ -19,11 +19,11 @@ def ensure_registered():
 def open_blend(path: Path):
     if not path.is_file():
         raise export.ExportError(f"blend file {str(path)!r} does not exist")
+    ensure_registered()  # before loading, so that the add-on's load_post handler updates old settings
     try:
         bpy.ops.wm.open_mainfile(filepath=str(path))
     except RuntimeError as exc:
         raise export.ExportError(f"cannot open {str(path)!r}: {exc}") from None
-    ensure_registered()
 
 
 def frame_range(spec: str | None, bscene) -> range:

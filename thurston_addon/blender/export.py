@@ -9,6 +9,7 @@ import bpy
 import numpy as np
 
 from .. import render, scene as scenes, spaces
+from . import properties
 
 GUIDE_TAG = "thurston_guide"
 _space_cache: dict = {}
@@ -19,17 +20,21 @@ class ExportError(ValueError):
 
 
 def load_space(settings) -> spaces.Space:
-    """The space chosen in the settings, cached by preset id or by file path and modification time."""
-    if settings.space == "FILE":
-        path = bpy.path.abspath(settings.space_file)
+    """The space chosen in the settings (by id), cached by file path and modification time."""
+    if settings.space_id == properties.FILE:
         if not settings.space_file:
             raise ExportError("Space is set to a space file, but no file is chosen")
-        try:
-            key = (path, os.path.getmtime(path))
-        except OSError:
-            raise ExportError(f"space file {path!r} cannot be read") from None
+        path = bpy.path.abspath(settings.space_file)
     else:
-        key = (settings.space, None)
+        path = spaces.preset_path(settings.space_id)
+        if path is None:
+            dirs = ", ".join(str(d) for d in spaces.preset_dirs())
+            raise ExportError(f"space preset {settings.space_id!r} not found (searched {dirs}): "
+                              f"restore its file, or choose another space")
+    try:
+        key = (str(path), os.path.getmtime(path))
+    except OSError:
+        raise ExportError(f"space file {str(path)!r} cannot be read") from None
     if key not in _space_cache:
         try:
             _space_cache[key] = spaces.load(key[0])

@@ -2,7 +2,7 @@
 import bpy
 from bl_operators.presets import AddPresetBase
 
-from . import guide
+from . import guide, properties
 
 PRESET_SUBDIR = "thurston"
 
@@ -23,7 +23,7 @@ class THURSTON_OT_add_preset(AddPresetBase, bpy.types.Operator):
     preset_subdir = PRESET_SUBDIR
     preset_defines = ["settings = bpy.context.scene.thurston"]
     preset_values = [f"settings.{name}" for name in (
-        "space", "space_file", "scale", "quality", "shading", "max_distance", "max_crossings", "fog",
+        "space_id", "space_file", "scale", "quality", "shading", "max_distance", "max_crossings", "fog",
         "passes", "panorama_width")]
 
 
@@ -45,8 +45,10 @@ class THURSTON_PT_render(bpy.types.Panel):
         s = context.scene.thurston
         col = layout.column()
         col.prop(s, "space")
-        if s.space == "FILE":
+        if s.space_id == properties.FILE:
             col.prop(s, "space_file")
+        elif properties.space_missing(s):
+            col.label(text=f"No preset {s.space_id!r}: its file is gone; choose another space", icon="ERROR")
         col.prop(s, "scale")
         col.operator(guide.THURSTON_OT_domain_guide.bl_idname, icon="MESH_ICOSPHERE")
         if guide.camera_outside(context.scene):

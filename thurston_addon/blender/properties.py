@@ -3,16 +3,53 @@ import bpy
 
 from .. import render, spaces
 
-_PRESET_ITEMS = None
+DEFAULT_SPACE = "poincare"
+FILE = "FILE"  # space_id of a user's space file (space_file)
+# The space enum's items before the setting stored the id: .blend files saved then hold an index into
+# this list under the key "space".
+_OLD_SPACE_ITEMS = ("half_turn", "hantzsche_wendt", "poincare", "quarter_turn", "seifert_weber", "sixth_turn",
+                    "third_turn", "torus", FILE)
+# Blender keeps pointers into the items an enum callback returns: every list handed out stays alive
+# here, one per distinct id list (the presets change rarely).
+_ITEMS: dict[tuple, list] = {}
+
+
+def space_missing(settings) -> bool:
+    """The stored id is neither a preset (one in preset_dirs()) nor FILE."""
+    return settings.space_id != FILE and spaces.preset_path(settings.space_id) is None
 
 
 def _space_items(self, context):
-    # Blender keeps a reference to enum items returned by a callback only while we do
-    global _PRESET_ITEMS
-    if _PRESET_ITEMS is None:
-        _PRESET_ITEMS = [(sid, sid.replace("_", " ").title(), f"Preset space {sid}") for sid in spaces.preset_ids()]
-        _PRESET_ITEMS.append(("FILE", "Space File", "A space file (.toml) of your own"))
-    return _PRESET_ITEMS
+    ids = spaces.preset_ids()
+    missing = space_missing(self)
+    key = (*ids, FILE, *([self.space_id] if missing else []))
+    if key not in _ITEMS:
+        items = [(sid, sid.replace("_", " ").title(), f"Preset space {sid}", "NONE", i) for i, sid in enumerate(ids)]
+        items.append((FILE, "Space File", "A space file (.toml) of your own", "NONE", len(ids)))
+        if missing:  # shown as chosen, so the dropdown does not go blank; load_space reports it
+            items.append((key[-1], f"{key[-1]} (missing)", "No preset has this id", "ERROR", len(items)))
+        _ITEMS[key] = items
+    return _ITEMS[key]
+
+
+def _get_space(self):
+    # The enum stores nothing: its value is the position of space_id in the current items.
+    return next(number for sid, _, _, _, number in _space_items(self, None) if sid == self.space_id)
+
+
+def _set_space(self, value):
+    self.space_id = next(sid for sid, _, _, _, number in _space_items(self, None) if number == value)
+
+
+@bpy.app.handlers.persistent
+def migrate_space_index(*_):
+    """Files saved before the setting stored the id: take the id from the old index, drop the index."""
+    for bscene in bpy.data.scenes:
+        settings = bscene.thurston
+        old = settings.get("space")
+        if isinstance(old, int) and not settings.get("space_id") and 0 <= old < len(_OLD_SPACE_ITEMS):
+            settings["space_id"] = _OLD_SPACE_ITEMS[old]  # as stored data: no update, no guide rebuild
+            del settings["space"]
 
 
 def _space_changed(self, context):
@@ -32,7 +69,10 @@ class ThurstonStats(bpy.types.PropertyGroup):
 
 
 class ThurstonSettings(bpy.types.PropertyGroup):
-    space: bpy.props.EnumProperty(name="Space", items=_space_items, update=_space_changed,
+    # The space is stored by id: an enum stored by position would change when a preset is added.
+    space_id: bpy.props.StringProperty(name="Space ID", default=DEFAULT_SPACE, update=_space_changed,
+                                       description=f"Preset id of the space, or {FILE} for the space file")
+    space: bpy.props.EnumProperty(name="Space", items=_space_items, get=_get_space, set=_set_space,
                                   description="The 3-manifold the scene lives in")
     space_file: bpy.props.StringProperty(name="Space File", subtype="FILE_PATH", update=_space_changed,
                                          description="A space file (.toml): geometry, generators, defaults")
@@ -63,7 +103,9 @@ CLASSES = (ThurstonStats, ThurstonSettings)
 
 def register():
     bpy.types.Scene.thurston = bpy.props.PointerProperty(type=ThurstonSettings)
+    bpy.app.handlers.load_post.append(migrate_space_index)
 
 
 def unregister():
+    bpy.app.handlers.load_post.remove(migrate_space_index)
     del bpy.types.Scene.thurston
