@@ -7,6 +7,7 @@ import pytest
 import thurston_core as _core
 
 HALF = 0.5  # the E3 torus domain is the cube [-HALF, HALF]^3
+GEOMETRY = {0: "E3", 1: "S3", -1: "H3"}  # the projective geometries by curvature
 
 
 # --- scene construction -------------------------------------------------------------------------
@@ -114,7 +115,7 @@ def make_tracer(curvature, faces, maps, meshes=(), colors=None, emissions=None, 
     lifts = [np.zeros((0, 4))] + [np.asarray(l, float).reshape(-1, 4) for l, _ in lights]
     of_lift = [np.zeros(0, np.int32)] + [np.full(len(l), i, np.int32) for i, l in enumerate(lifts[1:])]
     radiance = np.array([r for _, r in lights], np.float32).reshape(-1, 3)
-    return _core.Tracer(curvature, np.asarray(faces, float).reshape(-1, 4),
+    return _core.Tracer(GEOMETRY[curvature], np.asarray(faces, float).reshape(-1, 4),
                         np.asarray(maps, float).reshape(-1, 4, 4), np.concatenate(vertices),
                         np.concatenate(triangles).astype(np.int32), np.concatenate(objects),
                         colors, emissions, np.concatenate(lifts), np.concatenate(of_lift),
@@ -529,7 +530,7 @@ def test_tracer_cannot_be_reentered_from_its_callback():
 
 def scene_arrays():
     v, t = box_mesh(BOX_LO, BOX_HI)
-    return dict(curvature=0, face_covectors=cube_faces(HALF), face_maps=torus_maps(), vertices=v,
+    return dict(geometry="E3", face_covectors=cube_faces(HALF), face_maps=torus_maps(), vertices=v,
                 triangles=t, triangle_object=np.zeros(len(t), np.int32),
                 object_color=np.ones((1, 3), np.float32),
                 object_emission=np.zeros((1, 3), np.float32),
@@ -538,7 +539,7 @@ def scene_arrays():
 
 
 @pytest.mark.parametrize("change, message", [
-    (dict(curvature=2), "curvature must be"),
+    (dict(geometry="Flat"), r"unknown geometry 'Flat' \(known: E3, S3, H3, Nil, Sol\)"),
     (dict(face_covectors=cube_faces(HALF).astype(np.float32)),
      r"face_covectors must have dtype float64, got float32"),
     (dict(face_maps=torus_maps()[:5]), r"face_maps must have shape \(F,4,4\) with F = len"),
@@ -559,7 +560,7 @@ def test_constructor_errors(change, message):
 
 
 def test_hyperbolic_vertices_must_be_in_the_ball():
-    args = scene_arrays() | dict(curvature=-1, vertices=box_mesh([0.5, 0.5, 0.5], [0.7, 0.7, 0.7])[0])
+    args = scene_arrays() | dict(geometry="H3", vertices=box_mesh([0.5, 0.5, 0.5], [0.7, 0.7, 0.7])[0])
     with pytest.raises(ValueError, match="inside the unit ball"):
         _core.Tracer(**args)
 
@@ -587,6 +588,10 @@ def test_trace_errors():
         tracer.trace(o, d, -1.0, 1)
     with pytest.raises(ValueError, match="max_crossings"):
         tracer.trace(o, d, 1.0, -1)
+    with pytest.raises(ValueError, match="tolerance must be a positive"):
+        tracer.trace(o, d, 1.0, 1, tolerance=0.0)
+    with pytest.raises(ValueError, match="tolerance_per_distance must be"):
+        tracer.trace(o, d, 1.0, 1, tolerance_per_distance=np.nan)
     # Strided (non-contiguous) input is read in place.
     wide = np.zeros((5, 8))
     wide[:, ::2] = o

@@ -191,7 +191,7 @@ def compile_scene(space: Space, scene: Scene):
             of_lift.append(i)
         radiance.append(np.asarray(light.color, float) * light.power)
     return dict(
-        curvature=g.curvature, face_covectors=np.ascontiguousarray(space.domain.covectors()),
+        geometry=g.name, face_covectors=np.ascontiguousarray(space.domain.covectors()),
         face_maps=np.ascontiguousarray(np.array([f.pairing for f in space.domain.faces])),
         vertices=np.ascontiguousarray(V, np.float64), triangles=np.ascontiguousarray(T),
         triangle_object=np.ascontiguousarray(O), object_color=colors, object_emission=emission,

@@ -1,6 +1,8 @@
 // Python bindings: argument validation, numpy outputs, and the GIL around traces.
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
 
 #include <cmath>
 #include <exception>
@@ -13,6 +15,12 @@ namespace nb = nanobind;
 using namespace thurston;
 
 namespace {
+
+// The Python Tracer: the geometry's tracer behind one handle.
+struct TracerHandle {
+  std::unique_ptr<Tracer> tracer;
+  std::string geometry;
+};
 
 // Any CPU array; dtype and shape are checked by hand to raise ValueError with a clear message.
 using Array = nb::ndarray<nb::ro, nb::device::cpu>;
@@ -95,31 +103,17 @@ void require_finite(const std::vector<std::array<T, C>>& rows, const char* name)
                                std::to_string(i)).c_str());
 }
 
-// Scales a light position onto the model of the space (E3: w = 1; S3: unit; H3: upper sheet).
-bool normalise_point(const Space& space, Vec4& X) {
-  double s;
-  if (space.k == 0) {
-    s = 1.0 / X[3];
-  } else if (space.k > 0) {
-    s = 1.0 / std::sqrt(dot4(X, X));
-  } else {
-    const double q = -space.inner(X, X);
-    if (!(q > 0.0)) return false;
-    s = std::copysign(1.0 / std::sqrt(q), X[3]);
-  }
-  X = scaled(s, X);
-  return finite4(X);
-}
-
-SceneData make_scene(int curvature, const Array& face_covectors, const Array& face_maps,
+SceneData make_scene(const std::string& geometry, const Array& face_covectors, const Array& face_maps,
                      const Array& vertices, const Array& triangles, const Array& triangle_object,
                      const Array& object_color, const Array& object_emission,
                      const Array& light_lifts, const Array& light_of_lift,
                      const Array& light_radiance) {
-  if (curvature < -1 || curvature > 1)
-    throw nb::value_error("curvature must be -1 (H3), 0 (E3) or +1 (S3)");
+  if (!has_geometry(geometry)) {
+    std::string known;
+    for (const std::string& name : geometry_names()) known += (known.empty() ? "" : ", ") + name;
+    throw nb::value_error(("unknown geometry '" + geometry + "' (known: " + known + ")").c_str());
+  }
   SceneData scene;
-  scene.curvature = curvature;
 
   check<double>(face_covectors, "face_covectors", {-1, 4}, "(F,4)");
   const std::int64_t F = face_covectors.shape(0);
@@ -141,9 +135,9 @@ SceneData make_scene(int curvature, const Array& face_covectors, const Array& fa
   const auto vertex_rows = rows<double, 3>(vertices);
   require_finite(vertex_rows, "vertices");
   for (std::size_t i = 0; i < vertex_rows.size(); ++i) {
-    if (curvature < 0 && dot3(vertex_rows[i], vertex_rows[i]) >= 1.0)
+    if (geometry == "H3" && dot3(vertex_rows[i], vertex_rows[i]) >= 1.0)
       throw nb::value_error(("vertices must lie inside the unit ball (the Klein model) for "
-                             "curvature -1; row " + std::to_string(i) + " does not").c_str());
+                             "H3; row " + std::to_string(i) + " does not").c_str());
     scene.vertices.push_back(vertex_rows[i]);
   }
 
@@ -176,11 +170,10 @@ SceneData make_scene(int curvature, const Array& face_covectors, const Array& fa
   require_finite(scene.light_radiance, "light_radiance");
   scene.light_of_lift = indices(light_of_lift, light_radiance.shape(0), "light_of_lift", "NL");
   scene.light_lifts = rows<double, 4>(light_lifts);
-  const Space space{curvature};
   for (std::size_t i = 0; i < scene.light_lifts.size(); ++i)
-    if (!finite4(scene.light_lifts[i]) || !normalise_point(space, scene.light_lifts[i]))
-      throw nb::value_error(("light_lifts row " + std::to_string(i) +
-                             " is not a point of the model of this curvature").c_str());
+    if (!finite4(scene.light_lifts[i]) || !normalise_point(geometry, scene.light_lifts[i]))
+      throw nb::value_error(("light_lifts row " + std::to_string(i) + " is not a point of " +
+                             geometry).c_str());
   return scene;
 }
 
@@ -207,22 +200,30 @@ void check_rays(const Array& a, const Array& b, const char* a_name, const char* 
                                (width == 4 ? "origin or direction" : "start or end")).c_str());
 }
 
-nb::dict trace(Tracer& tracer, const Array& origins, const Array& directions, double max_distance,
-               int max_crossings, bool shade, nb::object progress, bool record_segments) {
+nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directions, double max_distance,
+               int max_crossings, bool shade, nb::object progress, bool record_segments,
+               double tolerance, double tolerance_per_distance) {
   check_rays(origins, directions, "origins", "directions", 4, "ray");
   if (std::isnan(max_distance) || max_distance < 0.0)
     throw nb::value_error("max_distance must be >= 0 (inf allowed)");
   if (max_crossings < 0) throw nb::value_error("max_crossings must be >= 0");
+  if (!(tolerance > 0.0) || !std::isfinite(tolerance))
+    throw nb::value_error("tolerance must be a positive finite number (chart units)");
+  if (!(tolerance_per_distance >= 0.0) || !std::isfinite(tolerance_per_distance))
+    throw nb::value_error("tolerance_per_distance must be a finite number >= 0");
   const std::size_t n = origins.shape(0);
 
   std::unique_ptr<float[]> color(new float[3 * n]), normal(new float[3 * n]);
   std::unique_ptr<double[]> depth(new double[n]), position(new double[3 * n]),
-      distance(new double[n]);
-  std::unique_ptr<std::int32_t[]> object(new std::int32_t[n]), crossings(new std::int32_t[n]);
+      distance(new double[n]), error(new double[n]);
+  std::unique_ptr<std::int32_t[]> object(new std::int32_t[n]), crossings(new std::int32_t[n]),
+      chords(new std::int32_t[n]);
   std::unique_ptr<std::uint8_t[]> stop(new std::uint8_t[n]);
-  const TraceOutputs out{color.get(),  depth.get(),     position.get(), normal.get(),
-                         object.get(), crossings.get(), stop.get(),     distance.get()};
-  const TraceOptions options{max_distance, max_crossings, shade, record_segments};
+  const TraceOutputs out{color.get(), depth.get(),    position.get(), normal.get(),
+                         object.get(), crossings.get(), stop.get(),   distance.get(),
+                         chords.get(), error.get()};
+  const TraceOptions options{max_distance, max_crossings,          shade, record_segments,
+                             tolerance,    tolerance_per_distance};
 
   // The callback runs on this thread with the GIL re-acquired; its exception is kept until the
   // workers have stopped.
@@ -246,7 +247,8 @@ nb::dict trace(Tracer& tracer, const Array& origins, const Array& directions, do
   TraceStats stats;
   {
     nb::gil_scoped_release release;
-    stats = tracer.trace(n, view2<double>(origins), view2<double>(directions), options, out, poll);
+    stats = handle.tracer->trace(n, view2<double>(origins), view2<double>(directions), options, out,
+                                 poll);
   }
   if (callback_error) std::rethrow_exception(callback_error);
 
@@ -259,8 +261,12 @@ nb::dict trace(Tracer& tracer, const Array& origins, const Array& directions, do
   result["crossings"] = to_numpy(std::move(crossings), {n});
   result["stop"] = to_numpy(std::move(stop), {n});
   result["distance"] = to_numpy(std::move(distance), {n});
-  std::unique_ptr<std::int64_t[]> chords(new std::int64_t[1]{std::int64_t(stats.chords)});
-  result["chords"] = to_numpy(std::move(chords), {});
+  result["ray_chords"] = to_numpy(std::move(chords), {n});
+  result["error"] = to_numpy(std::move(error), {n});
+  std::unique_ptr<std::int64_t[]> total(new std::int64_t[1]{std::int64_t(stats.chords)});
+  result["chords"] = to_numpy(std::move(total), {});
+  std::unique_ptr<std::int64_t[]> failures(new std::int64_t[1]{std::int64_t(stats.light_failures)});
+  result["light_failures"] = to_numpy(std::move(failures), {});
   if (record_segments) {
     std::size_t s = 0;
     for (const auto& chunk : stats.segments) s += chunk.size() / 6;
@@ -278,46 +284,76 @@ nb::dict trace(Tracer& tracer, const Array& origins, const Array& directions, do
   return result;
 }
 
-nb::tuple query_segments(Tracer& tracer, const Array& starts, const Array& ends) {
+nb::tuple query_segments(TracerHandle& handle, const Array& starts, const Array& ends) {
   check_rays(starts, ends, "starts", "ends", 3, "segment");
   const std::size_t n = starts.shape(0);
   std::unique_ptr<float[]> t(new float[n]);
   std::unique_ptr<std::int32_t[]> prim(new std::int32_t[n]);
   {
     nb::gil_scoped_release release;
-    tracer.query_segments(n, view2<double>(starts), view2<double>(ends), t.get(), prim.get());
+    handle.tracer->query_segments(n, view2<double>(starts), view2<double>(ends), t.get(), prim.get());
   }
   return nb::make_tuple(to_numpy(std::move(t), {n}), to_numpy(std::move(prim), {n}));
 }
 
-const char* const kTracerDoc = R"(Ray tracer for inside views of E3, S3 and H3 quotient manifolds.
+const char* const kTracerDoc = R"(Ray tracer for inside views of quotient manifolds of Thurston's geometries.
 
-Tracer(curvature, face_covectors, face_maps, vertices, triangles, triangle_object,
+Tracer(geometry, face_covectors, face_maps, vertices, triangles, triangle_object,
        object_color, object_emission, light_lifts, light_of_lift, light_radiance, threads=0)
 
-curvature: +1 (S3, gnomonic chart), 0 (E3), -1 (H3, Klein chart). Points are model 4-vectors
-whose chart point is X[:3] / X[3].
+geometry: "E3", "S3" (gnomonic chart), "H3" (Klein chart): points are model 4-vectors X whose
+chart point is X[:3] / X[3] and geodesics are exact chart lines; "Nil", "Sol": points are (x, 1)
+and tangent vectors (v, 0) in the chart, and geodesics are followed in chords within the trace's
+tolerance.
 face_covectors: float64 (F,4); the fundamental domain is {X : c_f . X <= 0 for all f}.
-face_maps: float64 (F,4,4); a ray leaving through face f continues from M_f X.
+face_maps: float64 (F,4,4); a ray leaving through face f continues from M_f X (then, for Nil and
+Sol, reduced into the domain by the maps of the faces it lies outside of).
 vertices: float64 (NV,3) chart coordinates; triangles: int32 (NT,3); triangle_object: int32 (NT,).
 object_color, object_emission: float32 (NO,3). Emissive objects cast no shadows.
-light_lifts: float64 (K,4) model points (lifts of the point lights near the domain);
+light_lifts: float64 (K,4) points (copies of the point lights near the domain);
 light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3).
 threads: worker threads, 0 for one per hardware thread.
 All arrays are taken as they are (no conversion); wrong dtypes or shapes raise ValueError.)";
 
 const char* const kTraceDoc = R"(Traces rays through the domain and its face pairings.
 
-origins: float64 (N,4) model points; directions: float64 (N,4) unit tangent vectors there.
+origins: float64 (N,4) points; directions: float64 (N,4) unit tangent vectors there.
 Rays stop at the first hit, after max_distance of geodesic length, or when they would make
-more than max_crossings face crossings. progress(done, total) is called about every 0.1 s (and
-at the start and end); returning False stops the trace like cancel(). Returns a dict of:
+more than max_crossings face crossings. Curved geodesics (Nil, Sol) are followed in chart chords
+that stay within tolerance + tolerance_per_distance * d of the true curve at distance d.
+progress(done, total) is called about every 0.1 s (and at the start and end); returning False
+stops the trace like cancel(). Returns a dict of:
 color float32 (N,3), depth float64 (N,) (inf: no hit), position float64 (N,3) chart point of the
 hit (NaN: none), normal float32 (N,3) unit chart normal facing the ray (NaN: none), object int32
 (N,) (-1: none), crossings int32 (N,), stop uint8 (N,) (0 hit, 1 distance limit, 2 crossing
-limit, 3 cancelled), distance float64 (N,) geodesic length travelled, chords int64 () number of
-Embree queries of primary rays, and with record_segments segment_starts / segment_ends float64
-(S,3), the chart endpoints of those queries.)";
+limit, 3 cancelled), distance float64 (N,) geodesic length travelled, ray_chords int32 (N,)
+Embree queries of each ray, error float64 (N,) an upper estimate of the hit position's error
+(chart units: the path's distance from the true geodesic over the cosine of incidence; NaN: no
+hit), chords int64 () Embree queries of primary rays in all, light_failures int64 () light
+paths that were not found (marching geometries), and with record_segments segment_starts /
+segment_ends float64 (S,3), the chart endpoints of the queries.)";
+
+nb::tuple flow_rows(const std::string& geometry, const Array& points, const Array& velocities,
+                        const Array& lengths, double accuracy) {
+  if (!has_geometry(geometry)) throw nb::value_error(("unknown geometry '" + geometry + "'").c_str());
+  check_rays(points, velocities, "points", "velocities", 3, "row");
+  check<double>(lengths, "lengths", {std::int64_t(points.shape(0))}, "(N,) with N = len(points)");
+  const std::size_t n = points.shape(0);
+  const Strided2<double> p = view2<double>(points), v = view2<double>(velocities);
+  const double* t = static_cast<const double*>(lengths.data());
+  std::unique_ptr<double[]> xt(new double[3 * n]), vt(new double[3 * n]);
+  for (std::size_t i = 0; i < n; ++i) {
+    Vec3 x, u;
+    if (!thurston::geodesic_flow(geometry, {p(i, 0), p(i, 1), p(i, 2)}, {v(i, 0), v(i, 1), v(i, 2)},
+                                 t[i * lengths.stride(0)], accuracy, x, u))
+      throw nb::value_error((geometry + " has no marching flow (its geodesics are chart lines)").c_str());
+    for (int a = 0; a < 3; ++a) {
+      xt[3 * i + a] = x[a];
+      vt[3 * i + a] = u[a];
+    }
+  }
+  return nb::make_tuple(to_numpy(std::move(xt), {n, 3}), to_numpy(std::move(vt), {n, 3}));
+}
 
 }  // namespace
 
@@ -325,26 +361,35 @@ NB_MODULE(thurston_core, m) {
   m.doc() = "C++ core of Thurston: the ray tracer through fundamental domains (Embree).";
   m.attr("EMBREE_VERSION") = RTC_VERSION_STRING;
 
-  nb::class_<Tracer>(m, "Tracer", kTracerDoc)
+  m.attr("GEOMETRIES") = geometry_names();
+  m.def("geodesic_flow", &flow_rows, nb::arg("geometry"), nb::arg("points").noconvert(),
+        nb::arg("velocities").noconvert(), nb::arg("lengths").noconvert(),
+        nb::arg("accuracy") = 1e-12,
+        "The tracer's geodesic flow of a marching geometry (Nil, Sol): chart points and unit "
+        "chart velocities (float64 (N,3)) after arclengths (float64 (N,)), asked for `accuracy` "
+        "(chart units). Returns (points, velocities), float64 (N,3) each.");
+
+  nb::class_<TracerHandle>(m, "Tracer", kTracerDoc)
       .def(
           "__init__",
-          [](Tracer* self, int curvature, const Array& face_covectors, const Array& face_maps,
-             const Array& vertices, const Array& triangles, const Array& triangle_object,
-             const Array& object_color, const Array& object_emission, const Array& light_lifts,
-             const Array& light_of_lift, const Array& light_radiance, int threads) {
+          [](TracerHandle* self, const std::string& geometry, const Array& face_covectors,
+             const Array& face_maps, const Array& vertices, const Array& triangles,
+             const Array& triangle_object, const Array& object_color, const Array& object_emission,
+             const Array& light_lifts, const Array& light_of_lift, const Array& light_radiance,
+             int threads) {
             if (threads < 0) throw nb::value_error("threads must be >= 0 (0: all hardware threads)");
-            SceneData scene = make_scene(curvature, face_covectors, face_maps, vertices, triangles,
+            SceneData scene = make_scene(geometry, face_covectors, face_maps, vertices, triangles,
                                          triangle_object, object_color, object_emission,
                                          light_lifts, light_of_lift, light_radiance);
-            new (self) Tracer(std::move(scene), unsigned(threads));
+            new (self) TracerHandle{make_tracer(geometry, std::move(scene), unsigned(threads)), geometry};
           },
-          nb::sig("def __init__(self, curvature: int, face_covectors: numpy.ndarray, "
+          nb::sig("def __init__(self, geometry: str, face_covectors: numpy.ndarray, "
                   "face_maps: numpy.ndarray, vertices: numpy.ndarray, triangles: numpy.ndarray, "
                   "triangle_object: numpy.ndarray, object_color: numpy.ndarray, "
                   "object_emission: numpy.ndarray, light_lifts: numpy.ndarray, "
                   "light_of_lift: numpy.ndarray, light_radiance: numpy.ndarray, "
                   "threads: int = 0) -> None"),
-          nb::arg("curvature"), nb::arg("face_covectors").noconvert(),
+          nb::arg("geometry"), nb::arg("face_covectors").noconvert(),
           nb::arg("face_maps").noconvert(), nb::arg("vertices").noconvert(),
           nb::arg("triangles").noconvert(), nb::arg("triangle_object").noconvert(),
           nb::arg("object_color").noconvert(), nb::arg("object_emission").noconvert(),
@@ -354,11 +399,14 @@ NB_MODULE(thurston_core, m) {
            nb::sig("def trace(self, origins: numpy.ndarray, directions: numpy.ndarray, "
                    "max_distance: float, max_crossings: int, shade: bool = True, "
                    "progress: collections.abc.Callable[[int, int], bool | None] | None = None, "
-                   "record_segments: bool = False) -> dict[str, numpy.ndarray]"),
+                   "record_segments: bool = False, tolerance: float = 1e-3, "
+                   "tolerance_per_distance: float = 0.0) -> dict[str, numpy.ndarray]"),
            nb::arg("origins").noconvert(), nb::arg("directions").noconvert(),
            nb::arg("max_distance"), nb::arg("max_crossings"), nb::arg("shade") = true,
-           nb::arg("progress").none() = nb::none(), nb::arg("record_segments") = false, kTraceDoc)
-      .def("cancel", &Tracer::cancel, "Stops a running trace(); callable from any Python thread.")
+           nb::arg("progress").none() = nb::none(), nb::arg("record_segments") = false,
+           nb::arg("tolerance") = 1e-3, nb::arg("tolerance_per_distance") = 0.0, kTraceDoc)
+      .def("cancel", [](TracerHandle& t) { t.tracer->cancel(); },
+           "Stops a running trace(); callable from any Python thread.")
       .def("query_segments", &query_segments,
            nb::sig("def query_segments(self, starts: numpy.ndarray, ends: numpy.ndarray) -> "
                    "tuple[numpy.ndarray, numpy.ndarray]"),
@@ -367,6 +415,7 @@ NB_MODULE(thurston_core, m) {
            "Bare Embree first hit of the chart "
            "segments (float64 (N,3) each) on the same BVH and threads: chord parameter t float32 "
            "(N,) in [0, 1] (inf: none) and triangle prim int32 (N,) (-1: none).")
-      .def_prop_ro("num_threads", &Tracer::num_threads)
-      .def_prop_ro("num_triangles", &Tracer::num_triangles);
+      .def_prop_ro("geometry", [](const TracerHandle& t) { return t.geometry; })
+      .def_prop_ro("num_threads", [](const TracerHandle& t) { return t.tracer->num_threads(); })
+      .def_prop_ro("num_triangles", [](const TracerHandle& t) { return t.tracer->num_triangles(); });
 }

@@ -6,21 +6,18 @@
 #include <stdexcept>
 #include <string>
 
+#include "march.hpp"
+#include "nil.hpp"
+#include "projective.hpp"
+#include "sol.hpp"
+
 #if defined(__SSE2__) || defined(_M_X64)
 #include <emmintrin.h>  // SSE2: part of the x86-64 baseline
 #define THURSTON_SSE2 1
 #endif
 
 namespace thurston {
-namespace {
 
-constexpr std::size_t kChunk = 1024;                          // rays per unit of work
-constexpr std::chrono::milliseconds kPollInterval{100};
-constexpr double kH3Reach = 40.0;  // beyond this a Klein chart point is within e^-80 of the sphere
-constexpr int kS3Renormalise = 8;
-
-// Y = M X and Yv = M Xv for a column-major M, each row summed left to right like a row-major
-// product (the same roundings).
 void mat_vec2(const Mat4& Mt, const Vec4& x, const Vec4& xv, Vec4& y, Vec4& yv) {
   const double* m = Mt.data();
 #ifndef THURSTON_SSE2
@@ -43,6 +40,15 @@ void mat_vec2(const Mat4& Mt, const Vec4& x, const Vec4& xv, Vec4& y, Vec4& yv) 
 #endif
 }
 
+namespace {
+
+constexpr std::size_t kChunk = 1024;  // rays per unit of work
+constexpr std::chrono::milliseconds kPollInterval{100};
+constexpr int kOccupancyCells = 32;
+// The rounding a hit position carries per face crossing (chart units), on top of what a kernel's
+// walk reports.
+constexpr double kRoundingPerCrossing = 1e-14;
+
 RTCRay chord_ray(const Vec3& x0, const Vec3& x1, float tnear) {
   const float org[3] = {float(x0[0]), float(x0[1]), float(x0[2])};
   const float dir[3] = {float(x1[0] - x0[0]), float(x1[1] - x0[1]), float(x1[2] - x0[2])};
@@ -50,7 +56,8 @@ RTCRay chord_ray(const Vec3& x0, const Vec3& x1, float tnear) {
 }
 
 // The outputs of a ray that hit nothing.
-void write_miss(const TraceOutputs& out, std::size_t i, Stop stop, int crossings, double distance) {
+void write_miss(const TraceOutputs& out, std::size_t i, Stop stop, int crossings, double distance,
+                int chords) {
   for (int a = 0; a < 3; ++a) {
     out.color[3 * i + a] = 0.0f;
     out.position[3 * i + a] = kNaN;
@@ -61,6 +68,8 @@ void write_miss(const TraceOutputs& out, std::size_t i, Stop stop, int crossings
   out.crossings[i] = crossings;
   out.stop[i] = stop;
   out.distance[i] = distance;
+  out.chords[i] = chords;
+  out.error[i] = kNaN;
 }
 
 void check_device(RTCDevice device, const char* what) {
@@ -72,26 +81,77 @@ void check_device(RTCDevice device, const char* what) {
 
 }  // namespace
 
-Tracer::Tracer(SceneData scene, unsigned threads)
-    : space_{scene.curvature},
-      face_maps_(std::move(scene.face_maps)),
-      face_maps_t_(face_maps_.size()),
-      vertices_(std::move(scene.vertices)),
+// --- occupancy ---------------------------------------------------------------------------------
+
+void Occupancy::build(const std::vector<Vec3>& vertices,
+                      const std::vector<std::array<std::uint32_t, 3>>& triangles, const Vec3& lo,
+                      const Vec3& hi, int cells) {
+  cells_ = triangles.empty() ? 0 : cells;
+  if (cells_ == 0) return;
+  lo_ = lo;
+  for (int a = 0; a < 3; ++a) size_[a] = std::max(hi[a] - lo[a], 1e-300) / cells_;
+  std::vector<std::uint8_t> marked(std::size_t(cells_) * cells_ * cells_, 0);
+  for (const auto& tri : triangles) {
+    int c0[3], c1[3];
+    for (int a = 0; a < 3; ++a) {
+      const double u = std::min({vertices[tri[0]][a], vertices[tri[1]][a], vertices[tri[2]][a]});
+      const double v = std::max({vertices[tri[0]][a], vertices[tri[1]][a], vertices[tri[2]][a]});
+      c0[a] = cell(u, a);
+      c1[a] = cell(v, a);
+    }
+    for (int i = c0[0]; i <= c1[0]; ++i)
+      for (int j = c0[1]; j <= c1[1]; ++j)
+        for (int k = c0[2]; k <= c1[2]; ++k)
+          marked[(std::size_t(i) * cells_ + j) * cells_ + k] = 1;
+  }
+  prefix_.assign(std::size_t(cells_ + 1) * (cells_ + 1) * (cells_ + 1), 0);
+  for (int i = 1; i <= cells_; ++i)
+    for (int j = 1; j <= cells_; ++j)
+      for (int k = 1; k <= cells_; ++k)
+        prefix_[at(i, j, k)] = marked[(std::size_t(i - 1) * cells_ + (j - 1)) * cells_ + (k - 1)] +
+                               prefix_[at(i - 1, j, k)] + prefix_[at(i, j - 1, k)] +
+                               prefix_[at(i, j, k - 1)] - prefix_[at(i - 1, j - 1, k)] -
+                               prefix_[at(i - 1, j, k - 1)] - prefix_[at(i, j - 1, k - 1)] +
+                               prefix_[at(i - 1, j - 1, k - 1)];
+}
+
+int Occupancy::cell(double x, int axis) const {
+  const double c = std::floor((x - lo_[axis]) / size_[axis]);
+  return int(std::clamp(c, 0.0, double(cells_ - 1)));
+}
+
+bool Occupancy::touches(const Vec3& lo, const Vec3& hi) const {
+  const int i0 = cell(lo[0], 0), j0 = cell(lo[1], 1), k0 = cell(lo[2], 2);
+  const int i1 = cell(hi[0], 0) + 1, j1 = cell(hi[1], 1) + 1, k1 = cell(hi[2], 2) + 1;
+  const std::int64_t sum =
+      std::int64_t(prefix_[at(i1, j1, k1)]) - prefix_[at(i0, j1, k1)] - prefix_[at(i1, j0, k1)] -
+      prefix_[at(i1, j1, k0)] + prefix_[at(i0, j0, k1)] + prefix_[at(i0, j1, k0)] +
+      prefix_[at(i1, j0, k0)] - prefix_[at(i0, j0, k0)];
+  return sum > 0;
+}
+
+// --- what every tracer shares --------------------------------------------------------------------
+
+Tracer::Tracer(SceneData& scene, unsigned threads, bool occupancy)
+    : vertices_(std::move(scene.vertices)),
       triangles_(std::move(scene.triangles)),
       triangle_object_(std::move(scene.triangle_object)),
       object_color_(std::move(scene.object_color)),
       object_emission_(std::move(scene.object_emission)),
       light_radiance_(std::move(scene.light_radiance)),
       pool_(threads) {
+  domain_.faces = scene.face_covectors.size();
   for (const Vec4& c : scene.face_covectors)
-    for (int a = 0; a < 4; ++a) face_components_[a].push_back(c[a]);
-  while (face_components_[0].size() % 4 != 0)  // zero covectors: never an exit
-    for (int a = 0; a < 4; ++a) face_components_[a].push_back(0.0);
-  for (std::size_t e = 0; e < face_maps_.size(); ++e)
+    for (int a = 0; a < 4; ++a) domain_.components[a].push_back(c[a]);
+  while (domain_.components[0].size() % 4 != 0)  // zero covectors: never an exit
+    for (int a = 0; a < 4; ++a) domain_.components[a].push_back(0.0);
+  domain_.maps = std::move(scene.face_maps);
+  domain_.maps_t.resize(domain_.maps.size());
+  for (std::size_t e = 0; e < domain_.maps.size(); ++e)
     for (int r = 0; r < 4; ++r)
-      for (int c = 0; c < 4; ++c) face_maps_t_[e][4 * c + r] = face_maps_[e][4 * r + c];
-  bounds_lo_ = {kInf, kInf, kInf};
-  bounds_hi_ = {-kInf, -kInf, -kInf};
+      for (int c = 0; c < 4; ++c) domain_.maps_t[e][4 * c + r] = domain_.maps[e][4 * r + c];
+
+  Vec3 lo{kInf, kInf, kInf}, hi{-kInf, -kInf, -kInf};
   triangle_planes_.reserve(triangles_.size());
   for (const auto& tri : triangles_) {
     const Vec3& p0 = vertices_[tri[0]];
@@ -99,20 +159,19 @@ Tracer::Tracer(SceneData scene, unsigned threads)
     triangle_planes_.push_back({n[0], n[1], n[2], -dot3(n, p0)});
     for (std::uint32_t v : tri)
       for (int a = 0; a < 3; ++a) {
-        bounds_lo_[a] = std::min(bounds_lo_[a], vertices_[v][a]);
-        bounds_hi_[a] = std::max(bounds_hi_[a], vertices_[v][a]);
+        lo[a] = std::min(lo[a], vertices_[v][a]);
+        hi[a] = std::max(hi[a], vertices_[v][a]);
       }
   }
   for (int a = 0; a < 3 && !triangles_.empty(); ++a)
-    scale_ = std::max({scale_, std::abs(bounds_lo_[a]), std::abs(bounds_hi_[a]),
-                       bounds_hi_[a] - bounds_lo_[a]});
-
+    scale_ = std::max({scale_, std::abs(lo[a]), std::abs(hi[a]), hi[a] - lo[a]});
   const double margin = 1e-6 * scale_;
   for (int a = 0; a < 3; ++a) {
     // No triangles: an empty range, which no chord meets.
-    hit_lo_[a] = triangles_.empty() ? kInf : bounds_lo_[a] - margin;
-    hit_hi_[a] = triangles_.empty() ? -kInf : bounds_hi_[a] + margin;
+    hit_lo_[a] = triangles_.empty() ? kInf : lo[a] - margin;
+    hit_hi_[a] = triangles_.empty() ? -kInf : hi[a] + margin;
   }
+  if (occupancy) occupancy_.build(vertices_, triangles_, hit_lo_, hit_hi_, kOccupancyCells);
 
   light_lifts_.resize(light_radiance_.size());
   for (std::size_t k = 0; k < scene.light_lifts.size(); ++k)
@@ -170,217 +229,6 @@ Tracer::SceneHandle Tracer::build_scene(const std::vector<std::uint32_t>& triang
   return scene;
 }
 
-// The face through which the geodesic leaves the domain first (lowest index on ties). In S3 the
-// edge of the gnomonic chart's hemisphere X[3] > 0 competes as a pseudo-face (it loses ties): a
-// valid domain is left through a face before it, and chords must stop (just) short of it. In S3
-// the turn of a usual exit (exact == false) has exact cosine and sine but an estimated t.
-Tracer::Exit Tracer::find_exit(const Vec4& P, const Vec4& V) const {
-  // Blocks of faces on the stack, each pass a simple loop that the compiler vectorises; the face
-  // arrays are padded with zero covectors (never an exit) to a multiple of 4.
-  constexpr std::size_t kBlock = 16;
-  const std::size_t faces = face_components_[0].size();
-  const double *c0 = face_components_[0].data(), *c1 = face_components_[1].data(),
-               *c2 = face_components_[2].data(), *c3 = face_components_[3].data();
-  double best = kInf, best_a = 0.0, best_b = 0.0;
-  int face = -1;
-  for (std::size_t begin = 0; begin < faces; begin += kBlock) {
-    const std::size_t n = std::min(kBlock, faces - begin);
-    double a[kBlock], b[kBlock], key[kBlock];
-    for (std::size_t g = 0; g < n; g += 4)
-      for (std::size_t j = g; j < g + 4; ++j) {
-        const std::size_t f = begin + j;
-        a[j] = c0[f] * P[0] + c1[f] * P[1] + c2[f] * P[2] + c3[f] * P[3];
-        b[j] = c0[f] * V[0] + c1[f] * V[1] + c2[f] * V[2] + c3[f] * V[3];
-      }
-    space_.exit_keys(a, b, key, n);
-    // The block's least key and its first index, branch-free in 4 lanes (face j in lane j % 4).
-    double lane_key[4] = {kInf, kInf, kInf, kInf}, lane_index[4] = {-1.0, -1.0, -1.0, -1.0};
-    for (std::size_t g = 0; g < n; g += 4)
-      for (std::size_t l = 0; l < 4; ++l) {
-        const bool less = key[g + l] < lane_key[l];
-        lane_key[l] = less ? key[g + l] : lane_key[l];
-        lane_index[l] = less ? double(g + l) : lane_index[l];
-      }
-    for (std::size_t l = 0; l < 4; ++l) {
-      const double j = lane_index[l];
-      if (lane_key[l] < best || (lane_key[l] == best && j >= 0.0 && int(begin) + int(j) < face)) {
-        best = lane_key[l];
-        face = int(begin) + int(j);
-        best_a = a[std::size_t(j)];
-        best_b = b[std::size_t(j)];
-      }
-    }
-  }
-  if (space_.k > 0) {
-    if (best == kInf) return find_exit_exact(P, V);  // no usual exit: only the general search
-    if (space_.exit_key(-P[3], -V[3]) < best) {
-      if (P[3] > 0.0) return {space_.s3_exit_turn(-P[3], -V[3]), kChartEdge, false, -V[3], P[3]};
-      return {space_.exit_turn(-P[3], -V[3]), kChartEdge, true};
-    }
-    if (best == -kInf) return {{0.0, 1.0, 0.0}, face, true};
-    return {space_.s3_exit_turn(best_a, best_b), face, false, best_b, -best_a};
-  }
-  if (face < 0) return {{kInf, 0.0, 0.0}, -1, true};
-  if (space_.k < 0 && best_a <= 0.0)  // H3: (c, s) = (b, -a) / sqrt((b - a) (b + a))
-    return {space_.exit_turn(best_a, best_b), face, true, best_b, -best_a};
-  return {space_.exit_turn(best_a, best_b), face, true};
-}
-
-// S3's exit search for the unusual case of no exit in [0, pi): exact turns, keys in [0, 3).
-Tracer::Exit Tracer::find_exit_exact(const Vec4& P, const Vec4& V) const {
-  const std::size_t faces = face_components_[0].size();
-  double best = kInf, best_a = 0.0, best_b = 0.0;
-  int face = -1;
-  for (std::size_t f = 0; f < faces; ++f) {
-    const double a = face_components_[0][f] * P[0] + face_components_[1][f] * P[1] +
-                     face_components_[2][f] * P[2] + face_components_[3][f] * P[3];
-    const double b = face_components_[0][f] * V[0] + face_components_[1][f] * V[1] +
-                     face_components_[2][f] * V[2] + face_components_[3][f] * V[3];
-    const double order = space_.exit_order(a, b);
-    if (order < best) {
-      best = order;
-      best_a = a;
-      best_b = b;
-      face = int(f);
-    }
-  }
-  if (space_.exit_order(-P[3], -V[3]) < best)
-    return {space_.exit_turn(-P[3], -V[3]), kChartEdge, true};
-  if (face < 0) return {{kInf, 0.0, 0.0}, -1, true};
-  return {space_.exit_turn(best_a, best_b), face, true};
-}
-
-// E3 only: a chord from x0 longer than this leaves the scene's bounding ball for good.
-double Tracer::scene_escape(const Vec3& x0) const {
-  if (space_.k != 0) return kInf;
-  if (triangles_.empty()) return 0.0;
-  Vec3 centre, half;
-  for (int a = 0; a < 3; ++a) {
-    centre[a] = 0.5 * (bounds_lo_[a] + bounds_hi_[a]);
-    half[a] = 0.5 * (bounds_hi_[a] - bounds_lo_[a]);
-  }
-  const Vec3 d = sub3(x0, centre);
-  return (std::sqrt(dot3(d, d)) + std::sqrt(dot3(half, half))) * 1.001;
-}
-
-// Whether the chord's bounding box meets the scene's; also keeps non-finite or float-overflowing
-// chords away from Embree.
-bool Tracer::may_hit(const Segment& seg) const {
-  bool ok = true;
-  for (int a = 0; a < 3; ++a) {
-    const double u = seg.x0[a], v = seg.x1[a];
-    ok &= std::abs(u) < 1e30 && std::abs(v) < 1e30;
-    ok &= !(std::max(u, v) < hit_lo_[a]) && !(std::min(u, v) > hit_hi_[a]);
-  }
-  return ok;
-}
-
-namespace {
-
-// The geodesic length travelled across a walk's crossings. Exact turns add up as numbers; S3's
-// usual turns, whose t is only estimated, multiply as unit complex numbers (cos t, sin t), which
-// fixes their sum modulo 2 pi, and the sum of the estimates picks the multiple of 2 pi (it is off by
-// at most kFold * kTurnEstimateError, far below pi) and bounds the total from above.
-class Odometer {
- public:
-  void add_exact(double t) { exact_ += t; }
-  void add_turn(const Space::Turn& u) {
-    const double c = c_ * u.c - s_ * u.s, s = s_ * u.c + c_ * u.s;
-    c_ = c;
-    s_ = s;
-    estimate_ += u.t;
-    if (++turns_ == kFold) fold();
-  }
-  // An upper bound of the distance after one more estimated turn of `t`.
-  double upper_after(double t) const {
-    return exact_ + estimate_ + t + (turns_ + 1) * Space::kTurnEstimateError;
-  }
-  double value() const {
-    if (turns_ == 0) return exact_;
-    const double theta = std::atan2(s_, c_);
-    const double wraps = std::nearbyint((estimate_ - theta) * (0.5 / kPi));
-    return exact_ + (theta + 2.0 * kPi * wraps);
-  }
-
- private:
-  static constexpr int kFold = 1024;
-  void fold() {
-    exact_ = value();
-    c_ = 1.0;
-    s_ = estimate_ = 0.0;
-    turns_ = 0;
-  }
-  double exact_ = 0.0, c_ = 1.0, s_ = 0.0, estimate_ = 0.0;
-  int turns_ = 0;
-};
-
-}  // namespace
-
-// Follows the geodesic (P, V) for `length` through the domain and its face pairings, calling
-// query(segment, tnear) on each chart chord that may meet the scene until it reports a hit. The
-// first chord skips its first `first_skip` of chart length (shadow rays leaving a surface).
-template <class Query>
-Tracer::WalkEnd Tracer::walk(Vec4 P, Vec4 V, double length, int max_crossings,
-                             double first_skip, Query&& query) const {
-  Odometer odometer;
-  int crossings = 0;
-  for (bool first = true;; first = false) {
-    Exit exit = find_exit(P, V);
-    // Whether the walk crosses the exit face within its length: an estimated turn decides from
-    // the odometer's bound while that is clear of the length, else from the exact numbers.
-    bool crosses;
-    double dist = kNaN;  // the distance before this step, where computed
-    if (exit.face >= 0 && !exit.exact && odometer.upper_after(exit.turn.t) <= length) {
-      crosses = true;
-    } else {
-      if (!exit.exact) {
-        exit.turn.t = std::atan2(exit.turn.s, exit.turn.c);
-        exit.exact = true;
-      }
-      dist = odometer.value();
-      // How far the chart can follow the geodesic: S3 to its hemisphere's edge, H3 until the
-      // point is indistinguishable from the sphere at infinity.
-      const double reach = exit.face == kChartEdge ? exit.turn.t * (1.0 - 1e-6)
-                           : space_.k < 0              ? kH3Reach
-                                                       : kInf;
-      const double limit = std::min(length - dist, reach);
-      crosses = exit.face >= 0 && exit.turn.t <= limit;
-      // A ray that leaves no face ends in this copy; nothing lies beyond the scene's extent.
-      if (!crosses) {
-        exit.turn = space_.turn(std::min(limit, scene_escape(Space::chart(P))));
-        exit.cu = exit.su = 0.0;
-      }
-    }
-    const Space::Turn& u = exit.turn;
-    Vec4 X, Xv;
-    space_.advance(P, V, u, X, Xv);
-    if (u.t > 0.0) {
-      // The chord's end from (cu, su) where known, so that Embree need not wait for the turn.
-      const Vec3 x1 = exit.cu != 0.0 || exit.su != 0.0
-                          ? Space::chart(lin4(exit.cu, P, exit.su, V))
-                          : Space::chart(X);
-      const Segment seg{P, V, Space::chart(P), x1, u, exit.exact};
-      const Vec3 d = sub3(seg.x1, seg.x0);
-      const double tnear = first ? first_skip / std::sqrt(dot3(d, d)) : 0.0;
-      if (tnear < 1.0 && may_hit(seg) && query(seg, float(tnear)))
-        return {kHit, std::isnan(dist) ? odometer.value() : dist, crossings};
-    }
-    if (!crosses) return {kDistanceLimit, length, crossings};
-    if (exit.exact)
-      odometer.add_exact(u.t);
-    else
-      odometer.add_turn(u);
-    if (crossings == max_crossings) return {kCrossingLimit, odometer.value(), crossings};
-    ++crossings;
-    mat_vec2(face_maps_t_[exit.face], X, Xv, P, V);
-    // S3's pairings are rotations and its turns unit complex numbers, so (P, V) stays orthonormal
-    // to a few roundings per crossing; the exit points lie on the face planes whatever the scale.
-    // Projecting back every kS3Renormalise crossings keeps the drift below 1e-14.
-    if ((space_.k <= 0 || crossings % kS3Renormalise == 0) && !space_.renormalise(P, V))
-      return {kDistanceLimit, odometer.value(), crossings};
-  }
-}
-
 // One run at a time on the pool; a progress callback calling back into its own tracer would
 // wait on itself forever, so that is an error instead.
 Tracer::RunLock::RunLock(Tracer& tracer) : tracer_(tracer) {
@@ -402,124 +250,23 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   const std::size_t chunks = (count + kChunk - 1) / kChunk;
   // Kept by chunk, so that the recording does not depend on the thread count.
   std::vector<std::vector<double>> chunk_segments(options.record_segments ? chunks : 0);
-  std::atomic<std::uint64_t> chords{0};
+  std::atomic<std::uint64_t> chords{0}, light_failures{0};
   const std::size_t traced = run_chunks(
       count,
       [&](std::size_t chunk, std::size_t begin, std::size_t end) {
         std::vector<double>* segments = options.record_segments ? &chunk_segments[chunk] : nullptr;
-        std::uint64_t local_chords = 0;
-        for (std::size_t i = begin; i < end; ++i) {
-          const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
-          const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
-          trace_ray(i, o, d, options, out, segments, local_chords);
-        }
-        chords.fetch_add(local_chords);
+        TraceStats local;
+        trace_range(begin, end, origins, directions, options, out, segments, local);
+        chords.fetch_add(local.chords);
+        light_failures.fetch_add(local.light_failures);
       },
       poll, true);
-  for (std::size_t i = traced; i < count; ++i) write_miss(out, i, kCancelled, 0, 0.0);
-  return {chords.load(), std::move(chunk_segments)};
-}
-
-void Tracer::trace_ray(std::size_t i, const Vec4& origin, const Vec4& direction,
-                       const TraceOptions& options, const TraceOutputs& out,
-                       std::vector<double>* segments, std::uint64_t& chords) const {
-  Vec4 P = origin, V = direction;
-  if (!space_.renormalise(P, V)) {  // no point or no direction: the ray goes nowhere
-    write_miss(out, i, kDistanceLimit, 0, 0.0);
-    return;
-  }
-  int prim = -1;
-  float hit_u = 0.0f;
-  Segment hit{};
-  const auto query = [&](const Segment& seg, float tnear) {
-    ++chords;
-    if (segments) segments->insert(segments->end(), {seg.x0[0], seg.x0[1], seg.x0[2],
-                                                     seg.x1[0], seg.x1[1], seg.x1[2]});
-    prim = embree::intersect(scene_.get(), chord_ray(seg.x0, seg.x1, tnear), hit_u);
-    if (prim < 0) return false;
-    hit = seg;
-    return true;
-  };
-  const WalkEnd end = walk(P, V, options.max_distance, options.max_crossings, 0.0, query);
-  if (end.stop != kHit) {
-    write_miss(out, i, end.stop, end.crossings, end.distance);
-    return;
-  }
-  out.stop[i] = kHit;
-  out.crossings[i] = end.crossings;
-
-  // Refine Embree's float hit on the triangle's plane in double precision; keep Embree's
-  // parameter where the chord grazes the plane and the double solution is meaningless.
-  const Vec4& plane = triangle_planes_[prim];
-  const Vec3 n{plane[0], plane[1], plane[2]};
-  const Vec3 d = sub3(hit.x1, hit.x0);
-  double u = hit_u;
-  const double denom = dot3(n, d);
-  if (std::abs(denom) > 1e-9 * std::sqrt(dot3(n, n) * dot3(d, d))) {
-    const double refined = -(dot3(n, hit.x0) + plane[3]) / denom;
-    if (refined > -1e-3 && refined < 1.0 + 1e-3) u = refined;
-  }
-  u = std::clamp(u, 0.0, 1.0);
-  const Vec3 xh{hit.x0[0] + u * d[0], hit.x0[1] + u * d[1], hit.x0[2] + u * d[2]};
-  const Vec4 H = space_.model(xh);
-  const double s = std::clamp(space_.arclength(hit.P, hit.V, H), 0.0, hit.length());
-  out.depth[i] = end.distance + s;
-  out.distance[i] = out.depth[i];
-
-  // Unit normal at H facing the incoming ray.
-  Vec4 on_ray, incoming;
-  space_.advance(hit.P, hit.V, space_.turn(s), on_ray, incoming);
-  Vec4 N = space_.tangent_part(H, space_.plane_normal(plane));
-  if (!space_.normalise(N)) N = scaled(-1.0, incoming);  // degenerate triangle
-  if (space_.inner(N, incoming) > 0.0) N = scaled(-1.0, N);
-  const Vec3 chart_normal = Space::chart_vector(H, N);
-
-  const std::int32_t object = triangle_object_[prim];
-  const Rgb& base = object_color_[object];
-  const Rgb& emission = object_emission_[object];
-  Rgb light{1.0f, 1.0f, 1.0f};
-  if (options.shade) light = illumination(H, N, options.max_crossings);
-  for (int a = 0; a < 3; ++a) {
-    out.position[3 * i + a] = xh[a];
-    out.normal[3 * i + a] = float(chart_normal[a]);
-    out.color[3 * i + a] = (options.shade ? emission[a] : 0.0f) + base[a] * light[a];
-  }
-  out.object[i] = object;
-}
-
-// Sum over lights of radiance * cos * falloff * visibility at the surface point H with normal N,
-// each light seen at its nearest lift.
-Rgb Tracer::illumination(const Vec4& H, const Vec4& N, int max_crossings) const {
-  Rgb sum{0.0f, 0.0f, 0.0f};
-  for (std::size_t l = 0; l < light_lifts_.size(); ++l) {
-    const Vec4* nearest = nullptr;
-    double r = kInf;
-    for (const Vec4& L : light_lifts_[l]) {
-      const double dl = space_.distance(H, L);
-      if (dl < r) {
-        r = dl;
-        nearest = &L;
-      }
-    }
-    if (!nearest) continue;
-    Vec4 dir = space_.toward(H, *nearest);
-    if (!space_.normalise(dir)) continue;  // light on the surface point (or antipodal in S3)
-    const double cosine = space_.inner(N, dir);
-    if (!(cosine > 0.0) || !visible(H, dir, r, max_crossings)) continue;
-    const double weight = cosine * space_.falloff(r);
-    for (int a = 0; a < 3; ++a) sum[a] += float(weight * light_radiance_[l][a]);
-  }
-  return sum;
-}
-
-// Whether the geodesic from the surface point H along dir reaches distance r unobstructed. A
-// shadow ray that runs out of crossings found no blocker and counts as visible.
-bool Tracer::visible(const Vec4& H, const Vec4& dir, double r, int max_crossings) const {
-  const auto query = [&](const Segment& seg, float tnear) {
-    return embree::occluded(occluders_, chord_ray(seg.x0, seg.x1, tnear));
-  };
-  // Embree's float vertices are only good to about 1e-7 of the scene's scale.
-  return walk(H, dir, r * (1.0 - 1e-6), max_crossings, 1e-5 * scale_, query).stop != kHit;
+  for (std::size_t i = traced; i < count; ++i) write_miss(out, i, kCancelled, 0, 0.0, 0);
+  TraceStats stats;
+  stats.chords = chords.load();
+  stats.light_failures = light_failures.load();
+  stats.segments = std::move(chunk_segments);
+  return stats;
 }
 
 void Tracer::query_segments(std::size_t count, Strided2<double> starts, Strided2<double> ends,
@@ -540,8 +287,8 @@ void Tracer::query_segments(std::size_t count, Strided2<double> starts, Strided2
 }
 
 std::size_t Tracer::run_chunks(std::size_t count,
-                        const std::function<void(std::size_t, std::size_t, std::size_t)>& fn,
-                        const Poll& poll, bool cancellable) {
+                               const std::function<void(std::size_t, std::size_t, std::size_t)>& fn,
+                               const Poll& poll, bool cancellable) {
   const std::size_t chunks = (count + kChunk - 1) / kChunk;
   std::atomic<std::size_t> next{0}, done{0};
   std::atomic<bool> stop{false};
@@ -567,6 +314,247 @@ std::size_t Tracer::run_chunks(std::size_t count,
   if (poll && !stop.load()) poll(done.load());  // the final count
   // Chunks are handed out in order and every chunk taken is finished.
   return std::min(count, std::min(next.load(), chunks) * kChunk);
+}
+
+// --- the walk, generic over the kernel -----------------------------------------------------------
+
+namespace {
+
+template <class Kernel>
+class KernelTracer final : public Tracer {
+ public:
+  KernelTracer(Kernel kernel, SceneData scene, unsigned threads, bool occupancy)
+      : Tracer(scene, threads, occupancy), kernel_(kernel) {}
+
+ private:
+  using Walk = typename Kernel::Walk;
+  using Chord = typename Kernel::Chord;
+  struct WalkEnd {
+    Stop stop;
+    double distance;
+    int crossings;
+    double error;  // the kernel's bound of the last chord's distance from the true geodesic
+  };
+
+  void trace_range(std::size_t begin, std::size_t end, Strided2<double> origins,
+                   Strided2<double> directions, const TraceOptions& options,
+                   const TraceOutputs& out, std::vector<double>* segments,
+                   TraceStats& stats) const override {
+    const WalkContext context = this->context(options);
+    for (std::size_t i = begin; i < end; ++i) {
+      const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
+      const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
+      trace_ray(i, o, d, context, options, out, segments, stats);
+    }
+  }
+
+  // Follows the geodesic (P, V) for `length` through the domain and its face pairings, calling
+  // query(chord, tnear) on each chart chord that may meet the scene until it reports a hit. The
+  // first chord skips its first `first_skip` of chart length (shadow rays leaving a surface).
+  template <class Query>
+  WalkEnd walk(const WalkContext& context, const Vec4& P, const Vec4& V, double length,
+               int max_crossings, double first_skip, Query&& query) const {
+    Walk w(kernel_, context, P, V, length);
+    int crossings = 0;
+    for (bool first = true;; first = false) {
+      const Advance advance = w.next();
+      if (w.has_chord()) {
+        const Chord& chord = w.chord();
+        const Vec3 d = sub3(chord.x1, chord.x0);
+        const double tnear = first ? first_skip / std::sqrt(dot3(d, d)) : 0.0;
+        if (tnear < 1.0 && context.may_hit(chord.x0, chord.x1, chord.margin) &&
+            query(chord, float(tnear)))
+          return {kHit, w.chord_start_distance(), crossings, w.error()};
+      }
+      if (advance == Advance::kLimit) return {kDistanceLimit, length, crossings, 0.0};
+      if (advance == Advance::kCross) {
+        if (crossings == max_crossings) return {kCrossingLimit, w.end_distance(), crossings, 0.0};
+        ++crossings;
+        if (!w.cross(crossings)) return {kDistanceLimit, w.distance(), crossings, 0.0};
+      }
+    }
+  }
+
+  void trace_ray(std::size_t i, const Vec4& origin, const Vec4& direction,
+                 const WalkContext& context, const TraceOptions& options, const TraceOutputs& out,
+                 std::vector<double>* segments, TraceStats& stats) const {
+    Vec4 P = origin, V = direction;
+    if (!kernel_.start(P, V)) {  // no point or no direction: the ray goes nowhere
+      write_miss(out, i, kDistanceLimit, 0, 0.0, 0);
+      return;
+    }
+    int prim = -1, chords = 0;
+    float hit_u = 0.0f;
+    Chord hit{};
+    const auto query = [&](const Chord& chord, float tnear) {
+      ++chords;
+      if (segments)
+        segments->insert(segments->end(), {chord.x0[0], chord.x0[1], chord.x0[2], chord.x1[0],
+                                           chord.x1[1], chord.x1[2]});
+      prim = embree::intersect(scene_.get(), chord_ray(chord.x0, chord.x1, tnear), hit_u);
+      if (prim < 0) return false;
+      hit = chord;
+      return true;
+    };
+    const WalkEnd end =
+        walk(context, P, V, options.max_distance, options.max_crossings, 0.0, query);
+    stats.chords += chords;
+    if (end.stop != kHit) {
+      write_miss(out, i, end.stop, end.crossings, end.distance, chords);
+      return;
+    }
+    const Hit h = kernel_.refine(hit, triangle_planes_[prim], hit_u);
+    out.stop[i] = kHit;
+    out.crossings[i] = end.crossings;
+    out.chords[i] = chords;
+    out.depth[i] = end.distance + h.s;
+    out.distance[i] = out.depth[i];
+
+    // Unit normal at the hit facing the incoming ray.
+    Vec4 N = kernel_.plane_normal(h.X, triangle_planes_[prim]);
+    if (!kernel_.normalise(h.X, N)) N = scaled(-1.0, h.V);  // degenerate triangle
+    const double incidence = kernel_.dot(h.X, N, h.V);
+    if (incidence > 0.0) N = scaled(-1.0, N);
+    // A path within `error` of the true geodesic meets the surface within error / cos of it.
+    const double path_error = end.error + kRoundingPerCrossing * (1 + end.crossings);
+    out.error[i] = path_error / std::max(std::abs(incidence), 1e-3);
+    const Vec3 chart_normal = Kernel::chart_vector(h.X, N);
+
+    const std::int32_t object = triangle_object_[prim];
+    const Rgb& base = object_color_[object];
+    const Rgb& emission = object_emission_[object];
+    Rgb light{1.0f, 1.0f, 1.0f};
+    if (options.shade) light = illumination(context, h.X, N, options.max_crossings, stats);
+    for (int a = 0; a < 3; ++a) {
+      out.position[3 * i + a] = h.x[a];
+      out.normal[3 * i + a] = float(chart_normal[a]);
+      out.color[3 * i + a] = (options.shade ? emission[a] : 0.0f) + base[a] * light[a];
+    }
+    out.object[i] = object;
+  }
+
+  // Sum over lights of radiance * cos * falloff * visibility at the surface point H with normal N,
+  // each light reached along the kernel's light path (the geodesic to its nearest copy).
+  Rgb illumination(const WalkContext& context, const Vec4& H, const Vec4& N, int max_crossings,
+                   TraceStats& stats) const {
+    Rgb sum{0.0f, 0.0f, 0.0f};
+    for (std::size_t l = 0; l < light_lifts_.size(); ++l) {
+      LightPath path;
+      if (!kernel_.light_path(H, light_lifts_[l], path)) {
+        ++stats.light_failures;
+        continue;
+      }
+      const double cosine = kernel_.dot(H, N, path.direction);
+      if (!(cosine > 0.0) || !visible(context, H, path.direction, path.distance, max_crossings))
+        continue;
+      const double weight = cosine * path.falloff;
+      for (int a = 0; a < 3; ++a) sum[a] += float(weight * light_radiance_[l][a]);
+    }
+    return sum;
+  }
+
+  // Whether the geodesic from the surface point H along dir reaches distance r unobstructed. A
+  // shadow ray that runs out of crossings found no blocker and counts as visible.
+  bool visible(const WalkContext& context, const Vec4& H, const Vec4& dir, double r,
+               int max_crossings) const {
+    const auto query = [&](const Chord& chord, float tnear) {
+      return embree::occluded(occluders_, chord_ray(chord.x0, chord.x1, tnear));
+    };
+    // Embree's float vertices are only good to about 1e-7 of the scene's scale.
+    return walk(context, H, dir, r * (1.0 - 1e-6), max_crossings, 1e-5 * scale_, query).stop !=
+           kHit;
+  }
+
+  Kernel kernel_;
+};
+
+// Light lifts: E3 w = 1, S3 unit, H3 the upper sheet.
+bool normalise_projective(int k, Vec4& X) {
+  double s;
+  if (k == 0) {
+    s = 1.0 / X[3];
+  } else if (k > 0) {
+    s = 1.0 / std::sqrt(dot4(X, X));
+  } else {
+    const double q = -ProjectiveKernel{k}.inner(X, X);
+    if (!(q > 0.0)) return false;
+    s = std::copysign(1.0 / std::sqrt(q), X[3]);
+  }
+  X = scaled(s, X);
+  return finite4(X);
+}
+
+struct Geometry {
+  const char* name;
+  int curvature;  // projective kernels; unused by the others
+  std::unique_ptr<Tracer> (*make)(int curvature, SceneData scene, unsigned threads);
+  bool (*flow)(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt);
+};
+
+std::unique_ptr<Tracer> make_projective(int k, SceneData scene, unsigned threads) {
+  return std::make_unique<KernelTracer<ProjectiveKernel>>(ProjectiveKernel{k}, std::move(scene),
+                                                          threads, false);
+}
+
+template <class Flow>
+std::unique_ptr<Tracer> make_marching(int, SceneData scene, unsigned threads) {
+  return std::make_unique<KernelTracer<MarchingKernel<Flow>>>(MarchingKernel<Flow>(),
+                                                              std::move(scene), threads, true);
+}
+
+template <class Flow>
+bool flow_of(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt) {
+  double error;
+  Flow().flow(x, v, t, accuracy, xt, vt, error);
+  return true;
+}
+
+const Geometry kGeometries[] = {
+    {"E3", 0, make_projective, nullptr},
+    {"S3", 1, make_projective, nullptr},
+    {"H3", -1, make_projective, nullptr},
+    {"Nil", 0, make_marching<NilFlow>, flow_of<NilFlow>},
+    {"Sol", 0, make_marching<SolFlow>, flow_of<SolFlow>},
+};
+
+const Geometry& find(const std::string& name) {
+  for (const Geometry& g : kGeometries)
+    if (name == g.name) return g;
+  throw std::invalid_argument("unknown geometry " + name);
+}
+
+}  // namespace
+
+std::vector<std::string> geometry_names() {
+  std::vector<std::string> names;
+  for (const Geometry& g : kGeometries) names.push_back(g.name);
+  return names;
+}
+
+bool has_geometry(const std::string& name) {
+  for (const Geometry& g : kGeometries)
+    if (name == g.name) return true;
+  return false;
+}
+
+bool normalise_point(const std::string& geometry, Vec4& X) {
+  const Geometry& g = find(geometry);
+  if (g.make == make_projective) return normalise_projective(g.curvature, X);
+  if (!(X[3] != 0.0)) return false;
+  X = scaled(1.0 / X[3], X);
+  X[3] = 1.0;
+  return finite4(X);
+}
+
+std::unique_ptr<Tracer> make_tracer(const std::string& geometry, SceneData scene, unsigned threads) {
+  const Geometry& g = find(geometry);
+  return g.make(g.curvature, std::move(scene), threads);
+}
+
+bool geodesic_flow(const std::string& geometry, const Vec3& x, const Vec3& v, double t,
+                   double accuracy, Vec3& xt, Vec3& vt) {
+  const Geometry& g = find(geometry);
+  return g.flow && g.flow(x, v, t, accuracy, xt, vt);
 }
 
 }  // namespace thurston

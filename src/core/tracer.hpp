@@ -1,6 +1,7 @@
-// Ray tracer for inside views of quotient manifolds: rays walk through a convex fundamental domain
-// in a projective chart, jump across faces by the face pairings, and meet the scene (triangles in
-// the chart) through Embree queries of straight chart chords, which are exact geodesic segments.
+// Ray tracer for inside views of quotient manifolds: rays walk through a convex fundamental domain,
+// jump across faces by the face pairings, and meet the scene (triangles in the chart) through
+// Embree queries of chart chords. How a ray walks is the geometry's kernel (kernel.hpp); this file
+// is the part every geometry shares.
 #pragma once
 
 #include <atomic>
@@ -8,21 +9,20 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <string>
 #include <thread>
 #include <vector>
 
 #include "embree.hpp"
-#include "geometry.hpp"
+#include "kernel.hpp"
 #include "thread_pool.hpp"
 
 namespace thurston {
 
 using Rgb = std::array<float, 3>;
-using Mat4 = std::array<double, 16>;  // row-major
 
 // Validated scene description; see the Python docstring of Tracer for the meaning of each field.
 struct SceneData {
-  int curvature = 0;
   std::vector<Vec4> face_covectors;
   std::vector<Mat4> face_maps;
   std::vector<Vec3> vertices;  // chart coordinates
@@ -30,7 +30,7 @@ struct SceneData {
   std::vector<std::int32_t> triangle_object;
   std::vector<Rgb> object_color;
   std::vector<Rgb> object_emission;
-  std::vector<Vec4> light_lifts;  // normalised model points
+  std::vector<Vec4> light_lifts;  // points of the geometry (normalised by the kernel)
   std::vector<std::int32_t> light_of_lift;
   std::vector<Rgb> light_radiance;
 };
@@ -52,6 +52,8 @@ struct TraceOptions {
   int max_crossings;
   bool shade;
   bool record_segments;
+  double tolerance;               // chord deviation at distance 0 (chart units) ...
+  double tolerance_per_distance;  // ... and its growth per unit of distance
 };
 
 // Caller-allocated per-ray outputs (N rows each).
@@ -64,22 +66,25 @@ struct TraceOutputs {
   std::int32_t* crossings;
   std::uint8_t* stop;
   double* distance;   // geodesic length travelled: depth on a hit, max_distance at the limit
+  std::int32_t* chords;  // Embree queries of the ray
+  double* error;      // bound of the hit's distance from the true geodesic (chart units)
 };
 
 struct TraceStats {
   std::uint64_t chords = 0;
+  std::uint64_t light_failures = 0;  // light paths that were not found (marching kernels)
   // Recorded chords by chunk of rays, in ray order: 6 doubles each, start xyz and end xyz.
   std::vector<std::vector<double>> segments;
 };
 
+// What every tracer shares: Embree scenes, the thread pool, runs, cancel and progress.
 class Tracer {
  public:
   // Called on the tracing thread about every 0.1 s with the number of finished rays; returning
   // false stops the workers.
   using Poll = std::function<bool(std::size_t done)>;
 
-  Tracer(SceneData scene, unsigned threads);
-  ~Tracer();
+  virtual ~Tracer();
   Tracer(const Tracer&) = delete;
   Tracer& operator=(const Tracer&) = delete;
 
@@ -94,60 +99,20 @@ class Tracer {
   void query_segments(std::size_t count, Strided2<double> starts, Strided2<double> ends, float* t,
                       std::int32_t* prim);
 
- private:
-  static constexpr int kChartEdge = -2;
-  struct Exit {
-    Space::Turn turn;
-    int face;    // a face, -1 if none lies ahead, or kChartEdge
-    bool exact;  // whether turn.t is exact (else an estimate: S3's usual exits)
-    // Where nonzero, (cu, su) = (c, s) / r for some r > 0, known before the turn's square root:
-    // cu P + su V has the exit point's chart image.
-    double cu = 0.0, su = 0.0;
-  };
-  struct Segment {
-    Vec4 P, V;   // start point and unit velocity
-    Vec3 x0, x1; // chart endpoints
-    Space::Turn turn;  // to x1
-    bool exact;        // whether turn.t is exact
-    double length() const { return exact ? turn.t : std::atan2(turn.s, turn.c); }
-  };
-  struct WalkEnd {
-    Stop stop;
-    double distance;
-    int crossings;
-  };
-  struct EmbreeDeleter {
-    void operator()(RTCDevice d) const { rtcReleaseDevice(d); }
-    void operator()(RTCScene s) const { rtcReleaseScene(s); }
-  };
-  using DeviceHandle = std::unique_ptr<RTCDeviceTy, EmbreeDeleter>;
-  using SceneHandle = std::unique_ptr<RTCSceneTy, EmbreeDeleter>;
+ protected:
+  Tracer(SceneData& scene, unsigned threads, bool occupancy);
 
-  SceneHandle build_scene(const std::vector<std::uint32_t>& triangle_ids) const;
+  // Traces rays [begin, end) into `out`; what the kernel does per ray.
+  virtual void trace_range(std::size_t begin, std::size_t end, Strided2<double> origins,
+                           Strided2<double> directions, const TraceOptions& options,
+                           const TraceOutputs& out, std::vector<double>* segments,
+                           TraceStats& stats) const = 0;
 
-  Exit find_exit(const Vec4& P, const Vec4& V) const;
-  Exit find_exit_exact(const Vec4& P, const Vec4& V) const;
-  double scene_escape(const Vec3& x0) const;
-  bool may_hit(const Segment& seg) const;
-  template <class Query>
-  WalkEnd walk(Vec4 P, Vec4 V, double length, int max_crossings, double first_skip,
-               Query&& query) const;
+  WalkContext context(const TraceOptions& options) const {
+    return {domain_, hit_lo_, hit_hi_, occupancy_, options.tolerance, options.tolerance_per_distance};
+  }
 
-  void trace_ray(std::size_t i, const Vec4& origin, const Vec4& direction,
-                 const TraceOptions& options, const TraceOutputs& out,
-                 std::vector<double>* segments, std::uint64_t& chords) const;
-  Rgb illumination(const Vec4& H, const Vec4& N, int max_crossings) const;
-  bool visible(const Vec4& H, const Vec4& dir, double r, int max_crossings) const;
-
-  // Runs fn(chunk, begin, end) over [0, count) in chunks on the pool, polling from this thread;
-  // returns how many items (a prefix) were done before a stop.
-  std::size_t run_chunks(std::size_t count, const std::function<void(std::size_t, std::size_t, std::size_t)>& fn,
-                  const Poll& poll, bool cancellable);
-
-  Space space_;
-  std::array<std::vector<double>, 4> face_components_;  // covectors by component, for SIMD
-  std::vector<Mat4> face_maps_;
-  std::vector<Mat4> face_maps_t_;  // the same, column-major, for SIMD
+  Domain domain_;
   std::vector<Vec3> vertices_;
   std::vector<std::array<std::uint32_t, 3>> triangles_;
   std::vector<Vec4> triangle_planes_;  // chart plane covectors (n, -n . p0)
@@ -156,14 +121,29 @@ class Tracer {
   std::vector<Rgb> object_emission_;
   std::vector<std::vector<Vec4>> light_lifts_;  // per light
   std::vector<Rgb> light_radiance_;
-  Vec3 bounds_lo_{}, bounds_hi_{};  // of the scene's chart coordinates
   double scale_ = 0.0;              // largest extent or coordinate magnitude of the scene
-  Vec3 hit_lo_{}, hit_hi_{};        // the bounds widened by may_hit's margin (empty: none)
+  Vec3 hit_lo_{}, hit_hi_{};        // the scene's bounds widened by a margin (empty: none)
+  Occupancy occupancy_;
 
+  struct EmbreeDeleter {
+    void operator()(RTCDevice d) const { rtcReleaseDevice(d); }
+    void operator()(RTCScene s) const { rtcReleaseScene(s); }
+  };
+  using DeviceHandle = std::unique_ptr<RTCDeviceTy, EmbreeDeleter>;
+  using SceneHandle = std::unique_ptr<RTCSceneTy, EmbreeDeleter>;
   DeviceHandle device_;
   SceneHandle scene_;
   SceneHandle occluder_scene_;  // without emissive objects, so that lamps do not shadow their light
   RTCScene occluders_ = nullptr;
+
+ private:
+  SceneHandle build_scene(const std::vector<std::uint32_t>& triangle_ids) const;
+
+  // Runs fn(chunk, begin, end) over [0, count) in chunks on the pool, polling from this thread;
+  // returns how many items (a prefix) were done before a stop.
+  std::size_t run_chunks(std::size_t count,
+                         const std::function<void(std::size_t, std::size_t, std::size_t)>& fn,
+                         const Poll& poll, bool cancellable);
 
   ThreadPool pool_;
   struct RunLock {
@@ -175,5 +155,17 @@ class Tracer {
   std::atomic<std::thread::id> runner_{};
   std::atomic<bool> cancel_{false};
 };
+
+// The geometries by name ("E3", "S3", "H3", "Nil", "Sol"), for the bindings.
+std::vector<std::string> geometry_names();
+bool has_geometry(const std::string& name);
+// Brings a light's position onto the geometry's model (false: not a point of it).
+bool normalise_point(const std::string& geometry, Vec4& X);
+std::unique_ptr<Tracer> make_tracer(const std::string& geometry, SceneData scene, unsigned threads);
+// The geometry's flow from chart points x with unit chart velocities v over arclength t, as the
+// tracer follows it (asked for `accuracy`); false for geometries without one (the projective
+// ones, whose geodesics are exact lines).
+bool geodesic_flow(const std::string& geometry, const Vec3& x, const Vec3& v, double t,
+                   double accuracy, Vec3& xt, Vec3& vt);
 
 }  // namespace thurston

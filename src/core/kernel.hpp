@@ -1,0 +1,116 @@
+// What every geometry kernel shares with the tracer: the domain's faces, the walk's protocol and
+// the records a kernel hands back.
+//
+// A kernel K (ProjectiveKernel for E3/S3/H3, the marching kernels for the other geometries) offers
+//   K::Walk(const K&, const WalkContext&, Vec4 P, Vec4 V, double length)  a ray's walk through the
+//       domain: next() lays the next chart chord (Walk::chord()) and says whether the walk then
+//       crosses a face, ends at its length or continues in the same cell; cross() carries the ray
+//       through that face; chord_start_distance() and distance() are geodesic lengths travelled;
+//       error() bounds how far the chords so far stray from the true geodesic (chart units).
+//   K::Chord    x0, x1 (the chart segment Embree tests) and margin (how far the curve may stray
+//               from it), plus what the kernel needs to refine a hit on it;
+//   bool start(Vec4& P, Vec4& V)                 P a point and V a unit tangent there (projected);
+//   Hit refine(const Chord&, const Vec4& plane, double u)   the hit on the true curve;
+//   Vec4 plane_normal(const Vec4& X, const Vec4& plane)     the metric normal of a chart plane;
+//   double dot(const Vec4& X, const Vec4& a, const Vec4& b) the metric at X;
+//   bool normalise(const Vec4& X, Vec4& v)                 unit length at X;
+//   Vec3 chart_vector(const Vec4& X, const Vec4& v)         its chart image, unit in the chart;
+//   bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath&)
+//       the geodesic from the surface point H to the light (its nearest copy among the lifts).
+// Points and tangent vectors are 4-vectors: model vectors in the projective kernel, (x, 1) and
+// (v, 0) in chart coordinates in the others; face maps act on them linearly.
+#pragma once
+
+#include <algorithm>
+#include <cstdint>
+#include <vector>
+
+#include "vec.hpp"
+
+namespace thurston {
+
+// The fundamental domain {X : c_f . X <= 0} and its face pairings (a ray leaving through face f
+// continues from maps[f] X).
+struct Domain {
+  std::size_t faces = 0;
+  std::array<std::vector<double>, 4> components;  // covectors by component, padded to a multiple of
+                                                  // 4 with zero covectors (never an exit), for SIMD
+  std::vector<Mat4> maps;
+  std::vector<Mat4> maps_t;  // the same, column-major, for SIMD products
+
+  Vec4 covector(std::size_t f) const {
+    return {components[0][f], components[1][f], components[2][f], components[3][f]};
+  }
+};
+
+// Which cells of a grid over the scene's bounds hold triangles (their bounding boxes), with prefix
+// sums so that a box asks in constant time.
+class Occupancy {
+ public:
+  void build(const std::vector<Vec3>& vertices,
+             const std::vector<std::array<std::uint32_t, 3>>& triangles, const Vec3& lo,
+             const Vec3& hi, int cells);
+  bool empty() const { return cells_ == 0; }
+  // Whether any marked cell meets the box [lo, hi] (which must meet the grid's bounds).
+  bool touches(const Vec3& lo, const Vec3& hi) const;
+
+ private:
+  std::size_t at(int i, int j, int k) const {
+    return (std::size_t(i) * (cells_ + 1) + std::size_t(j)) * (cells_ + 1) + std::size_t(k);
+  }
+  int cell(double x, int axis) const;
+  int cells_ = 0;
+  Vec3 lo_{}, size_{};
+  std::vector<std::uint32_t> prefix_;  // (cells + 1)^3: marked cells below each corner
+};
+
+// Everything of the scene a walk may consult besides the domain.
+struct WalkContext {
+  const Domain& domain;
+  Vec3 bounds_lo, bounds_hi;   // the scene's chart bounds, widened a little (lo > hi: no triangles)
+  const Occupancy& occupancy;  // empty: only the bounds are asked
+  double tolerance;            // chord deviation allowed at distance 0 (chart units) ...
+  double tolerance_per_distance;  // ... growing by this per unit of geodesic distance
+  double tolerance_at(double distance) const { return tolerance + tolerance_per_distance * distance; }
+
+  // Whether a chord (a curve within `margin` of it) may meet the scene; also keeps non-finite or
+  // float-overflowing chords away from Embree.
+  bool may_hit(const Vec3& x0, const Vec3& x1, double margin) const {
+    bool ok = true;
+    Vec3 lo, hi;
+    for (int a = 0; a < 3; ++a) {
+      const double u = x0[a], v = x1[a];
+      ok &= std::abs(u) < 1e30 && std::abs(v) < 1e30;
+      lo[a] = std::min(u, v) - margin;
+      hi[a] = std::max(u, v) + margin;
+      ok &= !(hi[a] < bounds_lo[a]) && !(lo[a] > bounds_hi[a]);
+    }
+    return ok && (occupancy.empty() || occupancy.touches(lo, hi));
+  }
+};
+
+enum class Advance { kContinue, kCross, kLimit };
+
+// A hit refined onto the true curve: arclength from the chord's start, the point and the unit
+// tangent of the ray there (model 4-vectors) and the chart point.
+struct Hit {
+  double s;
+  Vec4 X, V;
+  Vec3 x;
+};
+
+// The geodesic from a surface point to a light: unit direction at the surface point, length and
+// the light's falloff along it (the inverse area density of the geodesic sphere about the light).
+struct LightPath {
+  Vec4 direction;
+  double distance;
+  double falloff;
+};
+
+// Falloff floored so that lights touching a surface stay finite.
+inline double floored_falloff(double area_density) {
+  constexpr double kFloor = 1e-4;
+  return 1.0 / std::max(area_density, kFloor * kFloor);
+}
+
+}  // namespace thurston

@@ -1,0 +1,386 @@
+// The marching kernel: geodesics that bend in the chart, followed in chords whose deviation from
+// the true curve is bounded by the walk's tolerance.
+//
+// MarchingKernel<Flow> turns a geometry's flow (nil.hpp, sol.hpp) into the kernel interface of
+// kernel.hpp. Points and tangent vectors are chart 4-vectors (x, 1) and (v, 0); the domain is a
+// convex chart polyhedron with affine face maps, which need not map faces onto faces: after every
+// crossing the point is reduced into the domain by the maps of the faces it lies outside of.
+//
+// A Flow provides, for a chart point x and chart velocity v of unit length in the metric:
+//   void flow(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt,
+//             double& error) const      the geodesic at arclength t (error: a bound of the
+//                                       position error of (xt, vt) when accuracy is asked for);
+//   double acceleration_bound(const Vec3& x, const Vec3& v, double h) const
+//                                       a bound of the chart acceleration |x''| over [0, h];
+//   double speed_bound(const Vec3& x, const Vec3& v, double h) const   a bound of |x'| over [0, h];
+//   double growth_rate() const          nearby geodesics separate at most like e^(rate t);
+//   double dot(const Vec3& x, const Vec3& a, const Vec3& b) const   the metric at x;
+//   Vec3 raise(const Vec3& x, const Vec3& covector) const           g^-1 at x;
+//   double volume_density(const Vec3& x) const                     sqrt det g;
+//   double separation(const Vec3& x, const Vec3& y) const   an isometry-invariant estimate of the
+//                                       distance, to pick the nearest copy of a light.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "kernel.hpp"
+
+namespace thurston {
+
+template <class Flow>
+class MarchingKernel {
+ public:
+  explicit MarchingKernel(Flow flow = Flow()) : flow_(flow) {}
+  const Flow& flow() const { return flow_; }
+
+  // The flow used for exits, hits and lights is asked for this position accuracy relative to the
+  // chord tolerance: integration errors stay well inside the tolerance.
+  static constexpr double kFlowAccuracy = 0.05;
+  // Points closer than this to a face plane (chart units, unit covectors) count as on it.
+  static constexpr double kOnFace = 1e-13;
+
+  bool start(Vec4& P, Vec4& V) const {
+    if (!(P[3] != 0.0) || !finite4(P) || !finite4(V)) return false;
+    P = scaled(1.0 / P[3], P);
+    P[3] = 1.0;
+    V[3] = 0.0;
+    return normalise(P, V);
+  }
+  double dot(const Vec4& X, const Vec4& a, const Vec4& b) const {
+    return flow_.dot(head3(X), head3(a), head3(b));
+  }
+  bool normalise(const Vec4& X, Vec4& v) const {
+    const double q = dot(X, v, v);
+    if (!(q > 0.0) || !std::isfinite(q)) return false;
+    v = scaled(inverse_sqrt(q), v);
+    v[3] = 0.0;
+    return true;
+  }
+  Vec4 plane_normal(const Vec4& X, const Vec4& plane) const {
+    return vector4(flow_.raise(head3(X), {plane[0], plane[1], plane[2]}));
+  }
+  static Vec3 chart_vector(const Vec4&, const Vec4& v) {
+    const Vec3 d = head3(v);
+    const double n = norm3(d);
+    return n > 0.0 ? scaled3(1.0 / n, d) : d;
+  }
+
+  struct Chord {
+    Vec3 x0, x1;
+    double margin;  // the curve stays within this of the chord
+    Vec3 v0;        // the curve's velocity at x0
+    double length;  // its arclength
+    double accuracy;
+  };
+
+  // The point where the curve of the chord meets the triangle's plane near Embree's parameter u:
+  // the chord's ends are points of the curve, so a plane the chord crosses is crossed by the curve
+  // in the same interval, where a safeguarded Newton iteration finds it.
+  Hit refine(const Chord& chord, const Vec4& plane, double u) const {
+    const Vec3 n{plane[0], plane[1], plane[2]};
+    const auto side = [&](const Vec3& x) { return dot3(n, x) + plane[3]; };
+    double t = std::clamp(u, 0.0, 1.0) * chord.length;
+    Vec3 x, v;
+    const double f0 = side(chord.x0), f1 = side(chord.x1);
+    if ((f0 < 0.0) != (f1 < 0.0) && f0 != 0.0) {
+      t = find_root(chord.x0, chord.v0, chord.length, chord.accuracy, n, plane[3], f0, t);
+    }
+    double error;
+    flow_.flow(chord.x0, chord.v0, t, chord.accuracy, x, v, error);
+    Hit hit;
+    hit.s = t;
+    hit.x = x;
+    hit.X = point4(x);
+    hit.V = vector4(v);
+    return hit;
+  }
+
+  // The geodesic from H to the light's copy nearest by the flow's separation estimate, found by
+  // Newton's method on the exponential map from the straight chart guess. False where it does not
+  // converge (the light then does not reach H along this geodesic; conjugate points and the far
+  // side of a light behind long geodesics are where that happens).
+  bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath& path) const {
+    const Vec3 h = head3(H);
+    const Vec4* nearest = nullptr;
+    double best = kInf;
+    for (const Vec4& L : lifts) {
+      const double d = flow_.separation(h, head3(L));
+      if (d < best) {
+        best = d;
+        nearest = &L;
+      }
+    }
+    if (!nearest) return false;
+    Vec3 w;
+    std::array<Vec3, 3> jacobian;
+    if (!shoot(h, head3(*nearest), w, jacobian)) return false;
+    const double r = std::sqrt(flow_.dot(h, w, w));
+    path.direction = vector4(scaled3(1.0 / r, w));
+    path.distance = r;
+    // The wavefront's area density: r^2 |det d exp_H| in orthonormal frames (the same seen from
+    // the light: the van Vleck determinant is symmetric).
+    const double det = dot3(jacobian[0], cross3(jacobian[1], jacobian[2])) *
+                       flow_.volume_density(head3(*nearest)) / flow_.volume_density(h);
+    path.falloff = floored_falloff(r * r * std::abs(det));
+    return true;
+  }
+
+  // exp_h(w) = target for the chart vector w at h (not of unit length), with the Jacobian d exp_h
+  // (rows: d exp / d w_i as columns transposed, i.e. jacobian[i][j] = d x_i / d w_j).
+  bool shoot(const Vec3& h, const Vec3& target, Vec3& w, std::array<Vec3, 3>& jacobian) const {
+    constexpr int kIterations = 16;
+    w = sub3(target, h);
+    double residual = kInf;
+    for (int iteration = 0; iteration < kIterations; ++iteration) {
+      Vec3 x;
+      if (!exp_with_jacobian(h, w, x, jacobian)) return false;
+      const Vec3 miss = sub3(x, target);
+      const double size = norm3(miss);
+      if (size < 1e-10 * (1.0 + norm3(target))) return true;
+      if (!(size < 2.0 * residual)) return false;  // diverging
+      residual = size;
+      Vec3 step;
+      if (!solve3(jacobian, miss, step)) return false;
+      w = sub3(w, step);
+    }
+    return false;
+  }
+
+  class Walk;
+
+ private:
+  // exp_h(w) and its Jacobian by central differences of the flow.
+  bool exp_with_jacobian(const Vec3& h, const Vec3& w, Vec3& x, std::array<Vec3, 3>& jacobian) const {
+    constexpr double kAccuracy = 1e-14;
+    const auto exp = [&](const Vec3& u, Vec3& out) {
+      const double r = std::sqrt(flow_.dot(h, u, u));
+      if (!(r > 0.0) || !std::isfinite(r)) return false;
+      Vec3 v;
+      double error;
+      flow_.flow(h, scaled3(1.0 / r, u), r, kAccuracy, out, v, error);
+      return std::isfinite(out[0]) && std::isfinite(out[1]) && std::isfinite(out[2]);
+    };
+    if (!exp(w, x)) return false;
+    const double delta = 1e-6 * std::max(norm3(w), 1e-3);
+    for (int j = 0; j < 3; ++j) {
+      Vec3 plus = w, minus = w, xp, xm;
+      plus[j] += delta;
+      minus[j] -= delta;
+      if (!exp(plus, xp) || !exp(minus, xm)) return false;
+      for (int i = 0; i < 3; ++i) jacobian[i][j] = (xp[i] - xm[i]) / (2.0 * delta);
+    }
+    return true;
+  }
+
+ public:
+  // The root of n . x(t) + d = 0 in [0, h] along the curve from (x0, v0), where the side function
+  // goes from f0 to the other sign; `guess` is a starting point in [0, h].
+  double find_root(const Vec3& x0, const Vec3& v0, double h, double accuracy, const Vec3& n,
+                   double d, double f0, double guess) const {
+    double lo = 0.0, hi = h, flo = f0;
+    double t = std::clamp(guess, lo, hi);
+    for (int iteration = 0; iteration < 60; ++iteration) {
+      Vec3 x, v;
+      double error;
+      flow_.flow(x0, v0, t, accuracy, x, v, error);
+      const double f = dot3(n, x) + d, df = dot3(n, v);
+      if (f == 0.0) return t;
+      if ((f < 0.0) == (flo < 0.0)) {
+        lo = t;
+        flo = f;
+      } else {
+        hi = t;
+      }
+      if (hi - lo <= 1e-15 * (1.0 + h) || std::abs(f) < 1e-15) break;
+      double next = df != 0.0 ? t - f / df : lo - 1.0;
+      if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);  // Newton left the bracket: bisect
+      t = next;
+    }
+    // the end on the far side of the plane, so that a crossing found here is a real one
+    return (f0 < 0.0) ? hi : lo;
+  }
+
+ private:
+  Flow flow_;
+};
+
+// Marches one ray: chords within the tolerance where the scene may be near, steps to the exit with
+// no Embree query where it is not, exits on the true curve, reductions after every crossing.
+template <class Flow>
+class MarchingKernel<Flow>::Walk {
+ public:
+  Walk(const MarchingKernel& kernel, const WalkContext& context, const Vec4& P, const Vec4& V,
+       double length)
+      : kernel_(kernel), flow_(kernel.flow()), context_(context), x_(head3(P)), v_(head3(V)),
+        length_(length) {
+    ok_ = settle();
+  }
+
+  Advance next() {
+    has_chord_ = false;
+    chord_start_ = distance_;
+    const double remaining = length_ - distance_;
+    if (!ok_ || !(remaining > 0.0)) return Advance::kLimit;
+    const Domain& domain = context_.domain;
+    const double hmax = std::min(remaining, kMaxStep);
+    const double K = std::max(flow_.acceleration_bound(x_, v_, hmax), 1e-300);
+    const double tolerance = context_.tolerance_at(distance_);
+    const double accuracy = kFlowAccuracy * tolerance;
+    const double h_tolerance = std::min(hmax, std::sqrt(8.0 * tolerance / K));
+
+    // Leaving now: numerically on a face and heading out (carries rays across edges and vertices).
+    // Else the longest step that the bound |x''| <= K keeps clear of every face plane.
+    double safe = hmax;
+    for (std::size_t f = 0; f < domain.faces; ++f) {
+      const Vec4 c = domain.covector(f);
+      const Vec3 n{c[0], c[1], c[2]};
+      const double a = dot3(n, x_) + c[3], b = dot3(n, v_);
+      if (a > -kOnFace && b > 0.0) {
+        exit_face_ = int(f);
+        return Advance::kCross;
+      }
+      const double bound = norm3(n) * K;  // |d^2/dt^2 (n . x)| <= bound
+      const double ea = std::min(a, 0.0);
+      // the positive root of ea + b t + bound t^2 / 2 = 0, in its stable form
+      const double root = std::sqrt(b * b - 2.0 * bound * ea);
+      const double t = b > 0.0 ? -2.0 * ea / (b + root) : (root - b) / bound;
+      safe = std::min(safe, t);
+    }
+
+    double h = std::min(hmax, std::max(safe, h_tolerance));
+    Vec3 x1, v1;
+    double error;
+    flow_.flow(x_, v_, h, accuracy, x1, v1, error);
+    double margin = K * h * h / 8.0;
+    if (h > h_tolerance && context_.may_hit(x_, x1, margin)) {
+      h = h_tolerance;  // the scene may be near: chords within the tolerance
+      flow_.flow(x_, v_, h, accuracy, x1, v1, error);
+      margin = K * h * h / 8.0;
+    }
+    // The first face plane the curve crosses within the step (beyond `safe` only: before it the
+    // bound rules crossings out; an excursion past a face and back within a step of length
+    // h <= max(safe, h_tolerance) stays within the tolerance of the face).
+    int face = -1;
+    double exit = h;
+    for (std::size_t f = 0; f < domain.faces; ++f) {
+      const Vec4 c = domain.covector(f);
+      const Vec3 n{c[0], c[1], c[2]};
+      const double f1 = dot3(n, x1) + c[3];
+      if (!(f1 > 0.0)) continue;
+      const double f0 = std::min(dot3(n, x_) + c[3], -kOnFace);
+      const double guess = h * f0 / (f0 - f1);
+      const double t = kernel_.find_root(x_, v_, h, accuracy, n, c[3], f0, guess);
+      if (t < exit || face < 0) {
+        exit = t;
+        face = int(f);
+      }
+    }
+    if (face >= 0) {
+      h = exit;
+      flow_.flow(x_, v_, h, accuracy, x1, v1, error);
+      margin = K * h * h / 8.0;
+    }
+    if (h > 0.0) {
+      chord_ = {x_, x1, margin, v_, h, accuracy};
+      has_chord_ = true;
+    }
+    // errors of earlier steps grow with the separation of geodesics; this step adds its own
+    drift_ = drift_ * std::exp(flow_.growth_rate() * h) + error;
+    chord_margin_ = margin;
+    distance_ += h;
+    x_ = x1;
+    v_ = v1;
+    ok_ = renormalise();
+    if (face >= 0) {
+      exit_face_ = face;
+      return Advance::kCross;
+    }
+    return distance_ >= length_ ? Advance::kLimit : Advance::kContinue;
+  }
+  bool has_chord() const { return has_chord_; }
+  const Chord& chord() const { return chord_; }
+  double chord_start_distance() const { return chord_start_; }
+  double distance() const { return distance_; }
+  double end_distance() const { return distance_; }
+  // How far the last chord may be from the true geodesic: its own margin plus what the flow and
+  // the crossings have drifted.
+  double error() const { return chord_margin_ + drift_; }
+
+  bool cross(int) {
+    apply(exit_face_);
+    drift_ += kOnFace;
+    ok_ = settle();
+    return ok_;
+  }
+
+ private:
+  static constexpr double kMaxStep = 1.0;  // keeps the flow's bounds over a step meaningful
+  static constexpr int kMaxReductions = 64;
+
+  void apply(int face) {
+    const Mat4& M = context_.domain.maps[face];
+    Vec3 x, v;
+    for (int r = 0; r < 3; ++r) {
+      x[r] = M[4 * r] * x_[0] + M[4 * r + 1] * x_[1] + M[4 * r + 2] * x_[2] + M[4 * r + 3];
+      v[r] = M[4 * r] * v_[0] + M[4 * r + 1] * v_[1] + M[4 * r + 2] * v_[2];
+    }
+    x_ = x;
+    v_ = v;
+  }
+
+  // Into the domain: the maps of the faces the point lies (farthest) outside of, then off the face
+  // planes it still touches while heading in, so that the next step starts strictly inside them.
+  bool settle() {
+    const Domain& domain = context_.domain;
+    for (int reduction = 0;; ++reduction) {
+      int worst = -1;
+      double worst_side = kReduce;
+      for (std::size_t f = 0; f < domain.faces; ++f) {
+        const Vec4 c = domain.covector(f);
+        const double side = c[0] * x_[0] + c[1] * x_[1] + c[2] * x_[2] + c[3];
+        if (side > worst_side) {
+          worst_side = side;
+          worst = int(f);
+        }
+      }
+      if (worst < 0) break;
+      if (reduction == kMaxReductions) return false;
+      apply(worst);
+    }
+    for (std::size_t f = 0; f < domain.faces; ++f) {
+      const Vec4 c = domain.covector(f);
+      const Vec3 n{c[0], c[1], c[2]};
+      const double side = dot3(n, x_) + c[3];
+      if (side > -kOnFace && dot3(n, v_) <= 0.0) {
+        const double nn = dot3(n, n);
+        x_ = sub3(x_, scaled3((side + 2.0 * kOnFace) / nn, n));
+      }
+    }
+    return renormalise();
+  }
+
+  bool renormalise() {
+    const double q = flow_.dot(x_, v_, v_);
+    if (!(q > 0.0) || !std::isfinite(q) || !std::isfinite(x_[0] + x_[1] + x_[2])) return false;
+    v_ = scaled3(inverse_sqrt(q), v_);
+    return true;
+  }
+
+  static constexpr double kReduce = 1e-12;  // outside a face by more than this: reduce
+
+  const MarchingKernel& kernel_;
+  const Flow& flow_;
+  const WalkContext& context_;
+  Vec3 x_, v_;
+  double length_;
+  double distance_ = 0.0, chord_start_ = 0.0;
+  double drift_ = 0.0, chord_margin_ = 0.0;
+  Chord chord_{};
+  bool has_chord_ = false;
+  bool ok_ = true;
+  int exit_face_ = -1;
+};
+
+}  // namespace thurston
