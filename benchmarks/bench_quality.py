@@ -27,7 +27,8 @@ def main():
         tracer = render.make_tracer(space, scene)
         ref = render.render(space, scene, render.Settings(width=w, height=h, samples=64), tracer=tracer)
         ref_color = np.clip(ref.passes["color"], 0, 1)
-        for quality, samples in render.QUALITY.items():
+        for quality, level in render.QUALITY.items():
+            samples = level.samples
             t = time.perf_counter()
             res = render.render(space, scene, render.Settings(width=w, height=h, quality=quality), tracer=tracer)
             seconds = time.perf_counter() - t

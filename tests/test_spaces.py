@@ -441,7 +441,7 @@ def test_poincare_from_an_independent_construction():
     """The dodecahedron with 1/10-turn gluings built here (not from the preset file) loads as a
     space with the same invariants; the opposite twist gives the mirror image, also a manifold."""
     for twist in (math.pi / 5, -math.pi / 5):
-        s = spaces.Space(__import__("tomllib").loads(poincare_toml(twist)), "dodecahedron.toml")
+        s = spaces.from_data(__import__("tomllib").loads(poincare_toml(twist)), "dodecahedron.toml")
         assert len(s.domain.faces) == 12
         assert s.group_order == 120
         assert s.volume == pytest.approx(2 * math.pi ** 2 / 120, abs=1e-9)

@@ -95,7 +95,8 @@ def cmd_render(args):
     w, h = args.size
     settings = render.Settings(width=w, height=h, projection=args.projection, quality=args.quality, samples=args.samples,
                                shading=args.shading, max_distance=args.max_distance,
-                               max_crossings=args.max_crossings, fog=args.fog, threads=args.threads)
+                               max_crossings=args.max_crossings, fog=args.fog, threads=args.threads,
+                               tolerance=args.tolerance)
     result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
     images.write(out, result.passes, names=args.passes, metadata={
         "space": space.id, "quality": args.quality, "summary": result.summary()})
@@ -125,18 +126,26 @@ def cmd_trace(args):
     X = g.to_model(rays[:, :3])
     V = g.normalize_tangent(X, g.tangent_to_model(rays[:, :3], rays[:, 3:]))
     X, V, _ = space.move_inside(X, V)
-    render.Settings(max_distance=args.max_distance, max_crossings=args.max_crossings, threads=args.threads).check()
+    settings = render.Settings(max_distance=args.max_distance, max_crossings=args.max_crossings, threads=args.threads,
+                               quality=args.quality, tolerance=args.tolerance)
+    settings.check()
     # make_tracer and trace raise what the core rejects as RenderError (exit 2)
     tracer = render.make_tracer(space, scene, args.threads)
     result = render.trace(tracer, np.ascontiguousarray(X), np.ascontiguousarray(V),
                           space.max_distance if args.max_distance is None else args.max_distance,
                           space.max_crossings if args.max_crossings is None else args.max_crossings,
+                          *settings.tolerances(space, render.REFERENCE_PIXEL_ANGLE),
                           shade=False, progress=Progress(f"trace {len(rays)} rays"))
+    result["chords"], result["error_estimate"] = result["ray_chords"], result["error"]
     tmp = out.with_name(f".{out.name}.partial.npz")
-    np.savez(tmp, **{k: result[k] for k in ("depth", "object", "position", "normal", "crossings", "stop")})
+    np.savez(tmp, **{k: result[k] for k in TRACE_OUTPUTS})
     tmp.replace(out)
     hit = result["stop"] == 0
-    print(f"{out}: {len(rays)} rays, {hit.mean() * 100:.1f}% hits, {result['crossings'].mean():.2f} crossings/ray")
+    print(f"{out}: {len(rays)} rays, {hit.mean() * 100:.1f}% hits, {result['crossings'].mean():.2f} crossings/ray, "
+          f"{result['chords'].mean():.2f} chords/ray")
+
+
+TRACE_OUTPUTS = ("depth", "object", "position", "normal", "crossings", "stop", "chords", "error_estimate")
 
 
 def cmd_render_blend(args):
@@ -168,6 +177,12 @@ def build_parser():
         q.add_argument("--max-distance", type=float, help="geodesic length at which a ray stops (default: the space's)")
         q.add_argument("--max-crossings", type=int, help="face crossings after which a ray stops (default: the space's)")
         q.add_argument("--threads", type=int, default=0, help="0: all cores")
+        q.add_argument("--quality", choices=tuple(render.QUALITY), default="standard",
+                       help="samples per pixel and the bound of the hit-position error as a fraction of the pixel "
+                            "footprint (where geodesics bend): " + ", ".join(
+                                f"{k} {v.samples} / {v.footprint_fraction:g}" for k, v in render.QUALITY.items()))
+        q.add_argument("--tolerance", type=float, metavar="T",
+                       help="chord tolerance in chart units (overrides the quality's bound)")
         q.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     r = sub.add_parser("render", help="render a view to an image (.exr with all passes, or .png)")
@@ -179,7 +194,6 @@ def build_parser():
     r.add_argument("--size", type=_size, default=(640, 360), metavar="WxH")
     r.add_argument("--projection", choices=("perspective", "equirect"), default="perspective")
     r.add_argument("--passes", type=_passes, help=f"EXR passes, comma separated (default all: {','.join(render.PASSES)})")
-    r.add_argument("--quality", choices=tuple(render.QUALITY), default="standard", help="samples per pixel: " + ", ".join(f"{k} {v}" for k, v in render.QUALITY.items()))
     r.add_argument("--samples", type=int, help="samples per pixel (overrides --quality)")
     r.add_argument("--shading", choices=render.SHADING, default="lambert")
     r.add_argument("--fog", type=float, help="distance at which colour falls to 1/e")

@@ -14,9 +14,26 @@ import numpy as np
 from .scene import Camera, Scene, SceneError
 from .spaces import Space, SpaceError
 
-# Quality: samples per pixel (antialiasing, the only approximation for straight-chart geometries,
-# whose geodesics are exact up to float64 rounding). The same names are used by the add-on.
-QUALITY = {"draft": 1, "preview": 1, "standard": 4, "final": 16}
+@dataclass(frozen=True)
+class Quality:
+    """A quality level: samples per pixel (antialiasing), and the bound of the hit-position error
+    as a fraction of the pixel footprint at the hit's distance (where geodesics bend in the chart
+    and are followed in chords; in E3, S3 and H3 they are exact chart lines)."""
+    samples: int
+    footprint_fraction: float
+
+
+# The same names are used by the add-on. The fractions are the cheapest that keep the image
+# error below what the samples resolve (benchmarks/bench_accuracy.py measures them).
+QUALITY = {"draft": Quality(1, 1.0), "preview": Quality(1, 0.5), "standard": Quality(4, 0.25),
+           "final": Quality(16, 0.1)}
+# `thurston trace` has no pixels: its qualities use the pixel of the default view (640 pixels
+# across 90 degrees).
+REFERENCE_PIXEL_ANGLE = math.radians(90.0) / 640
+# The bound stays positive at the camera: distances are counted from this fraction of the
+# domain's extent behind it.
+NEAR_FRACTION = 0.05
+RETRACE_FACTOR = 100  # the measured error: sampled rays traced again at tolerance / this
 SHADING = ("lambert", "normal", "position", "depth", "crossings", "object")
 PASSES = ("color", "depth", "normal", "position", "object", "crossings", "stop")
 STOP_REASONS = ("hit", "distance", "crossings", "cancelled")
@@ -62,6 +79,7 @@ class Settings:
     max_crossings: int | None = None
     fog: float | None = None  # distance at which colour falls to 1/e; None: no fog
     threads: int = 0
+    tolerance: float | None = None  # chord tolerance in chart units; None: the quality's bound
 
     def check(self):
         if self.width < 1 or self.height < 1:
@@ -88,7 +106,18 @@ class Settings:
             raise RenderError(f"fog distance must be a positive number (None: no fog), got {self.fog}")
         if not (_whole(self.threads) and 0 <= self.threads <= 2**31 - 1):
             raise RenderError(f"threads must be a whole number >= 0 (0: all cores), got {self.threads}")
+        if self.tolerance is not None and not (self.tolerance > 0 and math.isfinite(self.tolerance)):
+            raise RenderError(f"tolerance must be a positive number of chart units (None: the quality's), "
+                              f"got {self.tolerance}")
 
+    def tolerances(self, space: Space, pixel_angle: float) -> tuple[float, float]:
+        """(tolerance at distance 0, growth per unit of distance) of the chords, chart units: the
+        given tolerance, or the quality's fraction of the pixel footprint pixel_angle * d at
+        distance d (counted from NEAR_FRACTION of the domain's extent behind the camera)."""
+        if self.tolerance is not None:
+            return self.tolerance, 0.0
+        slope = QUALITY[self.quality].footprint_fraction * pixel_angle
+        return slope * NEAR_FRACTION * space.extent, slope
 
 def _whole(n) -> bool:
     return isinstance(n, (int, np.integer)) and not isinstance(n, bool)
@@ -102,17 +131,16 @@ class Result:
     def summary(self) -> str:
         s = self.stats
         rays = s.get("rays_traced", s["rays"])
-        return (f"{rays} rays, {s['crossings_per_ray']:.2f} crossings/ray, {s['chords']} chords, "
+        return (f"{rays} rays, {s['crossings_per_ray']:.2f} crossings/ray, {s['chords_per_ray']:.2f} chords/ray, "
                 f"{s['hit_fraction'] * 100:.1f}% hits, {s['seconds']:.2f} s "
                 f"({rays / max(s['seconds'], 1e-9) / 1e6:.2f} Mrays/s, {s['threads']} threads); "
                 f"accuracy: {s['samples_per_pixel']} samples/pixel, pixel footprint {s['footprint']:.2e} "
-                f"chart units at median depth, geodesic error {s['geodesic_error']:.1e} (measured)")
+                f"chart units at median depth; {s['bound']}; measured error {s['measured_error']:.1e} "
+                f"(re-traced at 1/{RETRACE_FACTOR} of the tolerance), geodesic error {s['geodesic_error']:.1e} "
+                f"(against the reference geodesic)")
 
 
 # --- compiling the scene -------------------------------------------------------------------------------
-# Copies of the domain searched for an object's parts: rings of copies around D, more for larger
-# objects; hyperbolic rings grow too fast for more than one.
-MAX_RINGS = {1: 3, 0: 3, -1: 1}
 
 
 def _object_copies(space: Space, obj, C):
@@ -121,7 +149,7 @@ def _object_copies(space: Space, obj, C):
     g = space.geometry
     X = g.to_model(obj.vertices)
     T = obj.triangles
-    for rings in range(1, MAX_RINGS[g.curvature] + 1):
+    for rings in range(1, g.copy_rings + 1):
         copies = []
         covered = np.zeros(len(X), bool)
         for M in space.neighbourhood(rings):
@@ -146,13 +174,10 @@ def compile_scene(space: Space, scene: Scene):
     C = C / np.linalg.norm(C, axis=1)[:, None]
     # Light copies: the tracer lights a point by each light's nearest copy among these. S3: the
     # group is finite, so all of it (120 elements for Poincare) and the nearest copy is exact.
-    # E3: the copies around the domain hold the nearest copy (exact). H3: the same ring of copies,
-    # an approximation: for points near vertices a copy beyond it can be nearer (the ring grows
-    # exponentially, so more rings would cost much more per shaded point).
-    if g.curvature > 0:
-        elements = space.elements_within(math.pi + 1e-6)
-    else:
-        elements = space.neighbourhood(1)
+    # E3: the copies around the domain hold the nearest copy (exact). H3, Nil, Sol: the same ring
+    # of copies, an approximation: for points near vertices a copy beyond it can be nearer (the ring
+    # grows fast, so more rings would cost much more per shaded point).
+    elements = space.light_elements()
     verts, tris, owner = [], [], []
     offset = 0
     for index, obj in enumerate(scene.objects):
@@ -211,7 +236,8 @@ def make_tracer(space: Space, scene: Scene, threads: int = 0):
         raise RenderError(f"the tracer rejected the scene: {exc}") from None
 
 
-def trace(tracer, origins, directions, max_distance, max_crossings, shade=True, progress=None):
+def trace(tracer, origins, directions, max_distance, max_crossings, tolerance=1e-3, tolerance_per_distance=0.0,
+          shade=True, progress=None):
     """tracer.trace, with what the core rejects (ValueError) raised as RenderError. Exceptions
     from the progress callback pass through unchanged (they are the caller's, not the input's)."""
     raised = []
@@ -225,7 +251,8 @@ def trace(tracer, origins, directions, max_distance, max_crossings, shade=True, 
 
     try:
         return tracer.trace(origins, directions, max_distance, max_crossings, shade=shade,
-                            progress=None if progress is None else report)
+                            progress=None if progress is None else report, tolerance=tolerance,
+                            tolerance_per_distance=tolerance_per_distance)
     except ValueError as exc:
         if raised:
             raise
@@ -352,29 +379,34 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     t0 = time.perf_counter()
     frame = camera_frame(space, camera)  # once: bring_inside and the re-orthonormalised frame
     tracer = tracer or make_tracer(space, scene, settings.threads)
-    offsets = _sample_offsets(settings.samples or QUALITY[settings.quality])
+    offsets = _sample_offsets(settings.samples or QUALITY[settings.quality].samples)
+    W, H = settings.width, settings.height
+    pixel_angle = (math.radians(camera.fov) if settings.projection == "perspective" else 2 * math.pi) / W
+    tolerances = settings.tolerances(space, pixel_angle)
+    limits = (max_distance, max_crossings, *tolerances)
     shade = settings.shading == "lambert"
     # (jitter, shade, is colour sample): the centre pass first where no colour sample gives it
     jobs = [(o, shade, True) for o in offsets]
     if CENTRE not in offsets:
         jobs.insert(0, (CENTRE, False, False))
-    pixels = settings.width * settings.height
+    pixels = W * H
     total = len(jobs) * pixels
     color_sum = None
     first = None
-    chords = 0
+    chords = light_failures = 0
     for k, (jitter, shaded, colour) in enumerate(jobs):
         origins, directions = camera_rays(space, camera, settings, jitter, frame=frame)
         base = k * pixels
         report = None if progress is None else (lambda done, _n, base=base: progress(base + done, total))
-        out = trace(tracer, origins, directions, max_distance, max_crossings, shade=shaded, progress=report)
+        out = trace(tracer, origins, directions, *limits, shade=shaded, progress=report)
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
         chords += int(out["chords"])
+        light_failures += int(out["light_failures"])
         if jitter == CENTRE:
             first = out
-            sample = _error_sample(out, space.geometry.curvature)
-            probe = (origins[sample], directions[sample], out["depth"][sample], out["position"][sample])
+            sample = _error_sample(out, space.geometry)
+            probe = (origins[sample], directions[sample], out)
         del origins, directions
         if colour:
             color = _colorize(out, settings, space)
@@ -384,7 +416,6 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
                 color_sum += color
             del color
         del out
-    H, W = settings.height, settings.width
     seconds = time.perf_counter() - t0
     passes = {
         "color": (color_sum / len(offsets)).reshape(H, W, 3).astype(np.float32),
@@ -395,82 +426,105 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "crossings": first["crossings"].reshape(H, W),
         "stop": first["stop"].reshape(H, W),
     }
-    depth = first["depth"][np.isfinite(first["depth"])]
-    median_depth = float(np.median(depth)) if len(depth) else 0.0
-    fov = math.radians(camera.fov) if settings.projection == "perspective" else 2 * math.pi
+    hits = first["stop"] == 0
+    median_depth = float(np.median(first["depth"][hits])) if hits.any() else 0.0
+    origins, directions, centre = probe
+    sample = _error_sample(centre, space.geometry)
+    measured, changed = retrace_error(space, tracer, origins, directions, centre, sample, limits)
     stats = {
         "rays": len(offsets) * pixels, "rays_traced": total, "chords": chords, "seconds": seconds,
-        "threads": tracer.num_threads,
-        "crossings_per_ray": float(first["crossings"].mean()), "hit_fraction": float((first["stop"] == 0).mean()),
+        "chords_per_ray": chords / total, "threads": tracer.num_threads,
+        "crossings_per_ray": float(first["crossings"].mean()), "hit_fraction": float(hits.mean()),
         "samples_per_pixel": len(offsets), "triangles": tracer.num_triangles,
         # angular size of a pixel over sqrt(samples), at the median hit depth, in chart-scale units
-        "footprint": fov / W / math.sqrt(len(offsets)) * median_depth,
-        # measured: the largest distance of a (sampled) hit point from the true geodesic
-        "geodesic_error": geodesic_error(space, *probe),
+        "footprint": pixel_angle / math.sqrt(len(offsets)) * median_depth,
+        "tolerance": tolerances[0], "tolerance_per_distance": tolerances[1],
+        "bound": accuracy_bound(space, settings, tolerances),
+        # the per-ray error estimate of the hits: the largest and the median, chart units
+        "error_estimate_max": float(np.max(first["error"][hits])) if hits.any() else 0.0,
+        "error_estimate_median": float(np.median(first["error"][hits])) if hits.any() else 0.0,
+        # measured: sampled hits traced again at 1/RETRACE_FACTOR of the tolerance (the largest
+        # position difference, and the fraction of them that met another object)
+        "measured_error": measured, "retrace_changed": changed,
+        # measured: the largest distance of a (sampled) hit point from the reference geodesic
+        "geodesic_error": geodesic_error(space, origins, directions, centre["depth"][sample],
+                                         centre["position"][sample]),
+        "light_failures": light_failures,
         "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},
     }
     return Result(passes, stats)
 
 
-ERROR_SAMPLES = 1000  # hit pixels checked for the geodesic error
+def accuracy_bound(space: Space, settings: Settings, tolerances) -> str:
+    """The accuracy a render promises, in words."""
+    if space.geometry.projective:
+        return "geodesics exact (chart lines)"
+    if settings.tolerance is not None:
+        return f"hit positions within {settings.tolerance:.1e} chart units of the geodesic's"
+    return (f"hit positions within {QUALITY[settings.quality].footprint_fraction:g} of the pixel footprint "
+            f"(chord tolerance {tolerances[0]:.1e} + {tolerances[1]:.1e} per unit distance)")
 
 
-# H3: the reference below goes through the universal cover, where points at distance t have
-# coordinates ~e^t and the float64 pairing matrices satisfy the group's relations only to ~1e-16
-# of their size: two words for one element differ there by ~1e-16 e^(2t), which is 1e-10 near
-# t = 5 and 1e-6 at t = 12, far above the tracer's own drift (renormalised at every crossing).
-# So in H3 only hits up to this depth are checked.
-H3_CHECK_DEPTH = 5.0
+ERROR_SAMPLES = 1000  # hit pixels checked for the measured errors
 
 
-def _error_sample(out, curvature, n=ERROR_SAMPLES):
-    """Indices of up to n hit rays, drawn at random (fixed seed)."""
-    ok = out["stop"] == 0
-    if curvature < 0:
-        ok &= out["depth"] <= H3_CHECK_DEPTH
+def _error_sample(out, geometry, n=ERROR_SAMPLES):
+    """Indices of up to n hit rays within the geometry's reference depth, drawn at random (fixed
+    seed)."""
+    ok = (out["stop"] == 0) & (out["depth"] <= geometry.reference_depth)
     hit = np.flatnonzero(ok)
     if len(hit) > n:
         hit = np.sort(np.random.default_rng(2024).choice(hit, n, replace=False))
     return hit
 
 
+def _image_distance(space: Space, X, Z) -> np.ndarray:
+    """The distance between model points X and the nearest copy of Z around the domain (points on
+    a face have two images), for nearby points."""
+    g = space.geometry
+    best = np.full(len(X), np.inf)
+    for M in space.neighbourhood(1):
+        best = np.minimum(best, np.asarray(g.chord_distance(X, Z @ np.asarray(M, Z.dtype).T), float))
+    return best
+
+
+def retrace_error(space: Space, tracer, origins, directions, out, sample, limits):
+    """(error, changed): sampled hit rays traced again at 1/RETRACE_FACTOR of the tolerance, the
+    largest distance between the two hit points where both meet the same object, and the fraction
+    of the sampled rays that met another object (or none) there: silhouettes the chords moved."""
+    if len(sample) == 0:
+        return 0.0, 0.0
+    max_distance, max_crossings, tolerance, per_distance = limits
+    fine = trace(tracer, np.ascontiguousarray(origins), np.ascontiguousarray(directions), max_distance,
+                 max_crossings, tolerance / RETRACE_FACTOR, per_distance / RETRACE_FACTOR, shade=False)
+    same = fine["object"] == out["object"][sample]
+    if not same.any():
+        return 0.0, 1.0
+    g = space.geometry
+    d = _image_distance(space, g.to_model(out["position"][sample][same]), g.to_model(fine["position"][same]))
+    return float(d.max()), float(1.0 - same.mean())
+
+
 def geodesic_error(space: Space, origins, directions, depth, position) -> float:
-    """The largest distance between traced hit points (chart, in the domain) and the true geodesic:
-    the point at the hit's arclength along the geodesic from the ray's origin with its direction,
-    exp_P(t V), computed in the universal cover in closed form (P cos t + V sin t in S3, cosh/sinh
-    in H3, P + t V in E3, in extended precision), brought into the domain by the face pairings,
-    and matched over the ring of copies around the domain (points on a face have two images).
-    What this measures is the drift the tracer accumulates chord by chord through the pairings'
-    matrices and renormalisations, which is the error of the method; it does not see errors of
-    the scene's triangles (those move the hit along the geodesic, not off it, and are not in the
-    arclength). 0.0 where there are no hits. In H3 only hits within H3_CHECK_DEPTH are sampled:
-    beyond it the reference itself is no better than the tracer."""
+    """The largest distance between traced hit points (chart, in the domain) and the reference
+    geodesic: the point at the hit's arclength along the geodesic from the ray's origin with its
+    direction, computed by the geometry's own reference (closed forms in extended precision for
+    E3, S3, H3; Nil's closed form; Sol's integrator) in the universal cover, brought into the
+    domain by the face pairings and matched over the ring of copies around the domain. What this
+    measures is the drift the tracer accumulates chord by chord through the pairings' matrices,
+    renormalisations and flows; it does not see errors of the scene's triangles (those move the
+    hit along the geodesic, not off it). 0.0 where there are no hits."""
     if len(depth) == 0:
         return 0.0
     g = space.geometry
-    k = g.curvature
     ld = np.longdouble
-    P, V, t = np.asarray(origins, ld), np.asarray(directions, ld), np.asarray(depth, ld)[:, None]
-    if k > 0:
-        Y = np.cos(t) * P + np.sin(t) * V
-    elif k < 0:
-        Y = np.cosh(t) * P + np.sinh(t) * V
-    else:
-        Y = P + t * V
+    Y, _ = g.geodesic(np.asarray(origins, ld), np.asarray(directions, ld), np.asarray(depth, ld))
     try:
         Z, _, _ = space.move_inside(Y)
     except SpaceError as exc:
         raise RenderError(f"measuring the geodesic error: {exc}") from None
     X = np.asarray(g.to_model(np.asarray(position, float)), ld)
-    best = np.full(len(X), np.inf)
-    for M in space.neighbourhood(1):
-        d = X - Z @ np.asarray(M, ld).T
-        if k < 0:  # chord lengths: 2 sin(r/2), 2 sinh(r/2), r: the distance r to first order
-            chord = np.sqrt(np.maximum(np.sum(d[:, :3] ** 2, axis=1) - d[:, 3] ** 2, 0))
-        else:
-            chord = np.sqrt(np.sum(d[:, :3] ** 2, axis=1) + (d[:, 3] ** 2 if k > 0 else 0))
-        best = np.minimum(best, chord.astype(float))
-    return float(best.max())
+    return float(_image_distance(space, X, Z).max())
 
 
 def _colorize(out, settings: Settings, space: Space):

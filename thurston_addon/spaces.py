@@ -1,11 +1,15 @@
 """Spaces (manifolds) as data: a geometry, generators of a discrete group of isometries, defaults.
 
-A space file is TOML (see presets/*.toml). The fundamental domain is the Dirichlet domain of the
-chart origin, computed here from the generators: the intersection of the half-spaces closer to the
-origin O than to gO over the group elements g, which are planes in the projective chart. Leaving the
-domain through the face of g means entering the copy gD, so the ray is carried back by g^-1.
-Every space is validated on load (pairings are isometries that map faces onto faces, edge cycles sum
-to 2 pi); a space that fails raises SpaceError naming the file and the problem.
+A space file is TOML (see presets/*.toml). The fundamental domain is either
+- the Dirichlet domain of the chart origin, computed here from the generators (E3, S3, H3): the
+  intersection of the half-spaces closer to the origin O than to gO over the group elements g, which
+  are planes in the projective chart; validated by Poincaré's polyhedron theorem (pairings are
+  isometries that map faces onto faces, edge cycles sum to 2 pi); or
+- a coordinate domain (Nil, Sol, any geometry): each generator names the face beyond which its copy
+  of the domain lies; points that leave are reduced into the domain by the face maps; validated by
+  discreteness, unique reduction and the covolume.
+Leaving the domain through the face of g means entering the copy gD, so the ray is carried back by
+g^-1. A space that fails validation raises SpaceError naming the file and the problem.
 """
 from __future__ import annotations
 
@@ -19,7 +23,7 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import ConvexHull, HalfspaceIntersection
+from scipy.spatial import HalfspaceIntersection
 
 from . import geometries
 
@@ -143,19 +147,14 @@ class Domain:
 
 
 class Space:
+    """What every space has: a geometry, generators, defaults, a fundamental domain with face
+    pairings, and the walk of points into it. How the domain comes about is the subclass's:
+    DirichletSpace computes it from the generators, CoordinateSpace takes it from the file."""
+
     def __init__(self, data: dict, source: str):
         self.source = source
         where = source
-        if not isinstance(data, dict):
-            raise SpaceError(f"{where}: expected a table of fields, got {type(data).__name__}")
-        if "geometry" not in data:
-            raise SpaceError(f"{where}: missing field 'geometry' (E3, S3 or H3)")
-        if not isinstance(data["geometry"], str):
-            raise SpaceError(f"{where}: geometry must be a string (E3, S3 or H3), got {data['geometry']!r}")
-        try:
-            self.geometry = geometries.get(data["geometry"])
-        except ValueError as exc:
-            raise SpaceError(f"{where}: {exc}") from None
+        self.geometry = _geometry(data, where)
         self.id = str(data.get("id") or Path(source).stem)
         self.name = str(data.get("name", self.id))
         self.description = str(data.get("description", ""))
@@ -164,28 +163,16 @@ class Space:
         if not self.max_distance > 0:  # evaluate() already rejects non-finite values
             raise SpaceError(f"{where}: max_distance must be a positive number, got {self.max_distance:g}")
         self.max_crossings = _count(data.get("max_crossings", 64), f"{where}: max_crossings")
-        gens = data.get("generator")
-        if not isinstance(gens, list) or not gens:
-            raise SpaceError(f"{where}: no [[generator]] tables: a space needs generator matrices")
         self.generators = []
         self.generator_names = []
-        for i, gen in enumerate(gens):
-            if not isinstance(gen, dict):
-                raise SpaceError(f"{where}: generator {i} must be a [[generator]] table with a 'matrix', got {gen!r}")
-            name = str(gen.get("name", f"g{i}"))
-            w = f"{where}: generator {name!r}"
-            rows = gen.get("matrix")
-            if not isinstance(rows, list) or len(rows) != 4:
-                raise SpaceError(f"{w}: 'matrix' must be 4 rows of 4 numbers")
-            M = np.array([_vector(r, 4, f"{w} row {k}") for k, r in enumerate(rows)])
-            if not self.geometry.is_isometry(M, tol=1e-9):
-                raise SpaceError(f"{w}: the matrix is not an isometry of {self.geometry.name}")
-            self.generators.append(self.geometry.reorthonormalize(M))
+        for name, gen, M in _generator_tables(data, where, self.geometry):
+            self.generators.append(M)
             self.generator_names.append(name)
         self.camera = self._camera(data.get("camera", {}), f"{where}: camera")
-        self._elements: list[np.ndarray] = [np.eye(4)]
-        self._radius = 0.0
-        self._dirichlet_domain()
+        self._build_domain(data)
+
+    def _build_domain(self, data: dict):
+        raise NotImplementedError
 
     def _camera(self, cam, where) -> CameraDefaults:
         """The [camera] table: a point of the chart, finite non-zero non-parallel forward and up,
@@ -210,11 +197,216 @@ class Space:
         return CameraDefaults(position=position, forward=forward, up=up, fov=fov)
 
     # --- group elements ------------------------------------------------------------------------
-    def _key(self, M):
-        """Identifies a group element: the image of the origin does (the action is free), plus the
-        linear part in E3, where a lattice translation and a screw can move the origin alike."""
-        key = tuple(np.round(M[:, 3], 7))
-        return key + tuple(np.round(M[:3, :3].ravel(), 5)) if self.geometry.curvature == 0 else key
+    def _search(self, start, steps, accept, what: str) -> list[np.ndarray]:
+        """Breadth-first closure of `start` under right multiplication by `steps`, keeping the
+        elements that `accept`."""
+        g = self.geometry
+        found = {g.element_key(M): M for M in start}
+        frontier = list(start)
+        while frontier:
+            nxt = []
+            for M in frontier:
+                for s in steps:
+                    N = g.reorthonormalize(M @ s)
+                    key = g.element_key(N)
+                    if key in found or not accept(N):
+                        continue
+                    found[key] = N
+                    nxt.append(N)
+                    if len(found) > _GROUP_LIMIT:
+                        raise SpaceError(f"{self.source}: more than {_GROUP_LIMIT} group elements {what}; "
+                                         "the generators do not give a discrete group with a small domain")
+            frontier = nxt
+        return list(found.values())
+
+    def neighbourhood(self, levels: int = 1) -> list[np.ndarray]:
+        """Elements h whose copies hD surround D: level 1 are the copies that share at least a vertex
+        with D (everything a small object sticking out of D can reach); each further level adds the
+        copies touching the previous ones. Identity first."""
+        if levels <= 0:
+            return [np.eye(4)]
+        cached = self.__dict__.setdefault("_neighbourhoods", {})
+        if levels in cached:
+            return cached[levels]
+        g = self.geometry
+        inner = self.neighbourhood(levels - 1)
+        corners = np.array([M @ X for M in inner for X in g.to_model(self.domain.vertices)])
+        steps = [f.element for f in self.domain.faces]
+
+        def touches(N):
+            back = g.normalize_point(np.linalg.solve(N, corners.T).T)
+            return bool(np.any(self.domain.contains(back, tol=1e-9)))
+
+        cached[levels] = self._search(inner, steps, touches, f"around the domain at level {levels}")
+        return cached[levels]
+
+    def light_elements(self) -> list[np.ndarray]:
+        """The copies of a light the tracer chooses among: those around the domain."""
+        return self.neighbourhood(1)
+
+    @cached_property
+    def extent(self) -> float:
+        """The domain's largest extent along a chart axis."""
+        return float(np.ptp(self.domain.vertices, axis=0).max())
+
+    @cached_property
+    def face_classes(self) -> list[int]:
+        """The class of each face: a face and its partner share one."""
+        classes, seen = [], {}
+        for i, face in enumerate(self.domain.faces):
+            key = min(i, face.partner)
+            classes.append(seen.setdefault(key, len(seen)))
+        return classes
+
+    @cached_property
+    def volume(self) -> float:
+        """Riemannian volume of the domain: the volume density integrated over the cones from the
+        origin over the face triangles, by a collapsed Gauss-Legendre rule on each."""
+        g = self.geometry
+        u, w = np.polynomial.legendre.leggauss(16)
+        u, w = 0.5 * (u + 1), 0.5 * w
+        # (a, b, c) in the unit cube -> the tetrahedron (0, p, q, r): x = a (p + b (q - p + c (r - q)))
+        A, B, Cc = np.meshgrid(u, u, u, indexing="ij")
+        W = np.einsum("i,j,k->ijk", w, w, w) * A**2 * B
+        V = self.domain.vertices
+        total = 0.0
+        for face in self.domain.faces:
+            ring = V[face.vertices]
+            centre = ring.mean(axis=0)
+            for p, q in zip(ring, np.roll(ring, -1, axis=0)):
+                X = A[..., None] * (centre + B[..., None] * (p - centre + Cc[..., None] * (q - p)))
+                jac = abs(np.linalg.det(np.array([centre, p - centre, q - p])))
+                total += float(np.sum(W * jac * g.volume_density(X)))
+        return total
+
+    # --- using the domain ---------------------------------------------------------------------
+    def bring_inside(self, X, V=None):
+        """One model point (and a tangent vector) moved into the domain: (X, V, M) with M the
+        accumulated isometry; raises SpaceError if it cannot be."""
+        X, V, M = self.move_inside(np.asarray(X, float)[None], None if V is None else np.asarray(V, float)[None])
+        return X[0], (None if V is None else V[0]), self.geometry.reorthonormalize(M[0])
+
+    def move_inside(self, X, V=None, max_steps=10000):
+        """Model points (rows; extended precision is kept) and optionally their tangent vectors,
+        moved into the domain by the face pairings all at once: each step applies the pairing of
+        the face a point is farthest outside of. Returns (X, V, M), M the isometry applied to each
+        row; raises SpaceError naming a point that cannot be moved in."""
+        g = self.geometry
+        X = g.normalize_point(np.array(X, copy=True))
+        bad = ~(np.all(np.isfinite(X), axis=1) & g.in_chart(np.asarray(g.to_chart(X), float)))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise SpaceError(f"point {i} ({np.asarray(g.to_chart(X[i]), float)}) is not a point of {g.name}; "
+                             f"it cannot be brought into the domain of {self.id!r}")
+        C = np.asarray(self.domain.covectors(), X.dtype)
+        C = C / np.sqrt(np.sum(C * C, axis=1))[:, None]
+        maps = np.asarray([f.pairing for f in self.domain.faces], X.dtype)
+        M = np.broadcast_to(np.eye(4, dtype=X.dtype), (len(X), 4, 4)).copy()
+        for _ in range(max_steps):
+            s = X @ C.T
+            worst = np.argmax(s, axis=1)
+            idx = np.flatnonzero(s[np.arange(len(X)), worst] > 1e-12 * np.sqrt(np.sum(X * X, axis=1)))
+            if len(idx) == 0:
+                if V is not None:
+                    V = g.normalize_tangent(X, np.einsum("nij,nj->ni", M, np.asarray(V, X.dtype)))
+                return X, V, M
+            X[idx] = g.normalize_point(np.einsum("nij,nj->ni", maps[worst[idx]], X[idx]))
+            M[idx] = maps[worst[idx]] @ M[idx]
+        raise SpaceError(f"point {int(idx[0])} cannot be brought into the domain of {self.id!r}")
+
+    def summary(self) -> dict:
+        return {
+            "id": self.id, "name": self.name, "geometry": self.geometry.name, "description": self.description,
+            "faces": len(self.domain.faces), "vertices": len(self.domain.vertices), "source": self.source,
+        }
+
+
+def _geometry(data, where):
+    known = ", ".join(geometries.GEOMETRIES)
+    if not isinstance(data, dict):
+        raise SpaceError(f"{where}: expected a table of fields, got {type(data).__name__}")
+    if "geometry" not in data:
+        raise SpaceError(f"{where}: missing field 'geometry' ({known})")
+    if not isinstance(data["geometry"], str):
+        raise SpaceError(f"{where}: geometry must be a string ({known}), got {data['geometry']!r}")
+    try:
+        return geometries.get(data["geometry"])
+    except ValueError as exc:
+        raise SpaceError(f"{where}: {exc}") from None
+
+
+def _generator_tables(data, where, geometry):
+    """(name, table, isometry) for each [[generator]] table."""
+    gens = data.get("generator")
+    if not isinstance(gens, list) or not gens:
+        raise SpaceError(f"{where}: no [[generator]] tables: a space needs generator matrices")
+    out = []
+    for i, gen in enumerate(gens):
+        if not isinstance(gen, dict):
+            raise SpaceError(f"{where}: generator {i} must be a [[generator]] table with a 'matrix', got {gen!r}")
+        name = str(gen.get("name", f"g{i}"))
+        w = f"{where}: generator {name!r}"
+        rows = gen.get("matrix")
+        if not isinstance(rows, list) or len(rows) != 4:
+            raise SpaceError(f"{w}: 'matrix' must be 4 rows of 4 numbers")
+        M = np.array([_vector(r, 4, f"{w} row {k}") for k, r in enumerate(rows)])
+        if not geometry.is_isometry(M, tol=1e-9):
+            raise SpaceError(f"{w}: the matrix is not an isometry of {geometry.name}")
+        out.append((name, gen, geometry.reorthonormalize(M)))
+    return out
+
+
+def _halfspace_domain(covectors, elements, source, in_chart) -> Domain:
+    """The convex polyhedron {c . (x, 1) <= 0 for all c} around the chart origin, with a face for
+    each covector that bounds it (vertex rings counter-clockwise seen from outside)."""
+    C = np.array(covectors, float)
+    C /= np.linalg.norm(C[:, :3], axis=1)[:, None]
+    try:
+        hs = HalfspaceIntersection(C, np.zeros(3))
+    except Exception as exc:  # qhull raises its own error types
+        raise SpaceError(f"{source}: the half-spaces of the group do not bound a domain: {exc}") from None
+    pts = hs.intersections
+    if not np.all(np.isfinite(pts)) or not np.all(in_chart(pts)):
+        raise SpaceError(f"{source}: the domain is not compact (the group has too few generators)")
+    # merge vertices that several planes produce
+    verts: list[np.ndarray] = []
+    for p in pts:
+        if not any(np.linalg.norm(p - q) < 1e-9 * (1 + np.linalg.norm(p)) for q in verts):
+            verts.append(p)
+    V = np.array(verts)
+    Y = np.hstack([V, np.ones((len(V), 1))])
+    faces = []
+    for c, M in zip(C, elements):
+        on = np.nonzero(np.abs(Y @ c) < 1e-8 * (1 + np.abs(c[3])))[0]
+        if len(on) < 3:
+            continue
+        faces.append(Face(covector=c, element=M, vertices=_ring(V, on, c[:3])))
+    return Domain(vertices=V, faces=faces)
+
+
+def _ring(V, idx, normal):
+    """Order a face's vertices counter-clockwise seen from outside (outward normal)."""
+    P = V[idx]
+    centre = P.mean(axis=0)
+    n = normal / np.linalg.norm(normal)
+    a = P[0] - centre
+    a /= np.linalg.norm(a)
+    b = np.cross(n, a)
+    ang = np.arctan2((P - centre) @ b, (P - centre) @ a)
+    return [int(i) for i in idx[np.argsort(ang)]]
+
+
+class DirichletSpace(Space):
+    """The domain is the Dirichlet domain of the chart origin, computed from the generators (the
+    projective geometries, where bisectors are planes of the chart)."""
+
+    def _build_domain(self, data: dict):
+        if not self.geometry.projective:
+            raise SpaceError(f"{self.source}: {self.geometry.name} has no Dirichlet domains in its chart: "
+                             "give each [[generator]] the 'face' its copy of the domain lies beyond")
+        self._elements: list[np.ndarray] = [np.eye(4)]
+        self._radius = 0.0
+        self._dirichlet_domain()
 
     def elements_within(self, radius: float) -> list[np.ndarray]:
         """All group elements g with d(O, gO) <= radius (identity first, then by distance)."""
@@ -243,67 +435,23 @@ class Space:
         self._elements = sorted(found, key=lambda M: g.distance(O, M[:, 3]))
         self._radius = radius
 
-    def _search(self, start, steps, accept, what: str) -> list[np.ndarray]:
-        """Breadth-first closure of `start` under right multiplication by `steps`, keeping the
-        elements that `accept`."""
-        g = self.geometry
-        found = {self._key(M): M for M in start}
-        frontier = list(start)
-        while frontier:
-            nxt = []
-            for M in frontier:
-                for s in steps:
-                    N = g.reorthonormalize(M @ s)
-                    key = self._key(N)
-                    if key in found or not accept(N):
-                        continue
-                    found[key] = N
-                    nxt.append(N)
-                    if len(found) > _GROUP_LIMIT:
-                        raise SpaceError(f"{self.source}: more than {_GROUP_LIMIT} group elements {what}; "
-                                         "the generators do not give a discrete group with a small domain")
-            frontier = nxt
-        return list(found.values())
-
-    def neighbourhood(self, levels: int = 1) -> list[np.ndarray]:
-        """Elements h whose copies hD surround D: level 1 are the copies that share at least a vertex
-        with D (everything a small object sticking out of D can reach); each further level adds the
-        copies touching the previous ones. Identity first."""
-        if levels <= 0:
-            return [np.eye(4)]
-        cached = self.__dict__.setdefault("_neighbourhoods", {})
-        if levels in cached:
-            return cached[levels]
-        g = self.geometry
-        inner = self.neighbourhood(levels - 1)
-        corners = np.array([M @ X for M in inner for X in g.to_model(self.domain.vertices)])
-        steps = [f.element for f in self.domain.faces]
-
-        def touches(N):
-            back = g.normalize_point(np.linalg.solve(N, corners.T).T)
-            return bool(np.any(np.max(self.face_distances(back), axis=-1) <= 1e-9))
-
-        cached[levels] = self._search(inner, steps, touches, f"around the domain at level {levels}")
-        return cached[levels]
-
     def face_distances(self, X):
         """Signed geodesic distances from model points to the planes of the domain's faces
         (positive outside); their maximum bounds the distance to the domain from below."""
-        X = np.asarray(X, float)
-        C = self.domain.covectors()
-        k = self.geometry.curvature
-        norm = np.sqrt(np.sum(C * C * self.geometry.covector_dual_form(), axis=1))
-        s = (X @ C.T) / norm
-        if k == 0:
-            return s / X[..., 3:4]
-        return np.arcsin(np.clip(s, -1, 1)) if k > 0 else np.arcsinh(s)
+        return self.geometry.plane_distances(X, self.domain.covectors())
 
     @cached_property
     def group_order(self) -> int | None:
         """Number of elements of a finite group (S3), None for infinite groups."""
-        if self.geometry.curvature <= 0:
+        if not math.isfinite(self.geometry.diameter):
             return None
-        return len(self.elements_within(math.pi + 1e-6))
+        return len(self.elements_within(self.geometry.diameter + 1e-6))
+
+    def light_elements(self) -> list[np.ndarray]:
+        """A finite group (S3): all of it, so that the nearest copy of a light is always among them."""
+        if self.group_order is not None:
+            return self.elements_within(self.geometry.diameter + 1e-6)
+        return super().light_elements()
 
     # --- the Dirichlet domain --------------------------------------------------------------------
     def _dirichlet_domain(self) -> Domain:
@@ -312,16 +460,15 @@ class Space:
         fundamental domain cut out by bisectors of O, hence the Dirichlet domain."""
         g = self.geometry
         O = geometries.projective.ORIGIN
-        full = math.pi + 1e-6  # in S3 every element lies within distance pi
+        full = g.diameter + 1e-6  # in S3 every element lies within distance pi
         radius = max(g.distance(O, s[:, 3]) for s in self.generators) + 1e-6
         while True:
-            if g.curvature > 0:
-                radius = min(radius, full)
+            radius = min(radius, full)
             elements = self.elements_within(radius)[1:]
             if any(g.distance(O, M[:, 3]) < 1e-6 for M in elements):
                 raise SpaceError(f"{self.source}: a group element other than the identity fixes the domain centre; "
                                  "the group does not act freely (not a manifold) or the generators repeat")
-            self.domain = self._intersect([g.bisector(M[:, 3]) for M in elements], elements)
+            self.domain = _halfspace_domain([g.bisector(M[:, 3]) for M in elements], elements, self.source, g.in_chart)
             self.__dict__.pop("edge_cycles", None)
             circumradius = max(g.distance(O, g.to_model(v)) for v in self.domain.vertices)
             try:
@@ -336,51 +483,13 @@ class Space:
             self._elements, self._radius = [np.eye(4)], 0.0  # enumerate again with face steps
             return self.domain
 
-    def _intersect(self, covectors, elements) -> Domain:
-        g = self.geometry
-        C = np.array(covectors)
-        C /= np.linalg.norm(C[:, :3], axis=1)[:, None]
-        try:
-            hs = HalfspaceIntersection(C, np.zeros(3))
-        except Exception as exc:  # qhull raises its own error types
-            raise SpaceError(f"{self.source}: the half-spaces of the group do not bound a domain: {exc}") from None
-        pts = hs.intersections
-        if not np.all(np.isfinite(pts)) or (g.curvature < 0 and np.any(np.linalg.norm(pts, axis=1) >= 1)):
-            raise SpaceError(f"{self.source}: the Dirichlet domain is not compact (the group has too few generators)")
-        # merge vertices that several planes produce
-        verts: list[np.ndarray] = []
-        for p in pts:
-            if not any(np.linalg.norm(p - q) < 1e-9 * (1 + np.linalg.norm(p)) for q in verts):
-                verts.append(p)
-        V = np.array(verts)
-        Y = np.hstack([V, np.ones((len(V), 1))])
-        faces = []
-        for c, M in zip(C, elements):
-            on = np.nonzero(np.abs(Y @ c) < 1e-8 * (1 + np.abs(c[3])))[0]
-            if len(on) < 3:
-                continue
-            faces.append(Face(covector=c, element=M, vertices=self._ring(V, on, c[:3])))
-        return Domain(vertices=V, faces=faces)
-
-    @staticmethod
-    def _ring(V, idx, normal):
-        """Order a face's vertices counter-clockwise seen from outside (outward normal)."""
-        P = V[idx]
-        centre = P.mean(axis=0)
-        n = normal / np.linalg.norm(normal)
-        a = P[0] - centre
-        a /= np.linalg.norm(a)
-        b = np.cross(n, a)
-        ang = np.arctan2((P - centre) @ b, (P - centre) @ a)
-        return [int(i) for i in idx[np.argsort(ang)]]
-
     def _pair_faces(self, domain: Domain):
         g = self.geometry
         where = self.source
-        keys = {self._key(f.element): i for i, f in enumerate(domain.faces)}
+        keys = {g.element_key(f.element): i for i, f in enumerate(domain.faces)}
         for i, face in enumerate(domain.faces):
             inv = np.linalg.inv(face.element)
-            j = keys.get(self._key(inv))
+            j = keys.get(g.element_key(inv))
             if j is None:
                 raise SpaceError(f"{where}: face {i} has no partner face (the inverse of its element is not a face)")
             face.partner = j
@@ -456,15 +565,6 @@ class Space:
         """Riemannian volume of the domain: cones from the origin over the faces, the radial integral
         in closed form and a Gauss-Legendre (Duffy) rule on each face triangle."""
         g = self.geometry
-        k = g.curvature
-        if k == 0:
-            return float(ConvexHull(self.domain.vertices).volume)
-
-        def radial(R):  # integral of density(r) r^2 dr from 0 to R
-            if k > 0:
-                return 0.5 * (np.arctan(R) - R / (1 + R * R))
-            return 0.5 * (R / (1 - R * R) - np.arctanh(R))
-
         u, w = np.polynomial.legendre.leggauss(24)
         u, w = 0.5 * (u + 1), 0.5 * w
         U, W = np.meshgrid(u, u, indexing="ij")
@@ -481,7 +581,7 @@ class Space:
                 X = centre + U[..., None] * (p - centre) + (U * W)[..., None] * (q - p)
                 area2 = np.linalg.norm(np.cross(p - centre, q - centre))
                 r = np.linalg.norm(X, axis=-1)
-                total += np.sum(WW * U * area2 * radial(r) * h / r**3)
+                total += np.sum(WW * U * area2 * g.cone_radial_integral(r) * h / r**3)
         return float(total)
 
     @cached_property
@@ -501,46 +601,96 @@ class Space:
             frontier = nxt
         return list(found.values())
 
-    # --- using the domain ---------------------------------------------------------------------
-    def bring_inside(self, X, V=None):
-        """One model point (and a tangent vector) moved into the domain: (X, V, M) with M the
-        accumulated isometry; raises SpaceError if it cannot be."""
-        X, V, M = self.move_inside(np.asarray(X, float)[None], None if V is None else np.asarray(V, float)[None])
-        return X[0], (None if V is None else V[0]), self.geometry.reorthonormalize(M[0])
 
-    def move_inside(self, X, V=None, max_steps=10000):
-        """Model points (rows; extended precision is kept) and optionally their tangent vectors,
-        moved into the domain by the face pairings all at once: each step applies the pairing of
-        the face a point is farthest outside of. Returns (X, V, M), M the isometry applied to each
-        row; raises SpaceError naming a point that cannot be moved in."""
+class CoordinateSpace(Space):
+    """The domain is given: each generator g names the face plane beyond which its copy gD lies
+    (`face = [a, b, c, d]`: the plane a x + b y + c z + d = 0 with the domain on the side <= 0).
+    The opposite face, beyond which g^-1 D lies, is its image under g^-1. Face maps need not map
+    faces onto faces (Nil's shear, Sol's lids): a point that leaves is carried back by the face's
+    map and then reduced into the domain by the maps of the faces it lies outside of.
+    Validated on load: the generators are isometries, the faces bound a compact domain around the
+    chart origin, conjugates of generators by generators and their inverses reduce to the identity
+    (the group is discrete with this domain), random points and their images under random words
+    reduce to one point, and the domain's volume equals the file's `covolume` where it gives one."""
+
+    def _build_domain(self, data: dict):
+        where = self.source
+        gens = data.get("generator")
+        covectors, elements = [], []
+        for (name, M), gen in zip(zip(self.generator_names, self.generators), gens):
+            if "face" not in gen:
+                raise SpaceError(f"{where}: generator {name!r} has no 'face', but others do: "
+                                 "give every generator of a coordinate domain its face")
+            c = _vector(gen["face"], 4, f"{where}: generator {name!r} face")
+            if not np.linalg.norm(c[:3]) > 0:
+                raise SpaceError(f"{where}: generator {name!r} face {c.tolist()} is not a plane")
+            if not c[3] < 0:
+                raise SpaceError(f"{where}: generator {name!r} face {c.tolist()} must have the chart origin "
+                                 "strictly inside (its last entry < 0)")
+            covectors += [c, -(c @ M)]
+            elements += [M, np.linalg.inv(M)]
+        self.domain = _halfspace_domain(covectors, elements, where, self.geometry.in_chart)
+        if len(self.domain.faces) != len(covectors):
+            raise SpaceError(f"{where}: {len(covectors) - len(self.domain.faces)} of the generators' faces "
+                             "do not bound the domain (each face and its image must be faces of it)")
+        keys = {self.geometry.element_key(f.element): i for i, f in enumerate(self.domain.faces)}
+        for face in self.domain.faces:
+            face.partner = keys[self.geometry.element_key(np.linalg.inv(face.element))]
+        self._validate(data)
+
+    def reduces_to_identity(self, M, probes) -> bool:
+        """Whether the isometry M is an element of the group: the probes' images under M reduce
+        back onto the probes, by a reduction whose isometry undoes M."""
         g = self.geometry
-        X = g.normalize_point(np.array(X, copy=True))
-        bad = ~(np.all(np.isfinite(X), axis=1) & g.in_chart(np.asarray(g.to_chart(X), float)))
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise SpaceError(f"point {i} ({np.asarray(g.to_chart(X[i]), float)}) is not a point of {g.name}; "
-                             f"it cannot be brought into the domain of {self.id!r}")
-        C = np.asarray(self.domain.covectors(), X.dtype)
-        C = C / np.sqrt(np.sum(C * C, axis=1))[:, None]
-        maps = np.asarray([f.pairing for f in self.domain.faces], X.dtype)
-        M = np.broadcast_to(np.eye(4, dtype=X.dtype), (len(X), 4, 4)).copy()
-        for _ in range(max_steps):
-            s = X @ C.T
-            worst = np.argmax(s, axis=1)
-            idx = np.flatnonzero(s[np.arange(len(X)), worst] > 1e-12 * np.sqrt(np.sum(X * X, axis=1)))
-            if len(idx) == 0:
-                if V is not None:
-                    V = g.normalize_tangent(X, np.einsum("nij,nj->ni", M, np.asarray(V, X.dtype)))
-                return X, V, M
-            X[idx] = g.normalize_point(np.einsum("nij,nj->ni", maps[worst[idx]], X[idx]))
-            M[idx] = maps[worst[idx]] @ M[idx]
-        raise SpaceError(f"point {int(idx[0])} cannot be brought into the domain of {self.id!r}")
+        X = np.asarray(probes, float) @ np.asarray(M).T
+        Y, _, R = self.move_inside(X)
+        if not np.allclose(g.to_chart(Y), g.to_chart(probes), atol=1e-8):
+            return False
+        return bool(np.allclose(R @ M, np.eye(4), atol=1e-7))
 
-    def summary(self) -> dict:
-        return {
-            "id": self.id, "name": self.name, "geometry": self.geometry.name, "description": self.description,
-            "faces": len(self.domain.faces), "vertices": len(self.domain.vertices), "source": self.source,
-        }
+    def _validate(self, data: dict):
+        where = self.source
+        g = self.geometry
+        rng = np.random.default_rng(20261201)
+        probes = g.to_model(self._interior_points(rng, 8))
+        words = [*self.generators, *(np.linalg.inv(M) for M in self.generators)]
+        for (i, a), b in ((p, b) for p in enumerate(self.generators) for b in words):
+            if not self.reduces_to_identity(b @ a @ np.linalg.inv(b), probes):
+                raise SpaceError(f"{where}: the conjugate of generator {self.generator_names[i]!r} by another generator "
+                                 "is not in the group the domain tiles by: the group is not discrete with this domain")
+        # p and w(p) reduce to one point for random words w
+        points = g.to_model(self._interior_points(rng, 64))
+        for _ in range(8):
+            W = np.eye(4)
+            for k in rng.integers(0, len(words), 6):
+                W = W @ words[k]
+            Y, _, _ = self.move_inside(points @ W.T)
+            if not np.allclose(g.to_chart(Y), g.to_chart(points), atol=1e-8):
+                raise SpaceError(f"{where}: points and their images under the group reduce to different points of "
+                                 "the domain: the faces do not bound a fundamental domain of the group")
+        if "covolume" in data:
+            covolume = evaluate(data["covolume"], f"{where}: covolume")
+            if abs(self.volume - covolume) > 1e-6 * max(1.0, covolume):
+                raise SpaceError(f"{where}: the domain's volume {self.volume:.9g} is not the covolume {covolume:.9g} "
+                                 "the file states")
+
+    def _interior_points(self, rng, n):
+        """Random chart points strictly inside the domain."""
+        lo, hi = self.domain.vertices.min(axis=0), self.domain.vertices.max(axis=0)
+        out = np.zeros((0, 3))
+        while len(out) < n:
+            x = rng.uniform(lo, hi, (4 * n, 3))
+            inside = np.all(self.geometry.to_model(x) @ self.domain.covectors().T < -1e-6, axis=1)
+            out = np.vstack([out, x[inside]])
+        return out[:n]
+
+
+def from_data(data: dict, source: str) -> Space:
+    """The space a file's fields describe: a coordinate domain where the generators name their
+    faces, else the Dirichlet domain of the chart origin."""
+    gens = data.get("generator") if isinstance(data, dict) else None
+    given = isinstance(gens, list) and any(isinstance(g, dict) and "face" in g for g in gens)
+    return (CoordinateSpace if given else DirichletSpace)(data, source)
 
 
 def preset_dirs() -> list[Path]:
@@ -573,7 +723,7 @@ def load(path_or_id: str | Path) -> Space:
         raise SpaceError(f"cannot read space file {str(path)!r}: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise SpaceError(f"space file {str(path)!r} is not valid TOML: {exc}") from None
-    return Space(data, str(path))
+    return from_data(data, str(path))
 
 
 def preset_ids() -> list[str]:

@@ -78,7 +78,7 @@ class ThurstonSettings(bpy.types.PropertyGroup):
                                          description="A space file (.toml): geometry, generators, defaults")
     scale: bpy.props.FloatProperty(name="Scale", default=1.0, min=1e-6, soft_max=100.0, update=_space_changed,
                                    description="Blender units per chart unit")
-    quality: bpy.props.EnumProperty(name="Quality", items=[(k, k.title(), f"{v} sample(s) per pixel") for k, v in render.QUALITY.items()],
+    quality: bpy.props.EnumProperty(name="Quality", items=[(k, k.title(), f"{v.samples} sample(s) per pixel; curved geodesics: hit positions within {v.footprint_fraction:g} of a pixel") for k, v in render.QUALITY.items()],
                                     default="standard")
     shading: bpy.props.EnumProperty(name="Shading", items=[(k, k.title(), f"{k} shading") for k in render.SHADING], default="lambert")
     max_distance: bpy.props.FloatProperty(name="Max Distance", default=0.0, min=0.0,

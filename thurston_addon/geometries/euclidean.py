@@ -1,7 +1,7 @@
 """E3: Euclidean space, X = (x, 1); isometries are affine maps."""
 import numpy as np
 
-from .projective import ProjectiveGeometry
+from .projective import ProjectiveGeometry, _floats
 
 
 class Euclidean(ProjectiveGeometry):
@@ -10,7 +10,7 @@ class Euclidean(ProjectiveGeometry):
     form = np.array([1.0, 1.0, 1.0, 0.0])
 
     def cos_sin(self, t):
-        t = np.asarray(t, float)
+        t = _floats(t)
         return np.ones_like(t), t
 
     def distance(self, A, B):

@@ -9,6 +9,12 @@ class Hyperbolic(ProjectiveGeometry):
     name = "H3"
     curvature = -1
     form = np.array([1.0, 1.0, 1.0, -1.0])
+    copy_rings = 1  # hyperbolic rings of copies grow too fast for more
+    # A reference geodesic goes through the universal cover, where points at distance t have
+    # coordinates ~e^t and the float64 pairing matrices satisfy the group's relations only to ~1e-16
+    # of their size: two words for one element differ there by ~1e-16 e^(2t), which is 1e-10 near
+    # t = 5 and 1e-6 at t = 12, far above the tracer's own drift (renormalised at every crossing).
+    reference_depth = 5.0
 
     def cos_sin(self, t):
         return np.cosh(t), np.sinh(t)

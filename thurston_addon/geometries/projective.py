@@ -8,6 +8,8 @@ Everything is float64 numpy and broadcasts over leading axes.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
@@ -30,6 +32,14 @@ class ProjectiveGeometry:
     name: str
     curvature: int
     form: np.ndarray  # diagonal of the ambient form on R^4 (the last entry is unused in E3)
+    projective = True  # geodesics and bisectors are straight in the chart: Dirichlet domains
+    copy_rings = 3  # rings of neighbouring domains searched for the parts of large objects
+    reference_depth = math.inf  # how deep `geodesic` in the universal cover is a reference
+
+    @property
+    def diameter(self) -> float:
+        """The largest distance between two points (S3: pi; E3, H3: unbounded)."""
+        return math.pi if self.curvature > 0 else math.inf
 
     def cos_sin(self, t):
         """The generalised cosine and sine of the geodesic flow (E3: 1 and t)."""
@@ -60,6 +70,19 @@ class ProjectiveGeometry:
         """sqrt(det g) of the chart metric."""
         x = np.asarray(x, float)
         return (1.0 + self.curvature * _dot(x, x)) ** -2
+
+    def christoffel(self, x):
+        """Christoffel symbols of the chart, [..., k, i, j] = Gamma^k_ij: in a projective chart
+        geodesics are straight, and Gamma^k_ij = -k (x_i delta_jk + x_j delta_ik) / (1 + k |x|^2)."""
+        x = np.asarray(x, float)
+        k = self.curvature
+        psi = -k * x / (1.0 + k * _dot(x, x))[..., None]
+        eye = np.eye(3)
+        return np.einsum("...i,kj->...kij", psi, eye) + np.einsum("...j,ki->...kij", psi, eye)
+
+    def dot(self, X, A, B):
+        """The metric at the model point X on model tangent vectors (the ambient form)."""
+        return self.inner(A, B)
 
     # --- charts ---------------------------------------------------------------------------
     def to_chart(self, X):
@@ -116,8 +139,9 @@ class ProjectiveGeometry:
 
     # --- geodesics -------------------------------------------------------------------------
     def geodesic(self, P, V, t):
-        """Position and unit velocity at arclength t along the geodesic from P with unit tangent V."""
-        P, V, t = np.asarray(P, float), np.asarray(V, float), np.asarray(t, float)[..., None]
+        """Position and unit velocity at arclength t along the geodesic from P with unit tangent V
+        (extended precision is kept where the input has it)."""
+        P, V, t = _floats(P), _floats(V), _floats(t)[..., None]
         c, s = self.cos_sin(t)
         return c * P + s * V, -self.curvature * s * P + c * V
 
@@ -128,6 +152,24 @@ class ProjectiveGeometry:
         V = self.normalize_tangent(X, self.tangent_to_model(x, u))
         Xt, Vt = self.geodesic(X, V, t)
         return self.to_chart(Xt), self.tangent_to_chart(Xt, Vt)
+
+    def chord_distance(self, A, B):
+        """The distance of nearby model points to first order, from the model chord: 2 sin(r/2),
+        2 sinh(r/2) or r (S3, H3, E3). Keeps extended precision."""
+        d = _floats(B) - _floats(A)
+        square = np.sum(d[..., :3] ** 2, axis=-1)
+        if self.curvature != 0:
+            square = np.maximum(square + self.curvature * d[..., 3] ** 2, 0)
+        return np.sqrt(square)
+
+    def connect(self, A, B):
+        """(V, r, ok): the unit tangent at A and length of the shortest geodesic to B, in closed form."""
+        r = self.distance(A, B)
+        return self.direction_to(A, B), r, np.ones(np.shape(r), bool)
+
+    def falloff_along(self, P, V, r):
+        """The falloff of a point light at P seen at distance r along (P, V): isotropic here."""
+        return self.falloff(r)
 
     def direction_to(self, A, B):
         """Unit tangent at A of the geodesic from A to B (the shortest one in S3)."""
@@ -183,6 +225,12 @@ class ProjectiveGeometry:
         M[3, 3] = Q[3]
         return M
 
+    def element_key(self, M):
+        """Identifies a group element: the image of the origin does (the action is free), plus the
+        linear part in E3, where a lattice translation and a screw can move the origin alike."""
+        key = tuple(np.round(M[:, 3], 7))
+        return key + tuple(np.round(M[:3, :3].ravel(), 5)) if self.curvature == 0 else key
+
     def reorthonormalize(self, M):
         """Nearest isometry to an almost-isometry M (removes accumulated rounding). M is split into
         the translation taking the origin to M's image of it, computed exactly, and a rotation about
@@ -227,6 +275,26 @@ class ProjectiveGeometry:
         g = lambda a, b: np.sum(a * f * b, axis=-1)
         cos = -g(c1, c2) / np.sqrt(g(c1, c1) * g(c2, c2))
         return np.arccos(np.clip(cos, -1.0, 1.0))
+
+    def plane_distances(self, X, C):
+        """Signed geodesic distances from model points X to the planes of the covectors C (rows;
+        positive on the side c . X > 0)."""
+        X, C = np.asarray(X, float), np.asarray(C, float)
+        norm = np.sqrt(np.sum(C * C * self.covector_dual_form(), axis=1))
+        s = (X @ C.T) / norm
+        if self.curvature == 0:
+            return s / X[..., 3:4]
+        return np.arcsin(np.clip(s, -1, 1)) if self.curvature > 0 else np.arcsinh(s)
+
+    def cone_radial_integral(self, R):
+        """Integral of the volume density times r^2 along a chart ray from 0 to R (cone volumes)."""
+        R = np.asarray(R, float)
+        k = self.curvature
+        if k == 0:
+            return R**3 / 3
+        if k > 0:
+            return 0.5 * (np.arctan(R) - R / (1 + R * R))
+        return 0.5 * (R / (1 - R * R) - np.arctanh(R))
 
     def plane_distance(self, c):
         """Geodesic distance from the origin to the plane c . X = 0."""
