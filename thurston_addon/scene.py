@@ -337,26 +337,22 @@ def load_scenes(paths) -> Scene:
 
 # --- the default scene ---------------------------------------------------------------------------------
 def default_scene(space) -> Scene:
-    """The domain's edges as thin tubes, coloured by edge class (as in the paper's figures), a
-    torus knot-like ring and a sphere off the centre, and a light near the camera."""
+    """The domain drawn as thin tubes coloured by class (as in the paper's figures: edges by edge
+    class, or face frames by face class, see Space.outline), a torus ring and a sphere off the
+    centre, and a light near the camera."""
     import trimesh
 
-    dom = space.domain
-    size = np.ptp(dom.vertices, axis=0).max()
+    size = space.extent
     radius = 0.012 * size
     palette = np.array([[0.9, 0.25, 0.2], [0.2, 0.7, 0.3], [0.25, 0.45, 0.95], [0.95, 0.8, 0.2],
                         [0.8, 0.3, 0.85], [0.2, 0.8, 0.85], [0.95, 0.55, 0.2], [0.6, 0.6, 0.6],
                         [0.55, 0.35, 0.2], [0.9, 0.5, 0.65]])
     objects = []
-    edge_class = {e: c for c, cycle in enumerate(space.edge_cycles) for e, _ in cycle}
-    by_class: dict[int, list] = {}
-    for e, (a, b, _, _) in enumerate(dom.edges):
-        by_class.setdefault(edge_class[e], []).append((dom.vertices[a], dom.vertices[b]))
-    for c, segments in sorted(by_class.items()):
+    for c, segments in enumerate(space.outline(inset=2 * radius)):
         tubes = trimesh.util.concatenate([trimesh.creation.cylinder(radius=radius, segment=[p, q], sections=10)
                                           for p, q in segments])
         objects.append(SceneObject(f"edges {c}", tubes.vertices, tubes.faces, palette[c % len(palette)]))
-    inr = space.inradius if space.geometry.curvature == 0 else math.tan(space.inradius) if space.geometry.curvature > 0 else math.tanh(space.inradius)
+    inr = space.chart_inradius
     cam = space.camera
     forward = np.asarray(cam.forward, float) / np.linalg.norm(cam.forward)
     side = np.cross(forward, cam.up)
@@ -370,5 +366,8 @@ def default_scene(space) -> Scene:
                                (0.3, 0.6, 0.95)))
     # behind and above the camera; bright enough to light the walls one domain away
     position = np.asarray(cam.position, float) + 0.3 * inr * (up - 0.5 * forward)
-    light = PointLight(position, np.ones(3), float(0.5 / space.geometry.falloff(space.inradius)))
+    g = space.geometry
+    X = g.to_model(position)
+    falloff = float(g.falloff_along(X, g.normalize_tangent(X, g.tangent_to_model(position, forward)), space.inradius))
+    light = PointLight(position, np.ones(3), 0.5 / falloff)
     return Scene(objects=objects, lights=[light])

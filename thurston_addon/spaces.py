@@ -250,6 +250,16 @@ class Space:
         return float(np.ptp(self.domain.vertices, axis=0).max())
 
     @cached_property
+    def chart_inradius(self) -> float:
+        """The chart distance from the chart origin to the nearest face plane."""
+        C = self.domain.covectors()
+        return float(np.min(np.abs(C[:, 3]) / np.linalg.norm(C[:, :3], axis=1)))
+
+    def outline(self, inset: float) -> list[list[tuple[np.ndarray, np.ndarray]]]:
+        """Chart segments that draw the domain, grouped by class (the default scene's tubes)."""
+        raise NotImplementedError
+
+    @cached_property
     def face_classes(self) -> list[int]:
         """The class of each face: a face and its partner share one."""
         classes, seen = [], {}
@@ -531,6 +541,15 @@ class DirichletSpace(Space):
             cycles.append(cycle)
         return cycles
 
+    def outline(self, inset: float) -> list[list[tuple[np.ndarray, np.ndarray]]]:
+        """The domain's edges, by edge class (`inset` is not needed: an edge is its own class's)."""
+        dom = self.domain
+        edge_class = {e: c for c, cycle in enumerate(self.edge_cycles) for e, _ in cycle}
+        groups: list[list] = [[] for _ in self.edge_cycles]
+        for e, (a, b, _, _) in enumerate(dom.edges):
+            groups[edge_class[e]].append((dom.vertices[a], dom.vertices[b]))
+        return groups
+
     def dihedral_angle(self, edge: int) -> float:
         _, _, fi, fj = self.domain.edges[edge]
         faces = self.domain.faces
@@ -637,6 +656,34 @@ class CoordinateSpace(Space):
         for face in self.domain.faces:
             face.partner = keys[self.geometry.element_key(np.linalg.inv(face.element))]
         self._validate(data)
+
+    @property
+    def inradius(self) -> float:
+        """The chart inradius: the metrics of Nil and Sol are Euclidean at the chart origin, so this
+        is the geodesic inradius to first order."""
+        return self.chart_inradius
+
+    def outline(self, inset: float) -> list[list[tuple[np.ndarray, np.ndarray]]]:
+        """Each face's frame, its edges moved `inset` into the face, by face class: a face and its
+        partner share a colour (as in the paper's Nil and Sol figures), so where the pairing twists
+        the frames seen through a face do not continue those around it."""
+        V = self.domain.vertices
+        groups: list[list] = [[] for _ in range(max(self.face_classes) + 1)]
+        for face, c in zip(self.domain.faces, self.face_classes):
+            ring = V[face.vertices]
+            centre = ring.mean(axis=0)
+            n = face.covector[:3] / np.linalg.norm(face.covector[:3])
+            k = len(ring)
+            inward = [np.cross(n, ring[(i + 1) % k] - ring[i]) for i in range(k)]
+            inward = [d / np.linalg.norm(d) * np.sign(d @ (centre - ring[i])) for i, d in enumerate(inward)]
+            corners = []
+            for i in range(k):
+                a, b = inward[i - 1], inward[i]  # unit inward normals of the sides before and after vertex i
+                # the point of the face at distance `inset` from both sides: ring[i] + x a + y b
+                G = np.array([[a @ a, a @ b], [a @ b, b @ b]])
+                corners.append(ring[i] + np.linalg.solve(G, [inset, inset]) @ np.array([a, b]))
+            groups[c] += [(corners[i], corners[(i + 1) % k]) for i in range(k)]
+        return groups
 
     def reduces_to_identity(self, M, probes) -> bool:
         """Whether the isometry M is an element of the group: the probes' images under M reduce

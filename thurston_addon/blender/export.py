@@ -49,7 +49,8 @@ def render_settings(settings, width: int, height: int, projection: str = "perspe
         # the panel's distances are in Blender units; the tracer's in chart units
         max_distance=settings.max_distance / settings.scale or None,
         max_crossings=None if settings.max_crossings < 0 else settings.max_crossings,
-        fog=settings.fog / settings.scale or None, threads=settings.threads)
+        fog=settings.fog / settings.scale or None, threads=settings.threads,
+        tolerance=settings.tolerance / settings.scale or None)
 
 
 def _material_colors(obj):
@@ -225,4 +226,5 @@ def store_stats(settings, result: render.Result):
     s.valid = True
     s.seconds, s.rays, s.crossings_per_ray = st["seconds"], st["rays"], st["crossings_per_ray"]
     s.footprint, s.geodesic_error = st["footprint"], st["geodesic_error"]
+    s.chords_per_ray, s.bound, s.measured_error = st["chords_per_ray"], st["bound"], st["measured_error"]
     s.summary = result.summary()

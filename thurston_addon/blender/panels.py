@@ -23,8 +23,8 @@ class THURSTON_OT_add_preset(AddPresetBase, bpy.types.Operator):
     preset_subdir = PRESET_SUBDIR
     preset_defines = ["settings = bpy.context.scene.thurston"]
     preset_values = [f"settings.{name}" for name in (
-        "space_id", "space_file", "scale", "quality", "shading", "max_distance", "max_crossings", "fog",
-        "passes", "panorama_width")]
+        "space_id", "space_file", "scale", "quality", "tolerance", "shading", "max_distance", "max_crossings",
+        "fog", "passes", "panorama_width")]
 
 
 class THURSTON_PT_render(bpy.types.Panel):
@@ -58,6 +58,7 @@ class THURSTON_PT_render(bpy.types.Panel):
 
         col = layout.column(heading="Accuracy")
         col.prop(s, "quality")
+        col.prop(s, "tolerance")
         col.prop(s, "max_distance")
         col.prop(s, "max_crossings")
         col = layout.column()
@@ -81,8 +82,12 @@ class THURSTON_PT_render(bpy.types.Panel):
             grid.label(text=f"Time: {st.seconds:.2f} s")
             grid.label(text=f"Rays: {st.rays:,}")
             grid.label(text=f"Crossings/ray: {st.crossings_per_ray:.2f}")
+            grid.label(text=f"Chords/ray: {st.chords_per_ray:.2f}")
             grid.label(text=f"Pixel footprint: {st.footprint:.2e}")
-            grid.label(text=f"Geodesic error: {st.geodesic_error:.1e} (measured)")
+            box.label(text=f"Accuracy: {st.bound}")
+            grid = box.grid_flow(columns=2, even_columns=True)
+            grid.label(text=f"Measured error: {st.measured_error:.1e}")
+            grid.label(text=f"Geodesic error: {st.geodesic_error:.1e}")
 
 
 CLASSES = (THURSTON_MT_presets, THURSTON_OT_add_preset, THURSTON_PT_render)

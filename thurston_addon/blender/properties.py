@@ -64,7 +64,10 @@ class ThurstonStats(bpy.types.PropertyGroup):
     rays: bpy.props.IntProperty(name="Rays")
     crossings_per_ray: bpy.props.FloatProperty(name="Crossings per Ray")
     footprint: bpy.props.FloatProperty(name="Pixel Footprint", description="Chart units covered by a pixel sample at the median depth")
-    geodesic_error: bpy.props.FloatProperty(name="Geodesic Error", description="Largest distance, over sampled hits, between a traced hit and the exact geodesic (measured)")
+    geodesic_error: bpy.props.FloatProperty(name="Geodesic Error", description="Largest distance, over sampled hits, between a traced hit and the reference geodesic (measured)")
+    chords_per_ray: bpy.props.FloatProperty(name="Chords per Ray", description="Embree queries per ray")
+    bound: bpy.props.StringProperty(name="Accuracy", description="The hit-position accuracy the render promises")
+    measured_error: bpy.props.FloatProperty(name="Measured Error", description="Largest hit-position difference, over sampled hits, to the same rays traced at 1/100 of the tolerance (chart units)")
     summary: bpy.props.StringProperty(name="Summary")
 
 
@@ -86,6 +89,10 @@ class ThurstonSettings(bpy.types.PropertyGroup):
     max_crossings: bpy.props.IntProperty(name="Max Crossings", default=-1, min=-1,
                                          description="Face crossings after which rays stop (-1: the space's default)")
     fog: bpy.props.FloatProperty(name="Fog", default=0.0, min=0.0, description="Distance at which colour falls to 1/e (0: none)")
+    tolerance: bpy.props.FloatProperty(name="Tolerance", default=0.0, min=0.0, precision=6, step=0.001,
+                                       description="Where geodesics bend (Nil, Sol): how far the traced chords may stray "
+                                                   "from the true geodesic, in Blender units (0: the quality's bound, a "
+                                                   "fraction of the pixel footprint)")
     passes: bpy.props.EnumProperty(
         name="Passes", options={"ENUM_FLAG"},
         items=[(p.upper(), p.title(), f"Write the {p} pass") for p in render.PASSES],
