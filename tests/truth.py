@@ -15,3 +15,17 @@ def chart_metric(name, x):
     if name == "H3":
         return np.eye(3) / (1 - r2) + np.outer(x, x) / (1 - r2) ** 2
     raise ValueError(name)
+
+
+def nil_metric(x):
+    """Nil: dx^2 + dy^2 + (dz - x dy)^2, the square of the 1-form dz - x dy = (0, -x, 1) added."""
+    form = np.array([0.0, -x[0], 1.0])
+    return np.diag([1.0, 1.0, 0.0]) + np.outer(form, form)
+
+
+def sol_metric(x):
+    """Sol: e^{2z} dx^2 + e^{-2z} dy^2 + dz^2."""
+    return np.diag([np.exp(2 * x[2]), np.exp(-2 * x[2]), 1.0])
+
+
+CURVED_METRICS = {"Nil": nil_metric, "Sol": sol_metric}
