@@ -115,8 +115,8 @@ def test_metric_derivative_helper_matches_finite_differences(name, rng):
 
 
 def test_get_unknown_geometry():
-    with pytest.raises(ValueError, match="Nil"):
-        geometries.get("Nil")
+    with pytest.raises(ValueError, match="'SL2'; known: E3, S3, H3, Nil, Sol"):
+        geometries.get("SL2")
 
 
 # --- metric -----------------------------------------------------------------------------------------

@@ -281,7 +281,7 @@ def camera_frame(space: Space, camera: Camera):
     for v in frame:
         v = M @ v
         for b in basis:
-            v = v - g.inner(v, b) * b
+            v = v - g.dot(X, v, b) * b
         basis.append(g.normalize_tangent(X, v))
     return X, basis
 

@@ -10,10 +10,14 @@
 //   void flow(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt,
 //             double& error) const      the geodesic at arclength t (error: a bound of the
 //                                       position error of (xt, vt) when accuracy is asked for);
+//   Segment, void segment(x, v, length, accuracy, Segment&) const   the geodesic over [0, s.length]
+//                                       (at most `length`), with s.at(t, xt, vt) anywhere in it and
+//                                       s.error a bound of its position error: exits and hits are
+//                                       searched on it without flowing again;
 //   double acceleration_bound(const Vec3& x, const Vec3& v, double h) const
 //                                       a bound of the chart acceleration |x''| over [0, h];
-//   double speed_bound(const Vec3& x, const Vec3& v, double h) const   a bound of |x'| over [0, h];
 //   double growth_rate() const          nearby geodesics separate at most like e^(rate t);
+//   double max_step() const             the longest step, which keeps the bounds over it tight;
 //   double dot(const Vec3& x, const Vec3& a, const Vec3& b) const   the metric at x;
 //   Vec3 raise(const Vec3& x, const Vec3& covector) const           g^-1 at x;
 //   double volume_density(const Vec3& x) const                     sqrt det g;
@@ -82,13 +86,12 @@ class MarchingKernel {
     const Vec3 n{plane[0], plane[1], plane[2]};
     const auto side = [&](const Vec3& x) { return dot3(n, x) + plane[3]; };
     double t = std::clamp(u, 0.0, 1.0) * chord.length;
-    Vec3 x, v;
+    typename Flow::Segment segment;
+    flow_.segment(chord.x0, chord.v0, chord.length, chord.accuracy, segment);
     const double f0 = side(chord.x0), f1 = side(chord.x1);
-    if ((f0 < 0.0) != (f1 < 0.0) && f0 != 0.0) {
-      t = find_root(chord.x0, chord.v0, chord.length, chord.accuracy, n, plane[3], f0, t);
-    }
-    double error;
-    flow_.flow(chord.x0, chord.v0, t, chord.accuracy, x, v, error);
+    if ((f0 < 0.0) != (f1 < 0.0) && f0 != 0.0) t = find_root(segment, chord.length, n, plane[3], f0, t);
+    Vec3 x, v;
+    segment.at(std::min(t, segment.length), x, v);
     Hit hit;
     hit.s = t;
     hit.x = x;
@@ -133,14 +136,18 @@ class MarchingKernel {
     constexpr int kIterations = 16;
     w = sub3(target, h);
     double residual = kInf;
+    bool have_jacobian = false;
     for (int iteration = 0; iteration < kIterations; ++iteration) {
       Vec3 x;
-      if (!exp_with_jacobian(h, w, x, jacobian)) return false;
+      if (!exp(h, w, x)) return false;
       const Vec3 miss = sub3(x, target);
       const double size = norm3(miss);
-      if (size < 1e-10 * (1.0 + norm3(target))) return true;
+      // converged: the last Jacobian (one Newton step away) serves the falloff
+      if (size < 1e-9 * (1.0 + norm3(target))) return have_jacobian || jacobian_at(h, w, x, jacobian);
       if (!(size < 2.0 * residual)) return false;  // diverging
       residual = size;
+      if (!jacobian_at(h, w, x, jacobian)) return false;
+      have_jacobian = true;
       Vec3 step;
       if (!solve3(jacobian, miss, step)) return false;
       w = sub3(w, step);
@@ -151,40 +158,39 @@ class MarchingKernel {
   class Walk;
 
  private:
-  // exp_h(w) and its Jacobian by central differences of the flow.
-  bool exp_with_jacobian(const Vec3& h, const Vec3& w, Vec3& x, std::array<Vec3, 3>& jacobian) const {
-    constexpr double kAccuracy = 1e-14;
-    const auto exp = [&](const Vec3& u, Vec3& out) {
-      const double r = std::sqrt(flow_.dot(h, u, u));
-      if (!(r > 0.0) || !std::isfinite(r)) return false;
-      Vec3 v;
-      double error;
-      flow_.flow(h, scaled3(1.0 / r, u), r, kAccuracy, out, v, error);
-      return std::isfinite(out[0]) && std::isfinite(out[1]) && std::isfinite(out[2]);
-    };
-    if (!exp(w, x)) return false;
-    const double delta = 1e-6 * std::max(norm3(w), 1e-3);
+  // exp_h(w) for a chart vector w at h (not of unit length).
+  bool exp(const Vec3& h, const Vec3& w, Vec3& x) const {
+    constexpr double kAccuracy = 1e-9;
+    const double r = std::sqrt(flow_.dot(h, w, w));
+    if (!(r > 0.0) || !std::isfinite(r)) return false;
+    Vec3 v;
+    double error;
+    flow_.flow(h, scaled3(1.0 / r, w), r, kAccuracy, x, v, error);
+    return std::isfinite(x[0]) && std::isfinite(x[1]) && std::isfinite(x[2]);
+  }
+  // d exp_h at w (x = exp_h(w)) by forward differences of the flow: good to about 1e-4, which a
+  // light's direction and falloff need (and Newton's method, which then converges quickly).
+  bool jacobian_at(const Vec3& h, const Vec3& w, const Vec3& x, std::array<Vec3, 3>& jacobian) const {
+    const double delta = 3e-5 * std::max(norm3(w), 1e-3);
     for (int j = 0; j < 3; ++j) {
-      Vec3 plus = w, minus = w, xp, xm;
+      Vec3 plus = w, xp;
       plus[j] += delta;
-      minus[j] -= delta;
-      if (!exp(plus, xp) || !exp(minus, xm)) return false;
-      for (int i = 0; i < 3; ++i) jacobian[i][j] = (xp[i] - xm[i]) / (2.0 * delta);
+      if (!exp(h, plus, xp)) return false;
+      for (int i = 0; i < 3; ++i) jacobian[i][j] = (xp[i] - x[i]) / delta;
     }
     return true;
   }
 
  public:
-  // The root of n . x(t) + d = 0 in [0, h] along the curve from (x0, v0), where the side function
-  // goes from f0 to the other sign; `guess` is a starting point in [0, h].
-  double find_root(const Vec3& x0, const Vec3& v0, double h, double accuracy, const Vec3& n,
-                   double d, double f0, double guess) const {
+  // The root of n . x(t) + d = 0 in [0, h] along the segment, where the side function goes from
+  // f0 to the other sign; `guess` is a starting point in [0, h].
+  static double find_root(const typename Flow::Segment& segment, double h, const Vec3& n, double d,
+                          double f0, double guess) {
     double lo = 0.0, hi = h, flo = f0;
     double t = std::clamp(guess, lo, hi);
     for (int iteration = 0; iteration < 60; ++iteration) {
       Vec3 x, v;
-      double error;
-      flow_.flow(x0, v0, t, accuracy, x, v, error);
+      segment.at(t, x, v);
       const double f = dot3(n, x) + d, df = dot3(n, v);
       if (f == 0.0) return t;
       if ((f < 0.0) == (flo < 0.0)) {
@@ -213,7 +219,7 @@ class MarchingKernel<Flow>::Walk {
  public:
   Walk(const MarchingKernel& kernel, const WalkContext& context, const Vec4& P, const Vec4& V,
        double length)
-      : kernel_(kernel), flow_(kernel.flow()), context_(context), x_(head3(P)), v_(head3(V)),
+      : flow_(kernel.flow()), context_(context), x_(head3(P)), v_(head3(V)),
         length_(length) {
     ok_ = settle();
   }
@@ -224,7 +230,7 @@ class MarchingKernel<Flow>::Walk {
     const double remaining = length_ - distance_;
     if (!ok_ || !(remaining > 0.0)) return Advance::kLimit;
     const Domain& domain = context_.domain;
-    const double hmax = std::min(remaining, kMaxStep);
+    const double hmax = std::min(remaining, flow_.max_step());
     const double K = std::max(flow_.acceleration_bound(x_, v_, hmax), 1e-300);
     const double tolerance = context_.tolerance_at(distance_);
     const double accuracy = kFlowAccuracy * tolerance;
@@ -249,14 +255,14 @@ class MarchingKernel<Flow>::Walk {
       safe = std::min(safe, t);
     }
 
-    double h = std::min(hmax, std::max(safe, h_tolerance));
+    flow_.segment(x_, v_, std::min(hmax, std::max(safe, h_tolerance)), accuracy, segment_);
+    double h = segment_.length;
     Vec3 x1, v1;
-    double error;
-    flow_.flow(x_, v_, h, accuracy, x1, v1, error);
+    segment_.at(h, x1, v1);
     double margin = K * h * h / 8.0;
     if (h > h_tolerance && context_.may_hit(x_, x1, margin)) {
       h = h_tolerance;  // the scene may be near: chords within the tolerance
-      flow_.flow(x_, v_, h, accuracy, x1, v1, error);
+      segment_.at(h, x1, v1);
       margin = K * h * h / 8.0;
     }
     // The first face plane the curve crosses within the step (beyond `safe` only: before it the
@@ -271,7 +277,7 @@ class MarchingKernel<Flow>::Walk {
       if (!(f1 > 0.0)) continue;
       const double f0 = std::min(dot3(n, x_) + c[3], -kOnFace);
       const double guess = h * f0 / (f0 - f1);
-      const double t = kernel_.find_root(x_, v_, h, accuracy, n, c[3], f0, guess);
+      const double t = find_root(segment_, h, n, c[3], f0, guess);
       if (t < exit || face < 0) {
         exit = t;
         face = int(f);
@@ -279,7 +285,7 @@ class MarchingKernel<Flow>::Walk {
     }
     if (face >= 0) {
       h = exit;
-      flow_.flow(x_, v_, h, accuracy, x1, v1, error);
+      segment_.at(h, x1, v1);
       margin = K * h * h / 8.0;
     }
     if (h > 0.0) {
@@ -287,12 +293,11 @@ class MarchingKernel<Flow>::Walk {
       has_chord_ = true;
     }
     // errors of earlier steps grow with the separation of geodesics; this step adds its own
-    drift_ = drift_ * std::exp(flow_.growth_rate() * h) + error;
+    drift_ = drift_ * std::exp(flow_.growth_rate() * h) + segment_.error;
     chord_margin_ = margin;
     distance_ += h;
     x_ = x1;
-    v_ = v1;
-    ok_ = renormalise();
+    v_ = v1;  // unit to the flow's accuracy; crossings renormalise
     if (face >= 0) {
       exit_face_ = face;
       return Advance::kCross;
@@ -316,7 +321,6 @@ class MarchingKernel<Flow>::Walk {
   }
 
  private:
-  static constexpr double kMaxStep = 1.0;  // keeps the flow's bounds over a step meaningful
   static constexpr int kMaxReductions = 64;
 
   void apply(int face) {
@@ -370,9 +374,9 @@ class MarchingKernel<Flow>::Walk {
 
   static constexpr double kReduce = 1e-12;  // outside a face by more than this: reduce
 
-  const MarchingKernel& kernel_;
   const Flow& flow_;
   const WalkContext& context_;
+  typename Flow::Segment segment_;  // the current step's stretch of geodesic
   Vec3 x_, v_;
   double length_;
   double distance_ = 0.0, chord_start_ = 0.0;

@@ -12,9 +12,23 @@
 namespace thurston {
 
 struct NilFlow {
+  // A stretch of geodesic: the closed form evaluated anywhere.
+  struct Segment {
+    Vec3 p, v;
+    double length, error;
+    void at(double t, Vec3& x, Vec3& u) const { geodesic(p, v, t, x, u); }
+  };
+  void segment(const Vec3& p, const Vec3& v, double length, double, Segment& s) const {
+    s = {p, v, length, rounding(p, length)};
+  }
+  void flow(const Vec3& p, const Vec3& v, double t, double, Vec3& xt, Vec3& vt, double& error) const {
+    geodesic(p, v, t, xt, vt);
+    error = rounding(p, t);
+  }
+
   // The geodesic from p with unit chart velocity v at arclength t. At the origin the velocity is
   // (c cos a, c sin a, w); the horizontal part turns at the rate w (theta = w t) and w is constant.
-  void flow(const Vec3& p, const Vec3& v, double t, double, Vec3& xt, Vec3& vt, double& error) const {
+  static void geodesic(const Vec3& p, const Vec3& v, double t, Vec3& xt, Vec3& vt) {
     // to the origin by the left translation p^-1, whose differential is dz -> dz - p_x dy
     const double ux = v[0], uy = v[1], w = v[2] - p[0] * v[1];
     const double c2 = ux * ux + uy * uy;
@@ -31,8 +45,11 @@ struct NilFlow {
     // back by the left translation p
     xt = {X + p[0], Y + p[1], Z + p[2] + p[0] * Y};
     vt = {vx, vy, vz + p[0] * vy};
+  }
+  // What the closed form's roundings may add (a few ulps of the coordinates' size, per unit length).
+  static double rounding(const Vec3& p, double t) {
     const double size = 1.0 + std::max({std::abs(p[0]), std::abs(p[1]), std::abs(p[2])}) + t;
-    error = 4e-16 * size * (1.0 + t);
+    return 4e-16 * size * (1.0 + t);
   }
 
   // x'' = -w y', y'' = w x', z'' = x' y' + x x' w (from the Christoffel symbols), with
@@ -46,6 +63,7 @@ struct NilFlow {
   }
   // Sectional curvatures lie in [-3/4, 1/4], so nearby geodesics separate slower than e^t.
   double growth_rate() const { return 1.0; }
+  double max_step() const { return 1.0; }
 
   double dot(const Vec3& p, const Vec3& a, const Vec3& b) const {
     return a[0] * b[0] + a[1] * b[1] + (a[2] - p[0] * a[1]) * (b[2] - p[0] * b[1]);

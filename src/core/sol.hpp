@@ -1,48 +1,160 @@
 // Sol: R^3 with the metric e^{2z} dx^2 + e^{-2z} dy^2 + dz^2.
 // Geodesics have no elementary closed form. Along one, p_x = e^{2z} x' and p_y = e^{-2z} y' are
 // constant, which leaves z'' = p_x^2 e^{-2z} - p_y^2 e^{2z} with x' = p_x e^{-2z}, y' = p_y e^{2z}:
-// this reduced system is integrated by an error-controlled Dormand-Prince 5(4) method, started
-// from the origin by the isometry that moves the point there (so far from z = 0 it is as accurate).
+// this reduced system is integrated by a Taylor series method (the series of z', e^{2z} and
+// e^{-2z} by their recurrences; order and step from the accuracy asked for, Jorba and Zou's rule),
+// started from the origin by the isometry that moves the point there, so that far from z = 0 it is
+// as accurate. The first integrals p_x, p_y are kept exactly.
 #pragma once
 
 #include <algorithm>
 #include <cmath>
-#include <initializer_list>
-#include <utility>
 
 #include "vec.hpp"
 
 namespace thurston {
 
 struct SolFlow {
-  // The geodesic from p with unit chart velocity v at arclength t; `accuracy` bounds the position
-  // error the integration may add (chart units at p's scale), `error` is its estimate.
+  // A stretch of geodesic from p with unit chart velocity v: Taylor pieces of the reduced system in
+  // the coordinates that move p to the origin, evaluated anywhere in [0, length] by Horner's rule.
+  struct Segment {
+    static constexpr int kMaxOrder = 24;
+    static constexpr int kMaxPieces = 8;
+    struct Piece {
+      double t0, z, x, y, e2;  // start: arclength, local state, e^{2z}
+      int order;
+      double Q[kMaxOrder + 1], E[kMaxOrder + 1], U[kMaxOrder + 1];  // z', e^{2z}/e2, e^{-2z}e2
+    };
+    Vec3 p;
+    double ez, px, py;  // e^{z0}; the first integrals in local coordinates
+    int pieces = 0;
+    double length = 0.0;  // what the pieces cover (at most the length asked for)
+    double error = 0.0;   // a bound of the position error they add (chart units)
+    Piece piece[kMaxPieces];
+
+    void at(double t, Vec3& x, Vec3& v) const {
+      int k = pieces - 1;
+      while (k > 0 && t < piece[k].t0) --k;
+      const Piece& c = piece[k];
+      const double h = t - c.t0;
+      const int N = c.order;
+      double dz = 0.0, dx = 0.0, dy = 0.0, zeta = c.Q[N], E = c.E[N], U = c.U[N];
+      for (int j = N - 1; j >= 0; --j) {
+        zeta = zeta * h + c.Q[j];
+        E = E * h + c.E[j];
+        U = U * h + c.U[j];
+        dz = (dz + c.Q[j] / (j + 1)) * h;
+        dx = (dx + c.U[j] / (j + 1)) * h;
+        dy = (dy + c.E[j] / (j + 1)) * h;
+      }
+      const double iez = 1.0 / ez, ie2 = 1.0 / c.e2;
+      // back from the local coordinates: (X, Y, Z) -> (x0 + e^{-z0} X, y0 + e^{z0} Y, z0 + Z)
+      x = {p[0] + iez * (c.x + px * ie2 * dx), p[1] + ez * (c.y + py * c.e2 * dy), p[2] + c.z + dz};
+      v = {iez * px * ie2 * U, ez * py * c.e2 * E, zeta};
+    }
+  };
+
+  // The segment from p over up to `length`: Taylor pieces whose order grows until the series'
+  // last two terms over the piece fall below the accuracy asked for (relative to the local
+  // coordinates' unit scale); a piece that needs more than the highest order is shortened to where
+  // it reaches it (Jorba and Zou's rule).
+  void segment(const Vec3& p, const Vec3& v, double length, double accuracy, Segment& s) const {
+    // (x, y, z) -> (e^{z0} (x - x0), e^{-z0} (y - y0), z - z0) is an isometry to the origin
+    s.p = p;
+    s.ez = std::exp(p[2]);
+    s.px = s.ez * v[0];
+    s.py = v[1] / s.ez;
+    const double scale = std::max(s.ez, 1.0 / s.ez);  // local position errors grow by at most this
+    const double eps = std::clamp(accuracy / scale / std::max(length, 1.0), 1e-16, 1e-3);
+    double z = 0.0, zd = v[2], x = 0.0, y = 0.0, done = 0.0;
+    s.pieces = 0;
+    s.error = 0.0;
+    while (done < length && s.pieces < Segment::kMaxPieces) {
+      Segment::Piece& c = s.piece[s.pieces++];
+      c.t0 = done;
+      c.z = z;
+      c.x = x;
+      c.y = y;
+      c.e2 = std::exp(2.0 * z);
+      const double a = s.px * s.px / c.e2, b = s.py * s.py * c.e2;  // a + b + z'^2 = 1
+      double *Q = c.Q, *E = c.E, *U = c.U;
+      Q[0] = zd;
+      E[0] = U[0] = 1.0;
+      const auto size = [&](int k) {
+        return std::max({std::abs(Q[k]), std::abs(E[k]), std::abs(U[k]), 1e-300});
+      };
+      double h = std::min(kMaxStep, length - done), power = h, previous = size(0);
+      int N = Segment::kMaxOrder;
+      for (int k = 0; k < Segment::kMaxOrder; ++k) {
+        Q[k + 1] = (a * U[k] - b * E[k]) / (k + 1);
+        double sE = 0.0, sU = 0.0;
+        for (int j = 0; j <= k; ++j) {
+          sE += Q[j] * E[k - j];
+          sU += Q[j] * U[k - j];
+        }
+        E[k + 1] = 2.0 * sE / (k + 1);
+        U[k + 1] = -2.0 * sU / (k + 1);
+        const double term = size(k + 1) * power * h;
+        if (k >= 2 && term < eps && previous < eps) {
+          N = k + 1;
+          break;
+        }
+        previous = term;
+        power *= h;
+      }
+      if (N == Segment::kMaxOrder)  // Jorba and Zou: the step at which the last two terms reach eps
+        h = std::min({h, std::pow(eps / size(N - 1), 1.0 / (N - 1)), std::pow(eps / size(N), 1.0 / N)});
+      c.order = N;
+      if (!(h > 0.0) || !std::isfinite(h)) break;  // the series overflowed: no unit-speed geodesic
+      done += h;
+      s.error += eps * scale * std::max(1.0, h);
+      if (done < length) {  // the next piece starts where this one ends
+        Vec3 xe, ve;
+        s.length = done;
+        s.at(done, xe, ve);
+        z = xe[2] - p[2];
+        zd = ve[2];
+        x = s.ez * (xe[0] - p[0]);
+        y = (xe[1] - p[1]) / s.ez;
+      }
+    }
+    s.length = done;
+  }
+
+  // The geodesic from p with unit chart velocity v at arclength t (segment after segment).
   void flow(const Vec3& p, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt,
             double& error) const {
-    // (x, y, z) -> (e^{z0} (x - x0), e^{-z0} (y - y0), z - z0) is an isometry to the origin
-    const double ez = std::exp(p[2]), iez = 1.0 / ez;
-    const double px = ez * v[0], py = iez * v[1];
-    State s{0.0, 0.0, 0.0, v[2]};
-    const double scale = std::max(ez, iez);  // local position errors grow by at most this
-    error = integrate(px, py, s, t, std::max(accuracy / scale, 1e-15));
-    const double e2 = std::exp(2.0 * s.z);
-    xt = {p[0] + iez * s.x, p[1] + ez * s.y, p[2] + s.z};
-    vt = {iez * px / e2, ez * py * e2, s.zd};
-    error *= scale;
+    Segment s;
+    xt = p;
+    vt = v;
+    error = 0.0;
+    for (double done = 0.0; done < t;) {
+      segment(xt, vt, t - done, accuracy, s);
+      if (!(s.length > 0.0)) {
+        xt = vt = {kNaN, kNaN, kNaN};
+        return;
+      }
+      s.at(s.length, xt, vt);
+      done += s.length;
+      error += s.error;
+    }
   }
 
   // x'' = -2 x' z', y'' = 2 y' z', z'' = e^{2z} x'^2 - e^{-2z} y'^2, with |e^z x'|, |e^-z y'|,
   // |z'| <= 1 (unit speed), p_x, p_y constant and |z - z0| <= h over the step.
   double acceleration_bound(const Vec3& p, const Vec3& v, double h) const {
-    const double low = p[2] - h, high = p[2] + h;
-    const double Px = std::abs(std::exp(2.0 * p[2]) * v[0]), Py = std::abs(std::exp(-2.0 * p[2]) * v[1]);
-    const double dx = std::min(Px * std::exp(-2.0 * low), std::exp(-low));
-    const double dy = std::min(Py * std::exp(2.0 * high), std::exp(high));
-    const double ddz = std::min(1.0, std::max(Px * Px * std::exp(-2.0 * low), Py * Py * std::exp(2.0 * high)));
+    const double ez = std::exp(p[2]), eh = std::exp(h);
+    const double Px = std::abs(ez * ez * v[0]), Py = std::abs(v[1] / (ez * ez));
+    // e^{-2z} and e^{-z} at most at z0 - h, e^{2z} and e^{z} at most at z0 + h
+    const double low2 = eh * eh / (ez * ez), high2 = ez * ez * eh * eh;
+    const double dx = std::min(Px * low2, eh / ez), dy = std::min(Py * high2, ez * eh);
+    const double ddz = std::min(1.0, std::max(Px * Px * low2, Py * Py * high2));
     return std::sqrt(4.0 * dx * dx + 4.0 * dy * dy + ddz * ddz);
   }
   // Sectional curvatures lie in [-1, 1], so nearby geodesics separate at most like e^t.
   double growth_rate() const { return 1.0; }
+  // The acceleration bound grows like e^{2h} over a step of length h.
+  double max_step() const { return 0.5; }
 
   double dot(const Vec3& p, const Vec3& a, const Vec3& b) const {
     const double e2 = std::exp(2.0 * p[2]);
@@ -61,62 +173,7 @@ struct SolFlow {
   }
 
  private:
-  struct State {
-    double x, y, z, zd;
-  };
-  static State rate(double px, double py, const State& s) {
-    const double e2 = std::exp(2.0 * s.z), ie2 = 1.0 / e2;
-    return {px * ie2, py * e2, s.zd, px * px * ie2 - py * py * e2};
-  }
-  static State axpy(const State& s, double h, std::initializer_list<std::pair<double, const State*>> terms) {
-    State r = s;
-    for (const auto& [a, k] : terms) {
-      r.x += h * a * k->x;
-      r.y += h * a * k->y;
-      r.z += h * a * k->z;
-      r.zd += h * a * k->zd;
-    }
-    return r;
-  }
-
-  // Integrates s over [0, t] with local errors per unit length below accuracy / max(t, 1), so that
-  // they sum to at most `accuracy`; returns the sum of the accepted local error estimates.
-  static double integrate(double px, double py, State& s, double t, double accuracy) {
-    if (!(t > 0.0)) return 0.0;
-    const double per_length = accuracy / std::max(t, 1.0);
-    double done = 0.0, h = std::min(t, 0.25), total = 0.0;
-    State k1 = rate(px, py, s);
-    for (int steps = 0; done < t && steps < 100000; ++steps) {
-      h = std::min(h, t - done);
-      const State k2 = rate(px, py, axpy(s, h, {{1.0 / 5, &k1}}));
-      const State k3 = rate(px, py, axpy(s, h, {{3.0 / 40, &k1}, {9.0 / 40, &k2}}));
-      const State k4 = rate(px, py, axpy(s, h, {{44.0 / 45, &k1}, {-56.0 / 15, &k2}, {32.0 / 9, &k3}}));
-      const State k5 = rate(px, py, axpy(s, h, {{19372.0 / 6561, &k1}, {-25360.0 / 2187, &k2},
-                                                 {64448.0 / 6561, &k3}, {-212.0 / 729, &k4}}));
-      const State k6 = rate(px, py, axpy(s, h, {{9017.0 / 3168, &k1}, {-355.0 / 33, &k2},
-                                                 {46732.0 / 5247, &k3}, {49.0 / 176, &k4},
-                                                 {-5103.0 / 18656, &k5}}));
-      const State next = axpy(s, h, {{35.0 / 384, &k1}, {500.0 / 1113, &k3}, {125.0 / 192, &k4},
-                                     {-2187.0 / 6784, &k5}, {11.0 / 84, &k6}});
-      const State k7 = rate(px, py, next);
-      // the difference of the 5th- and embedded 4th-order solutions
-      const State e = axpy(State{0, 0, 0, 0}, h, {{71.0 / 57600, &k1}, {-71.0 / 16695, &k3},
-                                                  {71.0 / 1920, &k4}, {-17253.0 / 339200, &k5},
-                                                  {22.0 / 525, &k6}, {-1.0 / 40, &k7}});
-      const double err = std::max({std::abs(e.x), std::abs(e.y), std::abs(e.z), std::abs(e.zd)});
-      const double allowed = per_length * h;
-      if (err <= allowed || h < 1e-12) {
-        s = next;
-        k1 = k7;  // first same as last
-        done += h;
-        total += err;
-      }
-      // the usual controller: the step that would have met the tolerance, with a safety factor
-      const double factor = err > 0.0 ? 0.9 * std::pow(allowed / err, 0.2) : 5.0;
-      h *= std::clamp(factor, 0.2, 5.0);
-    }
-    return total;
-  }
+  static constexpr double kMaxStep = 2.0;
 };
 
 }  // namespace thurston

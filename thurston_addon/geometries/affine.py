@@ -10,6 +10,8 @@ Everything is numpy and broadcasts over leading axes.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .projective import _floats
@@ -50,6 +52,9 @@ class AffineGeometry:
     name: str
     kernel: str  # the C++ kernel's registry name
     projective = False
+    diameter = math.inf  # R^3: unbounded
+    copy_rings = 2  # rings of neighbouring domains searched for the parts of large objects
+    reference_depth = math.inf  # `geodesic` is a reference at any depth (closed form, integrator)
     # Newton on the exponential map stops when the residual is below this, relative to 1 + |target|
     connect_tolerance = 1e-13
     newton_halvings = 8
@@ -264,6 +269,15 @@ class AffineGeometry:
             pulled = np.einsum("ki,nkl,lj->nij", A, g_image, A)
             scale = np.einsum("ki,nkl,lj->nij", np.abs(A), np.abs(g_image), np.abs(A)) + np.abs(g)
             return bool(np.all(np.abs(pulled - g) <= tol * scale))
+
+    def element_key(self, M):
+        """Identifies a group element: its image of the origin and its linear part."""
+        return tuple(np.round(np.asarray(M, float)[:3].ravel(), 7))
+
+    def chord_distance(self, A, B):
+        """The distance of nearby points to first order: the metric length at A of B - A."""
+        d = _floats(B) - _floats(A)
+        return np.sqrt(np.maximum(self.dot(A, d, d), 0))
 
     def transform_points(self, M, x):
         """Apply isometries (affine matrices) to chart points."""
