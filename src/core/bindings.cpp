@@ -215,13 +215,13 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
 
   std::unique_ptr<float[]> color(new float[3 * n]), normal(new float[3 * n]);
   std::unique_ptr<double[]> depth(new double[n]), position(new double[3 * n]),
-      distance(new double[n]), error(new double[n]);
+      distance(new double[n]), error(new double[n]), end(new double[3 * n]);
   std::unique_ptr<std::int32_t[]> object(new std::int32_t[n]), crossings(new std::int32_t[n]),
       chords(new std::int32_t[n]);
   std::unique_ptr<std::uint8_t[]> stop(new std::uint8_t[n]);
   const TraceOutputs out{color.get(), depth.get(),    position.get(), normal.get(),
                          object.get(), crossings.get(), stop.get(),   distance.get(),
-                         chords.get(), error.get()};
+                         chords.get(), error.get(), end.get()};
   const TraceOptions options{max_distance, max_crossings,          shade, record_segments,
                              tolerance,    tolerance_per_distance};
 
@@ -263,6 +263,7 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
   result["distance"] = to_numpy(std::move(distance), {n});
   result["ray_chords"] = to_numpy(std::move(chords), {n});
   result["error"] = to_numpy(std::move(error), {n});
+  result["end"] = to_numpy(std::move(end), {n, 3});
   std::unique_ptr<std::int64_t[]> total(new std::int64_t[1]{std::int64_t(stats.chords)});
   result["chords"] = to_numpy(std::move(total), {});
   std::unique_ptr<std::int64_t[]> failures(new std::int64_t[1]{std::int64_t(stats.light_failures)});
@@ -329,7 +330,8 @@ hit (NaN: none), normal float32 (N,3) unit chart normal facing the ray (NaN: non
 limit, 3 cancelled), distance float64 (N,) geodesic length travelled, ray_chords int32 (N,)
 Embree queries of each ray, error float64 (N,) an upper estimate of the hit position's error
 (chart units: the path's distance from the true geodesic over the cosine of incidence; NaN: no
-hit), chords int64 () Embree queries of primary rays in all, light_failures int64 () light
+hit), end float64 (N,3) the chart point where the ray stopped (the hit, the point at the distance
+or crossing limit, inside the domain; NaN where there is none), chords int64 () Embree queries of primary rays in all, light_failures int64 () light
 paths that were not found (marching geometries), and with record_segments segment_starts /
 segment_ends float64 (S,3), the chart endpoints of the queries.)";
 

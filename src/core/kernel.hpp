@@ -6,7 +6,8 @@
 //       domain: next() lays the next chart chord (Walk::chord()) and says whether the walk then
 //       crosses a face, ends at its length or continues in the same cell; cross() carries the ray
 //       through that face; chord_start_distance() and distance() are geodesic lengths travelled;
-//       error() bounds how far the chords so far stray from the true geodesic (chart units).
+//       error() bounds how far the chords so far stray from the true geodesic (chart units),
+//       end_point() is where the walk stands after next() (a face, or the end of its length).
 //   K::Chord    x0, x1 (the chart segment Embree tests) and margin (how far the curve may stray
 //               from it), plus what the kernel needs to refine a hit on it;
 //   bool start(Vec4& P, Vec4& V)                 P a point and V a unit tangent there (projected);

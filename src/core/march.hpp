@@ -312,6 +312,8 @@ class MarchingKernel<Flow>::Walk {
   // How far the last chord may be from the true geodesic: its own margin plus what the flow and
   // the crossings have drifted.
   double error() const { return chord_margin_ + drift_; }
+  // Where the walk stands: the end of the last step (at a face, or at the end of its length).
+  Vec3 end_point() const { return x_; }
 
   bool cross(int) {
     apply(exit_face_);

@@ -434,14 +434,18 @@ class ProjectiveKernel::Walk {
                                                      : kInf;
       const double limit = std::min(length_ - start_distance_, reach);
       crosses = exit_.face >= 0 && exit_.turn.t <= limit;
-      // A ray that leaves no face ends in this copy; nothing lies beyond the scene's extent.
+      // A ray that leaves no face ends in this copy at `limit`; its chord need not go beyond the
+      // scene's extent.
       if (!crosses) {
+        Vec4 velocity;
+        k.advance(P_, V_, k.turn(limit), end_, velocity);
         exit_.turn = k.turn(std::min(limit, scene_escape(chart(P_))));
         exit_.cu = exit_.su = 0.0;
       }
     }
     const Turn& u = exit_.turn;
     k.advance(P_, V_, u, X_, Xv_);
+    if (crosses) end_ = X_;
     has_chord_ = u.t > 0.0;
     if (has_chord_) {
       // The chord's end from (cu, su) where known, so that Embree need not wait for the turn.
@@ -462,6 +466,8 @@ class ProjectiveKernel::Walk {
     return odometer_.value();
   }
   double error() const { return 0.0; }  // chords are the geodesic up to rounding
+  // Where the walk stands: the exit point of the last chord's face, or the end of its length.
+  Vec3 end_point() const { return chart(end_); }
 
   // Through the exit face: the chord is travelled and (P, V) continue from the face map's image.
   bool cross(int crossings) {
@@ -501,7 +507,7 @@ class ProjectiveKernel::Walk {
 
   const ProjectiveKernel& kernel_;
   const WalkContext& context_;
-  Vec4 P_, V_, X_{}, Xv_{};
+  Vec4 P_, V_, X_{}, Xv_{}, end_{};
   double length_;
   Odometer odometer_;
   Exit exit_{};

@@ -57,11 +57,12 @@ RTCRay chord_ray(const Vec3& x0, const Vec3& x1, float tnear) {
 
 // The outputs of a ray that hit nothing.
 void write_miss(const TraceOutputs& out, std::size_t i, Stop stop, int crossings, double distance,
-                int chords) {
+                int chords, const Vec3& end = {kNaN, kNaN, kNaN}) {
   for (int a = 0; a < 3; ++a) {
     out.color[3 * i + a] = 0.0f;
     out.position[3 * i + a] = kNaN;
     out.normal[3 * i + a] = float(kNaN);
+    out.end[3 * i + a] = end[a];
   }
   out.depth[i] = kInf;
   out.object[i] = -1;
@@ -334,6 +335,7 @@ class KernelTracer final : public Tracer {
     double distance;
     int crossings;
     double error;  // the kernel's bound of the last chord's distance from the true geodesic
+    Vec3 end{kNaN, kNaN, kNaN};  // where a walk that met nothing stopped (chart)
   };
 
   void trace_range(std::size_t begin, std::size_t end, Strided2<double> origins,
@@ -366,9 +368,10 @@ class KernelTracer final : public Tracer {
             query(chord, float(tnear)))
           return {kHit, w.chord_start_distance(), crossings, w.error()};
       }
-      if (advance == Advance::kLimit) return {kDistanceLimit, length, crossings, 0.0};
+      if (advance == Advance::kLimit) return {kDistanceLimit, length, crossings, 0.0, w.end_point()};
       if (advance == Advance::kCross) {
-        if (crossings == max_crossings) return {kCrossingLimit, w.end_distance(), crossings, 0.0};
+        if (crossings == max_crossings)
+          return {kCrossingLimit, w.end_distance(), crossings, 0.0, w.end_point()};
         ++crossings;
         if (!w.cross(crossings)) return {kDistanceLimit, w.distance(), crossings, 0.0};
       }
@@ -400,7 +403,7 @@ class KernelTracer final : public Tracer {
         walk(context, P, V, options.max_distance, options.max_crossings, 0.0, query);
     stats.chords += chords;
     if (end.stop != kHit) {
-      write_miss(out, i, end.stop, end.crossings, end.distance, chords);
+      write_miss(out, i, end.stop, end.crossings, end.distance, chords, end.end);
       return;
     }
     const Hit h = kernel_.refine(hit, triangle_planes_[prim], hit_u);
@@ -426,7 +429,7 @@ class KernelTracer final : public Tracer {
     Rgb light{1.0f, 1.0f, 1.0f};
     if (options.shade) light = illumination(context, h.X, N, options.max_crossings, stats);
     for (int a = 0; a < 3; ++a) {
-      out.position[3 * i + a] = h.x[a];
+      out.position[3 * i + a] = out.end[3 * i + a] = h.x[a];
       out.normal[3 * i + a] = float(chart_normal[a]);
       out.color[3 * i + a] = (options.shade ? emission[a] : 0.0f) + base[a] * light[a];
     }

@@ -68,6 +68,7 @@ struct TraceOutputs {
   double* distance;   // geodesic length travelled: depth on a hit, max_distance at the limit
   std::int32_t* chords;  // Embree queries of the ray
   double* error;      // bound of the hit's distance from the true geodesic (chart units)
+  double* end;        // (N,3) chart point where the ray stopped: the hit, or the end of its walk
 };
 
 struct TraceStats {
