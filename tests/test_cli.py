@@ -17,7 +17,7 @@ from thurston_addon import cli, render, spaces
 from thurston_addon.scene import default_scene
 
 PRESETS = {"torus": "E3", "half_turn": "E3", "quarter_turn": "E3", "third_turn": "E3", "sixth_turn": "E3",
-           "hantzsche_wendt": "E3", "poincare": "S3", "seifert_weber": "H3"}
+           "hantzsche_wendt": "E3", "poincare": "S3", "seifert_weber": "H3", "nil": "Nil", "sol": "Sol"}
 
 
 @pytest.fixture(autouse=True)
@@ -74,7 +74,7 @@ def test_spaces_listing(capsys):
     code, out, _ = run(["spaces"], capsys)
     assert code == 0
     lines = out.strip().splitlines()
-    assert len(lines) == 8
+    assert len(lines) == len(PRESETS)
     for line in lines:
         sid, geom = line.split()[:2]
         assert PRESETS[sid] == geom

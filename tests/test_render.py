@@ -116,8 +116,8 @@ def edge_targets(space, rng, n):
 
 
 def interior_points(space, rng, n, fraction=0.8):
-    g = space.geometry
-    r = chart_radius(g, fraction * space.inradius)
+    """n chart points in the chart ball about the origin that the domain contains."""
+    r = fraction * space.chart_inradius
     return random_units(rng, n) * (r * rng.random(n) ** (1 / 3))[:, None]
 
 
@@ -304,7 +304,7 @@ def test_no_leak_at_edges_and_vertices(space_cache, sid):
     p[n // 2:] = interior_points(space, rng, n - n // 2)
     P, D = model_rays(g, p, targets - p)
     assert np.all(np.isfinite(P)) and np.all(np.isfinite(D))
-    max_distance, max_crossings = (6.0 if g.curvature >= 0 else 3.0), 40
+    max_distance, max_crossings = (3.0 if g.name == "H3" else 6.0), 40
     scenes = [Scene()]
     if sid in ("poincare", "seifert_weber", "torus"):
         scenes.append(default_scene(space))
@@ -768,7 +768,7 @@ def test_poincare_light_uses_the_nearest_of_all_120_copies(space_cache):
 
 
 # --- the geodesic error: measured, and it sees a wrong pairing -------------------------------------------
-@pytest.mark.parametrize("sid", spaces.preset_ids())
+@pytest.mark.parametrize("sid", [s for s in spaces.preset_ids() if spaces.load(s).geometry.projective])
 def test_geodesic_error_is_small_for_presets(space_cache, sid):
     space = space_cache(sid)
     res = render.render(space, default_scene(space), render.Settings(width=64, height=36, quality="draft"))

@@ -54,6 +54,7 @@ struct TraceOptions {
   bool record_segments;
   double tolerance;               // chord deviation at distance 0 (chart units) ...
   double tolerance_per_distance;  // ... and its growth per unit of distance
+  bool skip_empty;                // empty-space steps and the occupancy grid (WalkContext)
 };
 
 // Caller-allocated per-ray outputs (N rows each).
@@ -110,7 +111,8 @@ class Tracer {
                            TraceStats& stats) const = 0;
 
   WalkContext context(const TraceOptions& options) const {
-    return {domain_, hit_lo_, hit_hi_, occupancy_, options.tolerance, options.tolerance_per_distance};
+    return {domain_, hit_lo_, hit_hi_, occupancy_, options.tolerance, options.tolerance_per_distance,
+            options.skip_empty};
   }
 
   Domain domain_;
