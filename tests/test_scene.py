@@ -394,3 +394,41 @@ def test_default_scene_copies_in_compiled_scene():
     counts = np.bincount(compiled["triangle_object"], minlength=len(scene.objects))
     assert np.all(counts >= [len(o.triangles) for o in scene.objects])
     assert len(compiled["light_lifts"]) > 1
+
+
+@pytest.mark.parametrize("sid", ["nil", "sol"])
+def test_default_scene_of_a_coordinate_domain_frames_each_face(sid):
+    """As in the paper's Nil and Sol figures: each face framed by tubes just inside its edges, the
+    frames of a face and its partner in one colour, one colour per pair."""
+    space = spaces.load(sid)
+    dom = space.domain
+    scene = default_scene(space)
+    frames = [o for o in scene.objects if o.name.startswith("edges")]
+    assert len(frames) == 3
+    assert len({tuple(o.color) for o in frames}) == 3
+    radius = 0.012 * np.ptp(dom.vertices, axis=0).max()
+    for o in frames:
+        tubes = trimesh.Trimesh(o.vertices, o.triangles, process=False).split(only_watertight=False)
+        assert len(tubes) == 8  # two faces of four sides
+        for tube in tubes:
+            W = tube.vertices
+            # the axis of each tube lies in a face plane, 2 radii inside one of that face's edges
+            centre = W.mean(axis=0)
+            homes = []
+            for face in dom.faces:
+                n, d = face.covector[:3], face.covector[3]
+                if abs(centre @ n + d) / np.linalg.norm(n) < 1e-9:
+                    ring = dom.vertices[face.vertices]
+                    for p, q in zip(ring, np.roll(ring, -1, axis=0)):
+                        u = (q - p) / np.linalg.norm(q - p)
+                        off = centre - p - ((centre - p) @ u) * u
+                        if abs(np.linalg.norm(off) - 2 * radius) < 1e-9:
+                            homes.append(face)
+            assert len(homes) == 1
+            assert np.all(np.abs(np.linalg.norm(W - centre, axis=1)) < 0.5 * space.extent + 2 * radius)
+    # the other objects lie inside the domain, and there is a light
+    g = space.geometry
+    for o in scene.objects:
+        if not o.name.startswith("edges"):
+            assert np.all(space.domain.contains(g.to_model(o.vertices)))
+    assert len(scene.lights) == 1

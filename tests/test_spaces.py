@@ -873,3 +873,137 @@ def test_move_inside_many_points_at_once():
     np.testing.assert_allclose(np.asarray(V[:, :3], float), v / np.linalg.norm(v, axis=1)[:, None], atol=1e-12)
     with pytest.raises(spaces.SpaceError, match="point 1 "):
         s.move_inside(np.array([[0, 0, 0, 1.0], [np.nan, 0, 0, 1.0]]))
+
+
+# --- coordinate domains: Nil and Sol ---------------------------------------------------------------------
+from truth import CURVED_METRICS  # noqa: E402
+
+SQ = math.sqrt(1 + PHI**2)
+U1, U2 = np.array([1, PHI]) / SQ, np.array([-PHI, 1]) / SQ  # the monodromy's eigenvectors, orthonormal
+
+
+def heisenberg(a, b, c):
+    """The left multiplication by (a, b, c): (x, y, z) -> (x + a, y + b, z + c + a y)."""
+    return np.array([[1, 0, 0, a], [0, 1, 0, b], [0, a, 1, c], [0, 0, 0, 1.0]])
+
+
+def sol_map(a, b, c):
+    """(x, y, z) -> (e^-c x + a, e^c y + b, z + c)."""
+    return np.array([[math.exp(-c), 0, 0, a], [0, math.exp(c), 0, b], [0, 0, 1, c], [0, 0, 0, 1.0]])
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(20261201)
+
+
+def pulls_back_the_metric(name, M, rng, n=20, tol=1e-9):
+    """A^T g(M x) A == g(x) at random points, A the linear part (the maps here are affine)."""
+    g = CURVED_METRICS[name]
+    A = M[:3, :3]
+    for x in rng.uniform(-2, 2, (n, 3)):
+        y = A @ x + M[:3, 3]
+        if not np.allclose(A.T @ g(y) @ A, g(x), atol=tol * (1 + np.abs(g(x)).max())):
+            return False
+    return True
+
+
+@pytest.mark.parametrize("sid", COORDINATE)
+def test_coordinate_presets_are_coordinate_spaces(sid):
+    s = load(sid)
+    assert isinstance(s, spaces.CoordinateSpace) and s.geometry.name == {"nil": "Nil", "sol": "Sol"}[sid]
+    assert len(s.domain.faces) == 6 and len(s.domain.vertices) == 8 and len(s.domain.edges) == 12
+    # each face's partner is the face its pairing's inverse belongs to, and face and partner share a class
+    for i, face in enumerate(s.domain.faces):
+        partner = s.domain.faces[face.partner]
+        np.testing.assert_allclose(partner.element @ face.element, np.eye(4), atol=1e-12)
+        assert s.face_classes[i] == s.face_classes[face.partner]
+
+
+def test_nil_domain_is_the_unit_cube_and_its_pairings_are_left_multiplications(rng):
+    s = load("nil")
+    corners = {(x, y, z) for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)}
+    assert {tuple(np.round(v, 12) + 0.0) for v in s.domain.vertices} == corners
+    lattice = [heisenberg(1, 0, 0), heisenberg(0, 1, 0), heisenberg(0, 0, 1)]
+    for face in s.domain.faces:
+        assert pulls_back_the_metric("Nil", face.pairing, rng)
+        assert any(np.allclose(face.element, L, atol=1e-12) or np.allclose(face.element, np.linalg.inv(L), atol=1e-12)
+                   for L in lattice)
+    assert s.volume == pytest.approx(1.0, abs=1e-12)  # the covolume of the integer Heisenberg group
+
+
+def test_sol_domain_is_the_parallelogram_prism(rng):
+    s = load("sol")
+    ell = math.log(PHI)
+    corners = {tuple(np.round(np.append(a * U1 + b * U2, c), 10) + 0.0)
+               for a in (-0.5, 0.5) for b in (-0.5, 0.5) for c in (-ell, ell)}
+    assert {tuple(np.round(v, 10) + 0.0) for v in s.domain.vertices} == corners
+    for face in s.domain.faces:
+        assert pulls_back_the_metric("Sol", face.pairing, rng)
+    assert s.volume == pytest.approx(2 * ell, abs=1e-12)  # 2 log phi = 0.9624
+
+
+def test_sol_monodromy_maps_the_lattice_to_itself():
+    """The third generator conjugates the translation by u1 to the translation by 2 u1 + u2, and u2
+    to u1 + u2 (the matrix [[2, 1], [1, 1]]): the group is discrete."""
+    s = load("sol")
+    t1, t2, t3 = s.generators
+    np.testing.assert_allclose(t3 @ t1 @ np.linalg.inv(t3), sol_map(*(2 * U1 + U2), 0), atol=1e-12)
+    np.testing.assert_allclose(t3 @ t2 @ np.linalg.inv(t3), sol_map(*(U1 + U2), 0), atol=1e-12)
+
+
+@pytest.mark.parametrize("sid", COORDINATE)
+def test_points_and_their_images_reduce_to_one_point(sid, rng):
+    """p and g(p) reduce to the same point of the domain, for random points and random words g in
+    the lattice written here (not the space's own generators)."""
+    s = load(sid)
+    if sid == "nil":
+        words = [heisenberg(*rng.integers(-3, 4, 3)) for _ in range(20)]
+    else:
+        ell = 2 * math.log(PHI)
+        words = [sol_map(*(i * U1 + j * U2), k * ell) for i, j, k in rng.integers(-3, 4, (20, 3))]
+    g = s.geometry
+    p = g.to_model(random_points_in_domain(s, rng, 50))
+    base, _, _ = s.move_inside(p)
+    np.testing.assert_allclose(base, p, atol=1e-12)
+    for W in words:
+        X, _, M = s.move_inside(p @ W.T)
+        np.testing.assert_allclose(X, p, atol=1e-9)
+        np.testing.assert_allclose(M @ W, np.broadcast_to(np.eye(4), M.shape), atol=1e-8)
+
+
+def test_paper_nil_generator_is_not_an_isometry(tmp_path):
+    """Errata: the paper's (x, y, z) -> (x + 1, y, z) is not an isometry of its own metric."""
+    text = (spaces.PRESET_DIR / "nil.toml").read_text().replace(
+        "matrix = [[1, 0, 0, 1], [0, 1, 0, 0], [0, 1, 1, 0], [0, 0, 0, 1]]",
+        "matrix = [[1, 0, 0, 1], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]")
+    expect_error(write(tmp_path, text, "paper_nil.toml"), "generator 'x'", "not an isometry of Nil")
+
+
+def test_paper_sol_square_is_not_a_fundamental_domain(tmp_path):
+    """Errata: with the unit translations and the paper's third map the group is not discrete."""
+    text = f"""
+geometry = "Sol"
+[[generator]]
+matrix = [[1, 0, 0, 1], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+face = [1, 0, 0, -0.5]
+[[generator]]
+matrix = [[1, 0, 0, 0], [0, 1, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1]]
+face = [0, 1, 0, -0.5]
+[[generator]]
+matrix = [["phi**-2", 0, 0, 0], [0, "phi**2", 0, 0], [0, 0, 1, "2 * log(phi)"], [0, 0, 0, 1]]
+face = [0, 0, 1, "-log(phi)"]
+"""
+    expect_error(write(tmp_path, text, "paper_sol.toml"), "not discrete")
+
+
+def test_coordinate_space_file_errors(tmp_path):
+    text = (spaces.PRESET_DIR / "nil.toml").read_text()
+    expect_error(write(tmp_path, text.replace("covolume = 1", "covolume = 2"), "a.toml"), "volume", "covolume")
+    no_face = text.replace("face = [0, 0, 1, -0.5]\n", "", 1)
+    expect_error(write(tmp_path, no_face, "b.toml"), "generator 'z' has no 'face'")
+    outside = text.replace("face = [0, 0, 1, -0.5]", "face = [0, 0, 1, 0.5]")
+    expect_error(write(tmp_path, outside, "c.toml"), "origin", "inside")
+    dirichlet = text.replace("geometry = \"Nil\"", "geometry = \"Nil\"\n")
+    dirichlet = "\n".join(line for line in dirichlet.splitlines() if not line.startswith("face"))
+    expect_error(write(tmp_path, dirichlet, "d.toml"), "Nil has no Dirichlet domains")
