@@ -1,10 +1,7 @@
 """Geometry kernels: metric, geodesic flow, isometries and charts, float64 numpy, no Blender.
 
 `get(name)` returns the geometry for a space file's `geometry` field. Every geometry offers the
-same interface (see ProjectiveGeometry for E3, S3, H3 and AffineGeometry for Nil, Sol): points and
-tangent vectors as 4-vectors, isometries as 4x4 matrices acting on them, the chart metric and its
-Christoffel symbols, geodesics, connecting geodesics and the falloff of a point light along them.
-The C++ tracer has a kernel of the same name for each.
+interface of base.py (ProjectiveGeometry for E3, S3, H3; AffineGeometry for Nil, Sol).
 """
 from .euclidean import Euclidean
 from .hyperbolic import Hyperbolic

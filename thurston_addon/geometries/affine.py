@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from .projective import _floats
+from .base import Geometry, _floats
 
 # Fixed points at which is_isometry compares pulled-back metrics (x and z both vary: Nil's metric
 # depends on x, Sol's on z).
@@ -45,7 +45,7 @@ def affine_matrix(linear, offset):
     return M
 
 
-class AffineGeometry:
+class AffineGeometry(Geometry):
     """Base class for Nil and Sol: subclasses set `name`, `kernel` and implement `metric`,
     `christoffel`, `from_origin`, `to_origin`, `flow_from_origin`, `reorthonormalize`."""
 
@@ -146,14 +146,6 @@ class AffineGeometry:
         x0, u0 = flow(np.broadcast_to(v0, shape + (3,)), np.broadcast_to(t, shape))
         back = self.from_origin(p)
         return apply(back, homogeneous(x0, 1.0)), apply(back, homogeneous(u0, 0.0))
-
-    def chart_geodesic(self, x, u, t):
-        """Chart position and chart velocity at arclength t from chart point x, chart direction u
-        (u is normalised in the metric at x)."""
-        X = self.to_model(x)
-        V = self.normalize_tangent(X, self.tangent_to_model(x, u))
-        Xt, Vt = self.geodesic(X, V, t)
-        return self.to_chart(Xt), self.tangent_to_chart(Xt, Vt)
 
     # --- the exponential map at the origin --------------------------------------------------------
     def exp_from_origin(self, w):

@@ -1,7 +1,8 @@
 """E3: Euclidean space, X = (x, 1); isometries are affine maps."""
 import numpy as np
 
-from .projective import ProjectiveGeometry, _floats
+from .base import _floats
+from .projective import ProjectiveGeometry
 
 
 class Euclidean(ProjectiveGeometry):

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from .affine import AffineGeometry, affine_matrix
-from .projective import _floats
+from .base import _floats
 
 # |theta| below which F(theta) = (theta - sin theta) / theta^2 is summed as a series: the direct
 # formula loses digits to cancellation up to theta ~ 1, and 9 terms reach 1e-17 there.

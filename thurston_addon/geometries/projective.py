@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from .base import Geometry, _floats
+
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
 
 
@@ -19,13 +21,7 @@ def _dot(a, b):
     return np.einsum("...i,...i->...", a, b)
 
 
-def _floats(a):
-    """As a float array, keeping extended precision (np.longdouble) where the input has it."""
-    a = np.asarray(a)
-    return a.astype(np.result_type(a.dtype, np.float64), copy=False)
-
-
-class ProjectiveGeometry:
+class ProjectiveGeometry(Geometry):
     """Base class: subclasses set `name`, `curvature` and the form `form` (diagonal of the
     ambient bilinear form restricted as the metric sees it)."""
 
@@ -144,14 +140,6 @@ class ProjectiveGeometry:
         P, V, t = _floats(P), _floats(V), _floats(t)[..., None]
         c, s = self.cos_sin(t)
         return c * P + s * V, -self.curvature * s * P + c * V
-
-    def chart_geodesic(self, x, u, t):
-        """Chart position and chart velocity at arclength t from chart point x, chart direction u
-        (u is normalised in the metric at x)."""
-        X = self.to_model(x)
-        V = self.normalize_tangent(X, self.tangent_to_model(x, u))
-        Xt, Vt = self.geodesic(X, V, t)
-        return self.to_chart(Xt), self.tangent_to_chart(Xt, Vt)
 
     def chord_distance(self, A, B):
         """The distance of nearby model points to first order, from the model chord: 2 sin(r/2),

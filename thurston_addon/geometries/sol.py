@@ -15,7 +15,7 @@ import numpy as np
 from scipy.special import ellipeinc, ellipj, ellipkinc
 
 from .affine import AffineGeometry, affine_matrix
-from .projective import _floats
+from .base import _floats
 
 # Taylor series method: the series of z(t), z'(t), e^{+-2z(t)} to this order at each step; the step
 # is where the last two terms fall below the rounding level (Jorba & Zou's rule), capped so that

@@ -1,0 +1,31 @@
+"""What every geometry shares: the interface and the pieces written once for all of them.
+
+A geometry (ProjectiveGeometry for E3, S3, H3; AffineGeometry for Nil, Sol) works on points and
+tangent vectors as homogeneous 4-vectors ("model" coordinates) with chart point x = X[:3] / X[3],
+and on isometries as 4x4 matrices acting linearly on them. It offers: `name`, `projective`
+(geodesics and bisectors straight in the chart: Dirichlet domains), `diameter`, `copy_rings`,
+`reference_depth`; charts (`to_chart`, `to_model`, `in_chart`, `tangent_to_model`,
+`tangent_to_chart`, `normalize_point`, `normalize_tangent`); the metric (`metric`, `christoffel`,
+`volume_density`, `dot`); geodesics (`geodesic`, `chart_geodesic`); isometries (`is_isometry`,
+`reorthonormalize`, `element_key`, `transform_points`); distances (`distance`, `chord_distance`)
+and light (`connect`, `falloff_along`). The C++ core has a kernel of the same name for each.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def _floats(a):
+    """As a float array, keeping extended precision (np.longdouble) where the input has it."""
+    a = np.asarray(a)
+    return a.astype(np.result_type(a.dtype, np.float64), copy=False)
+
+
+class Geometry:
+    def chart_geodesic(self, x, u, t):
+        """Chart position and chart velocity at arclength t from chart point x, chart direction u
+        (u is normalised in the metric at x)."""
+        X = self.to_model(x)
+        V = self.normalize_tangent(X, self.tangent_to_model(x, u))
+        Xt, Vt = self.geodesic(X, V, t)
+        return self.to_chart(Xt), self.tangent_to_chart(Xt, Vt)
