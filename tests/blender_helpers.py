@@ -179,8 +179,10 @@ def write_scene_files(scene, folder: Path, scale: float):
         obj = scene.objects[name]
         ev = obj.evaluated_get(depsgraph)
         mesh = ev.to_mesh()
-        M = np.array(ev.matrix_world)
-        co = np.array([v.co for v in mesh.vertices])
+        # in double precision, as the tracer takes them: where geodesics bend the core's hits are
+        # sensitive to the last bits of the scene (see test_blender.CORE_FIND_ROOT_BUG)
+        M = np.array(ev.matrix_world, float)
+        co = np.array([v.co for v in mesh.vertices], float)
         Vw = co @ M[:3, :3].T + M[:3, 3]
         kd, ke = material_values(obj)
         mtl_lines += [f"newmtl m_{obj.name}", f"Kd {_fmt(kd)}", f"Ke {_fmt(ke)}"]
@@ -194,13 +196,13 @@ def write_scene_files(scene, folder: Path, scale: float):
     toml = ['[[object]]', 'file = "scene.obj"']
     for obj in scene.objects:
         if obj.type == "LIGHT":
-            pos = np.array(obj.matrix_world.translation) / scale
+            pos = np.array(obj.matrix_world.translation, float) / scale
             power = obj.data.energy / (4 * math.pi**2) / scale**2  # radiant intensity x albedo / pi
             toml += ["[[light]]", f"position = [{', '.join(map(repr, map(float, pos)))}]",
                      f"color = [{', '.join(map(repr, map(float, obj.data.color)))}]", f"power = {power!r}"]
     cam = scene.camera
-    M = np.array(cam.matrix_world)
-    fov = math.degrees(2 * math.atan(cam.data.sensor_width / 2 / cam.data.lens))
+    M = np.array(cam.matrix_world, float)
+    fov = math.degrees(cam.data.angle_x)  # Blender's own horizontal angle (float32, from lens and sensor width)
     toml += ["[camera]", f"position = [{', '.join(map(repr, map(float, M[:3, 3] / scale)))}]",
              f"forward = [{', '.join(map(repr, map(float, -M[:3, 2])))}]",
              f"up = [{', '.join(map(repr, map(float, M[:3, 1])))}]", f"fov = {fov!r}"]

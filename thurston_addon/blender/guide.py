@@ -8,6 +8,9 @@ from . import export
 
 COLLECTION = "Thurston Guide"
 OBJECT = "Thurston Domain"
+# Blender keeps matrices in float32: a camera that Bring Camera Inside put on a face may lie this far
+# (relative) outside it once stored, and still counts as inside.
+FLOAT32_SLACK = 1e-6
 
 
 def _guide_collection(scene, create):
@@ -101,26 +104,29 @@ class THURSTON_OT_camera_inside(bpy.types.Operator):
 
 
 def inside_matrix(space, M, scale):
-    """A camera matrix moved into the domain: position by the pairing isometry, axes by its
-    differential (re-orthonormalised in the chart, where Blender shows the camera)."""
+    """A camera matrix moved into the domain by the pairing isometry, with the same view. The tracer
+    builds its frame by Gram-Schmidt in the metric from forward, right = forward x up and up (chart
+    vectors): the moved camera looks along the image of forward under the differential D, and its up
+    is the normal of the image of the forward-right plane (D^-T of that plane's normal), so that the
+    tracer's frame there is D applied to the frame here, also where D is not a rotation (Nil, Sol)."""
     g = space.geometry
     p = M[:3, 3] / scale
     if not g.in_chart(p):
         raise ValueError(f"camera position {p.tolist()} is not a point of {g.name}")
     X = g.to_model(p)
-    if not space.domain.contains(X):
-        X2, _, A = space.bring_inside(X)
-        p2 = g.to_chart(X2)
-        axes = []
-        for k in range(3):
-            V = A @ g.tangent_to_model(p, M[:3, k])
-            axes.append(g.tangent_to_chart(X2, V))
-        R = np.stack(axes, axis=1)
-        U, _, Vt = np.linalg.svd(R)
-        M = M.copy()
-        M[:3, :3] = (U @ Vt) * np.linalg.norm(M[:3, :3], axis=0)
-        M[:3, 3] = p2 * scale
-    return M
+    if space.domain.contains(X):
+        return M
+    X2, _, A = space.bring_inside(X)
+    D = np.stack([g.tangent_to_chart(X2, A @ g.tangent_to_model(p, e)) for e in np.eye(3)], axis=1)
+    forward, up = -M[:3, 2], M[:3, 1]
+    normal = up - (up @ forward) / (forward @ forward) * forward  # of the forward-right plane
+    z = -(D @ forward)
+    y = np.linalg.solve(D.T, normal)
+    z, y = z / np.linalg.norm(z), y / np.linalg.norm(y)
+    moved = M.copy()
+    moved[:3, :3] = np.stack([np.cross(y, z), y, z], axis=1) * np.linalg.norm(M[:3, :3], axis=0)
+    moved[:3, 3] = g.to_chart(X2) * scale
+    return moved
 
 
 def camera_outside(scene) -> bool:
@@ -133,7 +139,7 @@ def camera_outside(scene) -> bool:
         return False
     g = space.geometry
     p = np.array(cam.matrix_world.translation, float) / scene.thurston.scale
-    return not (g.in_chart(p) and space.domain.contains(g.to_model(p)))
+    return not (g.in_chart(p) and space.domain.contains(g.to_model(p), tol=FLOAT32_SLACK))
 
 
 CLASSES = (THURSTON_OT_domain_guide, THURSTON_OT_camera_inside)
