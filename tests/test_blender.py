@@ -24,13 +24,6 @@ ROOT = Path(__file__).resolve().parents[1]
 THURSTON = Path(sys.executable).with_name("thurston")
 CURVED = ("nil", "sol")  # geodesics bend in the chart: traced in chords within a tolerance
 
-CORE_FIND_ROOT_BUG = (
-    "core (src/core/march.hpp, MarchingKernel::find_root): when Newton's iterate t converges from one side "
-    "(|f(t)| < 1e-15 breaks the loop before the bracket shrinks), it returns the far end of the bracket "
-    "instead of t; refine() then puts the hit at the chord's start or end, up to a chord length "
-    "sqrt(8 tol / K) from the surface, on the side that the last bits of the ray decide: Nil and Sol "
-    "renders of the same view from cameras a float32 rounding apart differ in 2-20% of the pixels")
-
 
 def _registered():
     return hasattr(bpy.types.Scene, "thurston")
@@ -645,7 +638,6 @@ def test_camera_inside_keeps_the_tracers_view_in_nil_and_sol(space, shift):
     np.testing.assert_allclose(tracer_view(sc), before, atol=1e-6)  # float32 matrices
 
 
-@pytest.mark.xfail(strict=True, reason=CORE_FIND_ROOT_BUG)
 @pytest.mark.parametrize("space,shift", CURVED_OUTSIDE)
 def test_camera_inside_keeps_the_picture_in_nil_and_sol(tmp_path, space, shift):
     sc = outside_curved(space, shift)

@@ -188,23 +188,25 @@ class MarchingKernel {
                           double f0, double guess) {
     double lo = 0.0, hi = h, flo = f0;
     double t = std::clamp(guess, lo, hi);
+    const double size = norm3(n);  // side values are distances times this
     for (int iteration = 0; iteration < 60; ++iteration) {
       Vec3 x, v;
       segment.at(t, x, v);
       const double f = dot3(n, x) + d, df = dot3(n, v);
-      if (f == 0.0) return t;
+      // on the plane to rounding: this is the root (whichever side of it t lies)
+      if (std::abs(f) <= 4e-16 * size * (1.0 + norm3(x))) return t;
       if ((f < 0.0) == (flo < 0.0)) {
         lo = t;
         flo = f;
       } else {
         hi = t;
       }
-      if (hi - lo <= 1e-15 * (1.0 + h) || std::abs(f) < 1e-15) break;
+      if (hi - lo <= 1e-15 * (1.0 + h)) break;
       double next = df != 0.0 ? t - f / df : lo - 1.0;
       if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);  // Newton left the bracket: bisect
       t = next;
     }
-    // the end on the far side of the plane, so that a crossing found here is a real one
+    // the bracket has closed: its end on the far side of the plane
     return (f0 < 0.0) ? hi : lo;
   }
 
