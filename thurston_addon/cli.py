@@ -123,15 +123,17 @@ def cmd_trace(args):
         raise CommandError(f"{args.rays}: ray {int(np.argmax(outside))} starts outside the chart of {g.name}")
     if np.any(np.linalg.norm(rays[:, 3:], axis=1) == 0):
         raise CommandError(f"{args.rays}: ray {int(np.argmax(np.linalg.norm(rays[:, 3:], axis=1) == 0))} has a zero direction")
-    X = g.to_model(rays[:, :3])
-    V = g.normalize_tangent(X, g.tangent_to_model(rays[:, :3], rays[:, 3:]))
+    # moved in with extended precision: far origins (Sol at |z| = 20) would lose digits in float64
+    x = np.asarray(rays[:, :3], np.longdouble)
+    X = g.to_model(x)
+    V = g.normalize_tangent(X, g.tangent_to_model(x, np.asarray(rays[:, 3:], np.longdouble)))
     X, V, _ = space.move_inside(X, V)
     settings = render.Settings(max_distance=args.max_distance, max_crossings=args.max_crossings, threads=args.threads,
                                quality=args.quality, tolerance=args.tolerance)
     settings.check()
     # make_tracer and trace raise what the core rejects as RenderError (exit 2)
     tracer = render.make_tracer(space, scene, args.threads)
-    result = render.trace(tracer, np.ascontiguousarray(X), np.ascontiguousarray(V),
+    result = render.trace(tracer, np.ascontiguousarray(X, np.float64), np.ascontiguousarray(V, np.float64),
                           space.max_distance if args.max_distance is None else args.max_distance,
                           space.max_crossings if args.max_crossings is None else args.max_crossings,
                           *settings.tolerances(space, render.REFERENCE_PIXEL_ANGLE),

@@ -321,7 +321,9 @@ const char* const kTraceDoc = R"(Traces rays through the domain and its face pai
 origins: float64 (N,4) points; directions: float64 (N,4) unit tangent vectors there.
 Rays stop at the first hit, after max_distance of geodesic length, or when they would make
 more than max_crossings face crossings. Curved geodesics (Nil, Sol) are followed in chart chords
-that stay within tolerance + tolerance_per_distance * d of the true curve at distance d; with
+that stay within tolerance + tolerance_per_distance * d of the traced curve at distance d, which
+is the geodesic integrated to 1/20 of that (its separation from the true geodesic, which grows
+with the divergence of nearby geodesics, is in `error`); with
 skip_empty they step through empty space (no triangle near, by a coarse occupancy grid) to the
 next face without any Embree query (False: chords everywhere, for measuring the saving).
 progress(done, total) is called about every 0.1 s (and at the start and end); returning False

@@ -319,7 +319,6 @@ class MarchingKernel<Flow>::Walk {
 
   bool cross(int) {
     apply(exit_face_);
-    drift_ += kOnFace;
     ok_ = settle();
     return ok_;
   }
@@ -360,10 +359,22 @@ class MarchingKernel<Flow>::Walk {
     for (std::size_t f = 0; f < domain.faces; ++f) {
       const Vec4 c = domain.covector(f);
       const Vec3 n{c[0], c[1], c[2]};
-      const double side = dot3(n, x_) + c[3];
-      if (side > -kOnFace && dot3(n, v_) <= 0.0) {
-        const double nn = dot3(n, n);
-        x_ = sub3(x_, scaled3((side + 2.0 * kOnFace) / nn, n));
+      const double side = dot3(n, x_) + c[3], rate = dot3(n, v_);
+      if (!(side > -kOnFace && rate <= 0.0)) continue;
+      const double gap = side + 2.0 * kOnFace;
+      if (rate < -1e-6 * norm3(n)) {
+        // along the geodesic itself, which keeps the ray the same ray (a step off it would not:
+        // Nil's vertical component w = z' - x y' changes when x moves and the velocity stays)
+        const double t = gap / -rate;
+        Vec3 x, v;
+        double error;
+        flow_.flow(x_, v_, t, kOnFace, x, v, error);
+        x_ = x;
+        v_ = v;
+        distance_ += t;
+      } else {  // grazing: straight off the face, which is a step off the geodesic
+        x_ = sub3(x_, scaled3(gap / dot3(n, n), n));
+        drift_ += gap / norm3(n);
       }
     }
     return renormalise();

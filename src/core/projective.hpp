@@ -121,7 +121,7 @@ struct ProjectiveKernel {
     return c < 0.0 ? kPi - p : p;
   }
 
-  Turn exit_turn(double a, double b) const {  // requires a finite exit_order(a, b)
+  THURSTON_HOT Turn exit_turn(double a, double b) const {  // requires a finite exit_order(a, b)
     if (k == 0) return turn(std::max(0.0, -a / b));
     if (k > 0) {
       const double t = std::atan2(-a, b);
@@ -135,7 +135,7 @@ struct ProjectiveKernel {
   }
 
   // Project (P, V) back onto the model: P a point, V a unit tangent at P. False if degenerate.
-  bool renormalise(Vec4& P, Vec4& V) const {
+  THURSTON_HOT bool renormalise(Vec4& P, Vec4& V) const {
     if (k == 0) {
       if (P[3] == 0.0) return false;
       if (P[3] != 1.0) P = scaled(1.0 / P[3], P);
@@ -412,7 +412,7 @@ class ProjectiveKernel::Walk {
        double length)
       : kernel_(kernel), context_(context), P_(P), V_(V), length_(length) {}
 
-  Advance next() {
+  THURSTON_HOT Advance next() {
     const ProjectiveKernel& k = kernel_;
     exit_ = k.find_exit(context_.domain, P_, V_);
     // Whether the walk crosses the exit face within its length: an estimated turn decides from
@@ -470,7 +470,7 @@ class ProjectiveKernel::Walk {
   Vec3 end_point() const { return chart(end_); }
 
   // Through the exit face: the chord is travelled and (P, V) continue from the face map's image.
-  bool cross(int crossings) {
+  THURSTON_HOT bool cross(int crossings) {
     travel();
     mat_vec2(context_.domain.maps_t[exit_.face], X_, Xv_, P_, V_);
     // S3's pairings are rotations and its turns unit complex numbers, so (P, V) stays orthonormal

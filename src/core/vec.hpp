@@ -6,6 +6,14 @@
 #include <cstddef>
 #include <limits>
 
+// The hot path's small functions, inlined where the compiler's budget would stop (the walk loop
+// is one function per kernel; see benchmarks/bench_tracer.py).
+#if defined(__GNUC__) || defined(__clang__)
+#define THURSTON_HOT inline __attribute__((always_inline))
+#else
+#define THURSTON_HOT inline
+#endif
+
 namespace thurston {
 
 using Vec3 = std::array<double, 3>;
