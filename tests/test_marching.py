@@ -25,9 +25,9 @@ from scipy.integrate import solve_ivp
 
 import thurston_core
 import trimesh
-from thurston_addon import cli, render, spaces
+from thurston_addon import cli, render, scene as scenes, spaces
 from thurston_addon.geometries import get
-from thurston_addon.scene import PointLight, Scene, SceneObject
+from thurston_addon.scene import PointLight, Scene, SceneObject, default_scene
 from truth import nil_metric, sol_metric
 
 ld = np.longdouble
@@ -1138,3 +1138,34 @@ def test_cli_trace_writes_chords_and_error_estimates(space_of, sid, tmp_path, mo
     both = (coarse["stop"] == 0) & (fine["stop"] == 0) & (coarse["object"] == fine["object"])
     assert np.all(fine["error_estimate"][both] < coarse["error_estimate"][both])
     assert np.median(fine["error_estimate"][both]) < 1e-2 * np.median(coarse["error_estimate"][both])
+
+
+# --- threads, progress and cancel, as for the projective kernel --------------------------------
+
+@pytest.mark.parametrize("sid", ["nil", "sol"])
+def test_marching_threads_progress_and_cancel(space_of, sid):
+    """One and two threads give the same bits; progress is reported and a False answer stops the
+    trace, leaving the untraced rays marked cancelled; cancel() from another thread stops it too."""
+    import threading
+
+    space = space_of(sid)
+    scene = default_scene(space)
+    settings = render.Settings(width=160, height=90, quality="preview")
+    camera = scenes.Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
+    o, d = render.camera_rays(space, camera, settings)
+    args = (space.max_distance, space.max_crossings)
+    one, two = (render.make_tracer(space, scene, threads=n).trace(o, d, *args, tolerance=1e-4) for n in (1, 2))
+    for key in one:
+        np.testing.assert_array_equal(one[key], two[key], err_msg=key)
+    assert (one["stop"] == 0).mean() > 0.5
+
+    tracer = render.make_tracer(space, scene, threads=2)
+    long = dict(tolerance=1e-7)  # slow enough to outlive the first report
+    O, D = np.repeat(o, 8, axis=0), np.repeat(d, 8, axis=0)
+    calls = []
+    r = tracer.trace(O, D, *args, progress=lambda done, total: calls.append(done) or len(calls) < 2, **long)
+    assert calls[0] == 0 and (r["stop"] == 3).any() and np.all(np.isinf(r["depth"][r["stop"] == 3]))
+    started = threading.Event()
+    threading.Timer(0.3, tracer.cancel).start()
+    r = tracer.trace(O, D, *args, progress=lambda done, total: started.set(), **long)
+    assert started.is_set() and (r["stop"] == 3).any()
