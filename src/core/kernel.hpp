@@ -8,16 +8,17 @@
 //       through that face; chord_start_distance() and distance() are geodesic lengths travelled;
 //       error() bounds how far the chords so far stray from the true geodesic (chart units),
 //       end_point() is where the walk stands after next() (a face, or the end of its length).
+//       refine(plane, u) puts a hit on the last chord (Embree's parameter u) onto the true curve.
 //   K::Chord    x0, x1 (the chart segment Embree tests) and margin (how far the curve may stray
-//               from it), plus what the kernel needs to refine a hit on it;
+//               from it);
 //   bool start(Vec4& P, Vec4& V)                 P a point and V a unit tangent there (projected);
-//   Hit refine(const Chord&, const Vec4& plane, double u)   the hit on the true curve;
 //   Vec4 plane_normal(const Vec4& X, const Vec4& plane)     the metric normal of a chart plane;
 //   double dot(const Vec4& X, const Vec4& a, const Vec4& b) the metric at X;
 //   bool normalise(const Vec4& X, Vec4& v)                 unit length at X;
 //   Vec3 chart_vector(const Vec4& X, const Vec4& v)         its chart image, unit in the chart;
-//   bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath&)
-//       the geodesic from the surface point H to the light (its nearest copy among the lifts).
+//   K::LightHint, bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath&,
+//       LightHint&)   the geodesic from the surface point H to the light (its nearest copy among
+//       the lifts); the hint carries what one point's search leaves for the next (per thread).
 // Points and tangent vectors are 4-vectors: model vectors in the projective kernel, (x, 1) and
 // (v, 0) in chart coordinates in the others; face maps act on them linearly.
 #pragma once

@@ -11,9 +11,12 @@
 //             double& error) const      the geodesic at arclength t (error: a bound of the
 //                                       position error of (xt, vt) when accuracy is asked for);
 //   Segment, void segment(x, v, length, accuracy, Segment&) const   the geodesic over [0, s.length]
-//                                       (at most `length`), with s.at(t, xt, vt) anywhere in it and
+//                                       (at most `length`), with s.at(t, xt, vt) anywhere in it,
+//                                       s.acceleration_bound(h) a bound of |x''| over [0, h] and
 //                                       s.error a bound of its position error: exits and hits are
-//                                       searched on it without flowing again;
+//                                       searched on it without flowing again; kSegmentBounds says
+//                                       whether that bound is tighter than acceleration_bound's
+//                                       (worth the extra work: Sol's series) or the same (Nil);
 //   double acceleration_bound(const Vec3& x, const Vec3& v, double h) const
 //                                       a bound of the chart acceleration |x''| over [0, h];
 //   double growth_rate() const          nearby geodesics separate at most like e^(rate t);
@@ -74,37 +77,23 @@ class MarchingKernel {
   struct Chord {
     Vec3 x0, x1;
     double margin;  // the curve stays within this of the chord
-    Vec3 v0;        // the curve's velocity at x0
     double length;  // its arclength
-    double accuracy;
   };
 
-  // The point where the curve of the chord meets the triangle's plane near Embree's parameter u:
-  // the chord's ends are points of the curve, so a plane the chord crosses is crossed by the curve
-  // in the same interval, where a safeguarded Newton iteration finds it.
-  Hit refine(const Chord& chord, const Vec4& plane, double u) const {
-    const Vec3 n{plane[0], plane[1], plane[2]};
-    const auto side = [&](const Vec3& x) { return dot3(n, x) + plane[3]; };
-    double t = std::clamp(u, 0.0, 1.0) * chord.length;
-    typename Flow::Segment segment;
-    flow_.segment(chord.x0, chord.v0, chord.length, chord.accuracy, segment);
-    const double f0 = side(chord.x0), f1 = side(chord.x1);
-    if ((f0 < 0.0) != (f1 < 0.0) && f0 != 0.0) t = find_root(segment, chord.length, n, plane[3], f0, t);
-    Vec3 x, v;
-    segment.at(std::min(t, segment.length), x, v);
-    Hit hit;
-    hit.s = t;
-    hit.x = x;
-    hit.X = point4(x);
-    hit.V = vector4(v);
-    return hit;
-  }
+  // What the last light path found, per light and thread: neighbouring pixels' surface points are
+  // near each other, so their connecting geodesics are too, and Newton's method starts there.
+  struct LightHint {
+    const Vec4* lift = nullptr;
+    Vec3 h{}, w{};
+    std::array<Vec3, 3> jacobian{};
+  };
 
   // The geodesic from H to the light's copy nearest by the flow's separation estimate, found by
-  // Newton's method on the exponential map from the straight chart guess. False where it does not
-  // converge (the light then does not reach H along this geodesic; conjugate points and the far
-  // side of a light behind long geodesics are where that happens).
-  bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath& path) const {
+  // Newton's method on the exponential map (from the hint where it is for the same copy, else from
+  // the straight chart guess). False where it does not converge (the light then does not reach H
+  // along this geodesic; conjugate points and the far side of a light behind long geodesics are
+  // where that happens).
+  bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath& path, LightHint& hint) const {
     const Vec3 h = head3(H);
     const Vec4* nearest = nullptr;
     double best = kInf;
@@ -116,38 +105,50 @@ class MarchingKernel {
       }
     }
     if (!nearest) return false;
-    Vec3 w;
-    std::array<Vec3, 3> jacobian;
-    if (!shoot(h, head3(*nearest), w, jacobian)) return false;
+    // warm where the last point was near (a tenth of the way to the light)
+    const bool warm = hint.lift == nearest && norm3(sub3(h, hint.h)) < 0.1 * norm3(hint.w);
+    hint.lift = nullptr;
+    if (!shoot(h, head3(*nearest), hint.w, hint.jacobian, warm) &&
+        !(warm && shoot(h, head3(*nearest), hint.w, hint.jacobian, false)))
+      return false;
+    hint.lift = nearest;
+    hint.h = h;
+    const Vec3& w = hint.w;
     const double r = std::sqrt(flow_.dot(h, w, w));
     path.direction = vector4(scaled3(1.0 / r, w));
     path.distance = r;
     // The wavefront's area density: r^2 |det d exp_H| in orthonormal frames (the same seen from
     // the light: the van Vleck determinant is symmetric).
-    const double det = dot3(jacobian[0], cross3(jacobian[1], jacobian[2])) *
-                       flow_.volume_density(head3(*nearest)) / flow_.volume_density(h);
+    const std::array<Vec3, 3>& J = hint.jacobian;
+    const double det = dot3(J[0], cross3(J[1], J[2])) * flow_.volume_density(head3(*nearest)) /
+                       flow_.volume_density(h);
     path.falloff = floored_falloff(r * r * std::abs(det));
     return true;
   }
 
   // exp_h(w) = target for the chart vector w at h (not of unit length), with the Jacobian d exp_h
-  // (rows: d exp / d w_i as columns transposed, i.e. jacobian[i][j] = d x_i / d w_j).
-  bool shoot(const Vec3& h, const Vec3& target, Vec3& w, std::array<Vec3, 3>& jacobian) const {
-    constexpr int kIterations = 16;
-    w = sub3(target, h);
+  // at the solution (jacobian[i][j] = d x_i / d w_j). Warm: w and jacobian hold a nearby solution
+  // and its Jacobian, which serves as the iteration matrix while it keeps converging; cold: the
+  // straight chart guess and the Jacobian there.
+  bool shoot(const Vec3& h, const Vec3& target, Vec3& w, std::array<Vec3, 3>& jacobian, bool warm) const {
+    constexpr int kIterations = 24;
+    if (!warm) w = sub3(target, h);
+    bool fresh = false;  // whether the iteration matrix is the Jacobian at the current w
     double residual = kInf;
-    bool have_jacobian = false;
     for (int iteration = 0; iteration < kIterations; ++iteration) {
       Vec3 x;
       if (!exp(h, w, x)) return false;
       const Vec3 miss = sub3(x, target);
       const double size = norm3(miss);
-      // converged: the last Jacobian (one Newton step away) serves the falloff
-      if (size < 1e-9 * (1.0 + norm3(target))) return have_jacobian || jacobian_at(h, w, x, jacobian);
-      if (!(size < 2.0 * residual)) return false;  // diverging
+      if (size < 1e-9 * (1.0 + norm3(target))) return jacobian_at(h, w, x, jacobian);
+      if (!(size < 0.5 * residual) || !warm) {  // slow (or no) progress: a fresh Jacobian
+        if (fresh && !(size < 2.0 * residual)) return false;  // diverging with a fresh one
+        if (!jacobian_at(h, w, x, jacobian)) return false;
+        warm = fresh = true;
+      } else {
+        fresh = false;
+      }
       residual = size;
-      if (!jacobian_at(h, w, x, jacobian)) return false;
-      have_jacobian = true;
       Vec3 step;
       if (!solve3(jacobian, miss, step)) return false;
       w = sub3(w, step);
@@ -233,43 +234,61 @@ class MarchingKernel<Flow>::Walk {
     if (!ok_ || !(remaining > 0.0)) return Advance::kLimit;
     const Domain& domain = context_.domain;
     const double hmax = std::min(remaining, flow_.max_step());
-    const double K = std::max(flow_.acceleration_bound(x_, v_, hmax), 1e-300);
     const double tolerance = context_.tolerance_at(distance_);
     const double accuracy = kFlowAccuracy * tolerance;
-    const double h_tolerance = std::min(hmax, std::sqrt(8.0 * tolerance / K));
 
     // Leaving now: numerically on a face and heading out (carries rays across edges and vertices).
-    // Else the longest step that the bound |x''| <= K keeps clear of every face plane.
-    double safe = hmax;
     for (std::size_t f = 0; f < domain.faces; ++f) {
       const Vec4 c = domain.covector(f);
       const Vec3 n{c[0], c[1], c[2]};
-      const double a = dot3(n, x_) + c[3], b = dot3(n, v_);
-      if (a > -kOnFace && b > 0.0) {
+      if (dot3(n, x_) + c[3] > -kOnFace && dot3(n, v_) > 0.0) {
         exit_face_ = int(f);
         return Advance::kCross;
       }
-      const double bound = norm3(n) * K;  // |d^2/dt^2 (n . x)| <= bound
-      const double ea = std::min(a, 0.0);
-      // the positive root of ea + b t + bound t^2 / 2 = 0, in its stable form
-      const double root = std::sqrt(b * b - 2.0 * bound * ea);
-      const double t = b > 0.0 ? -2.0 * ea / (b + root) : (root - b) / bound;
-      safe = std::min(safe, t);
     }
-
-    flow_.segment(x_, v_, std::min(hmax, std::max(safe, h_tolerance)), accuracy, segment_);
-    double h = segment_.length;
+    // The step's stretch of geodesic: the longest step allowed where the last step met empty
+    // space, else three tolerance chords by a bound for every geodesic of this state; where the
+    // stretch's own acceleration bound is tighter (Sol's series), longer chords by that.
+    // (Sol's own bound over the whole step is the tighter one: then the state's is not needed.)
+    const bool a_priori = near_ || !Flow::kSegmentBounds;
+    const double K0 = a_priori ? std::max(flow_.acceleration_bound(x_, v_, hmax), 1e-300) : kInf;
+    const double h0 = std::min(hmax, std::sqrt(8.0 * tolerance / K0));
+    flow_.segment(x_, v_, near_ ? std::min(hmax, 3.0 * h0) : hmax, accuracy, segment_);
+    const double span = segment_.length;
+    double K = K0, h_tolerance = std::min(span, h0);
+    const double K_span = Flow::kSegmentBounds ? segment_.acceleration_bound(span) : K0;
+    if (K_span < K0) {
+      // the longest chord within the tolerance: from the bound over the span, then over that chord
+      K = std::max(K_span, 1e-300);
+      h_tolerance = std::min(span, std::max(h0, std::sqrt(8.0 * tolerance / K)));
+      const double longer = std::min(span, std::sqrt(8.0 * tolerance / segment_.acceleration_bound(h_tolerance)));
+      if (longer > h_tolerance && segment_.acceleration_bound(longer) * longer * longer <= 8.0 * tolerance)
+        h_tolerance = longer;
+    }
+    // Along the stretch, steps that the bound |x''| <= K keeps clear of every face plane, until
+    // one falls short of a chord: then a chord beyond the last (an excursion past a face and back
+    // within a chord stays within the tolerance of the face).
+    double clear = 0.0, step = safe_step(x_, v_, K, span);
+    for (int i = 0; i < kClearSteps && step >= h_tolerance && clear + step < span; ++i) {
+      clear += step;
+      Vec3 xc, vc;
+      segment_.at(clear, xc, vc);
+      step = safe_step(xc, vc, K, span - clear);
+    }
+    double h = std::min(span, clear + std::max(step, h_tolerance));
     Vec3 x1, v1;
     segment_.at(h, x1, v1);
     double margin = K * h * h / 8.0;
-    if (h > h_tolerance && context_.may_hit(x_, x1, margin)) {
-      h = h_tolerance;  // the scene may be near: chords within the tolerance
+    // Where the scene may be near the step, its longest empty part by halving, down to a chord;
+    // a chord within the tolerance where not even that is clear of the scene.
+    near_ = false;
+    while (h > h_tolerance && context_.may_hit(x_, x1, margin)) {
+      h = std::max(0.5 * h, h_tolerance);
       segment_.at(h, x1, v1);
-      margin = K * h * h / 8.0;
+      margin = chord_bound(K, h) * h * h / 8.0;
+      near_ = h == h_tolerance;
     }
-    // The first face plane the curve crosses within the step (beyond `safe` only: before it the
-    // bound rules crossings out; an excursion past a face and back within a step of length
-    // h <= max(safe, h_tolerance) stays within the tolerance of the face).
+    // The first face plane the curve crosses within the step (beyond the clear steps only).
     int face = -1;
     double exit = h;
     for (std::size_t f = 0; f < domain.faces; ++f) {
@@ -288,14 +307,15 @@ class MarchingKernel<Flow>::Walk {
     if (face >= 0) {
       h = exit;
       segment_.at(h, x1, v1);
-      margin = K * h * h / 8.0;
+      margin = chord_bound(K, h) * h * h / 8.0;
     }
     if (h > 0.0) {
-      chord_ = {x_, x1, margin, v_, h, accuracy};
+      chord_ = {x_, x1, margin, h};
       has_chord_ = true;
     }
     // errors of earlier steps grow with the separation of geodesics; this step adds its own
-    drift_ = drift_ * std::exp(flow_.growth_rate() * h) + segment_.error;
+    const double g = flow_.growth_rate() * h;  // 1 + g (1 + g) >= e^g for g <= 1 (steps are shorter)
+    drift_ = drift_ * (1.0 + g * (1.0 + g)) + segment_.error;
     chord_margin_ = margin;
     distance_ += h;
     x_ = x1;
@@ -309,6 +329,20 @@ class MarchingKernel<Flow>::Walk {
   bool has_chord() const { return has_chord_; }
   const Chord& chord() const { return chord_; }
   double chord_start_distance() const { return chord_start_; }
+
+  // The point where the curve of the last chord meets a triangle's plane near Embree's parameter
+  // u: the chord's ends are points of the curve, so a plane the chord crosses is crossed by the
+  // curve in the same interval, where a safeguarded Newton iteration on the step's segment finds it.
+  Hit refine(const Vec4& plane, double u) const {
+    const Vec3 n{plane[0], plane[1], plane[2]};
+    const double h = chord_.length;
+    double t = std::clamp(u, 0.0, 1.0) * h;
+    const double f0 = dot3(n, chord_.x0) + plane[3], f1 = dot3(n, chord_.x1) + plane[3];
+    if ((f0 < 0.0) != (f1 < 0.0) && f0 != 0.0) t = find_root(segment_, h, n, plane[3], f0, t);
+    Vec3 x, v;
+    segment_.at(t, x, v);
+    return {t, point4(x), vector4(v), x};
+  }
   double distance() const { return distance_; }
   double end_distance() const { return distance_; }
   // How far the last chord may be from the true geodesic: its own margin plus what the flow and
@@ -325,6 +359,28 @@ class MarchingKernel<Flow>::Walk {
 
  private:
   static constexpr int kMaxReductions = 64;
+
+  // The acceleration bound over a chord of length h within the step (K bounds the whole step).
+  double chord_bound(double K, double h) const {
+    return Flow::kSegmentBounds ? std::min(K, segment_.acceleration_bound(h)) : K;
+  }
+
+  // The longest step from the state (x, v), up to `limit`, that a chart acceleration bound K
+  // keeps clear of every face plane: the first root of a + b t + |n| K t^2 / 2 (a = n . x + d,
+  // b = n . v), in its stable form.
+  double safe_step(const Vec3& x, const Vec3& v, double K, double limit) const {
+    const Domain& domain = context_.domain;
+    double safe = limit;
+    for (std::size_t f = 0; f < domain.faces; ++f) {
+      const Vec4 c = domain.covector(f);
+      const Vec3 n{c[0], c[1], c[2]};
+      const double a = std::min(dot3(n, x) + c[3], 0.0), b = dot3(n, v);
+      const double bound = norm3(n) * K;  // |d^2/dt^2 (n . x)| <= bound
+      const double root = std::sqrt(b * b - 2.0 * bound * a);
+      safe = std::min(safe, b > 0.0 ? -2.0 * a / (b + root) : (root - b) / bound);
+    }
+    return safe;
+  }
 
   void apply(int face) {
     const Mat4& M = context_.domain.maps[face];
@@ -388,6 +444,7 @@ class MarchingKernel<Flow>::Walk {
   }
 
   static constexpr double kReduce = 1e-12;  // outside a face by more than this: reduce
+  static constexpr int kClearSteps = 16;  // safe steps along one stretch at the most
 
   const Flow& flow_;
   const WalkContext& context_;
@@ -398,6 +455,7 @@ class MarchingKernel<Flow>::Walk {
   double drift_ = 0.0, chord_margin_ = 0.0;
   Chord chord_{};
   bool has_chord_ = false;
+  bool near_ = false;  // whether the last step was a chord near the scene
   bool ok_ = true;
   int exit_face_ = -1;
 };

@@ -12,11 +12,14 @@
 namespace thurston {
 
 struct NilFlow {
+  // The segment's acceleration bound is the state's (the closed form gives no tighter one).
+  static constexpr bool kSegmentBounds = false;
   // A stretch of geodesic: the closed form evaluated anywhere.
   struct Segment {
     Vec3 p, v;
     double length, error;
     void at(double t, Vec3& x, Vec3& u) const { geodesic(p, v, t, x, u); }
+    double acceleration_bound(double h) const { return NilFlow().acceleration_bound(p, v, h); }
   };
   void segment(const Vec3& p, const Vec3& v, double length, double, Segment& s) const {
     s = {p, v, length, rounding(p, length)};

@@ -248,8 +248,10 @@ struct ProjectiveKernel {
     return hit;
   }
 
-  // The shortest geodesic from H to the light's nearest lift (all lifts are model points).
-  bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath& path) const {
+  // The shortest geodesic from H to the light's nearest lift (all lifts are model points), in
+  // closed form: nothing to remember from one point to the next.
+  struct LightHint {};
+  bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath& path, LightHint&) const {
     const Vec4* nearest = nullptr;
     double r = kInf;
     for (const Vec4& L : lifts) {
@@ -457,6 +459,7 @@ class ProjectiveKernel::Walk {
   }
   bool has_chord() const { return has_chord_; }
   const Chord& chord() const { return chord_; }
+  Hit refine(const Vec4& plane, double u) const { return kernel_.refine(chord_, plane, u); }
   double chord_start_distance() const {
     return std::isnan(start_distance_) ? odometer_.value() : start_distance_;
   }

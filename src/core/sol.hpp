@@ -15,6 +15,8 @@
 namespace thurston {
 
 struct SolFlow {
+  // The segment's acceleration bound, from its series, is far tighter than the state's.
+  static constexpr bool kSegmentBounds = true;
   // A stretch of geodesic from p with unit chart velocity v: Taylor pieces of the reduced system in
   // the coordinates that move p to the origin, evaluated anywhere in [0, length] by Horner's rule.
   struct Segment {
@@ -31,6 +33,26 @@ struct SolFlow {
     double length = 0.0;  // what the pieces cover (at most the length asked for)
     double error = 0.0;   // a bound of the position error they add (chart units)
     Piece piece[kMaxPieces];
+
+    // A bound of the chart acceleration |x''| over [0, h] (h <= length), from the pieces' series:
+    // the curve's own derivatives, far tighter than a bound for every geodesic of the state.
+    double acceleration_bound(double h) const {
+      double K2 = 0.0;
+      for (int k = 0; k < pieces && piece[k].t0 < h; ++k) {
+        const Piece& c = piece[k];
+        const double tau = (k + 1 < pieces ? std::min(h, piece[k + 1].t0) : h) - c.t0;
+        double dQ = 0.0, dE = 0.0, dU = 0.0, power = 1.0;  // sums of j |c_j| tau^(j-1)
+        for (int j = 1; j <= c.order; ++j) {
+          dQ += j * std::abs(c.Q[j]) * power;
+          dE += j * std::abs(c.E[j]) * power;
+          dU += j * std::abs(c.U[j]) * power;
+          power *= tau;
+        }
+        const double ddx = std::abs(px) / (ez * c.e2) * dU, ddy = std::abs(py) * ez * c.e2 * dE;
+        K2 = std::max(K2, ddx * ddx + ddy * ddy + dQ * dQ);
+      }
+      return std::sqrt(K2) * (1.0 + 1e-6);  // the series' truncation, far below this margin
+    }
 
     void at(double t, Vec3& x, Vec3& v) const {
       int k = pieces - 1;
@@ -75,7 +97,7 @@ struct SolFlow {
       c.z = z;
       c.x = x;
       c.y = y;
-      c.e2 = std::exp(2.0 * z);
+      c.e2 = z == 0.0 ? 1.0 : std::exp(2.0 * z);
       const double a = s.px * s.px / c.e2, b = s.py * s.py * c.e2;  // a + b + z'^2 = 1
       double *Q = c.Q, *E = c.E, *U = c.U;
       Q[0] = zd;
@@ -141,7 +163,8 @@ struct SolFlow {
   }
 
   // x'' = -2 x' z', y'' = 2 y' z', z'' = e^{2z} x'^2 - e^{-2z} y'^2, with |e^z x'|, |e^-z y'|,
-  // |z'| <= 1 (unit speed), p_x, p_y constant and |z - z0| <= h over the step.
+  // |z'| <= 1 (unit speed), p_x, p_y constant, |z - z0| <= h and |z'| <= |z0'| + h |z''|max over
+  // the step.
   double acceleration_bound(const Vec3& p, const Vec3& v, double h) const {
     const double ez = std::exp(p[2]), eh = std::exp(h);
     const double Px = std::abs(ez * ez * v[0]), Py = std::abs(v[1] / (ez * ez));
@@ -149,7 +172,8 @@ struct SolFlow {
     const double low2 = eh * eh / (ez * ez), high2 = ez * ez * eh * eh;
     const double dx = std::min(Px * low2, eh / ez), dy = std::min(Py * high2, ez * eh);
     const double ddz = std::min(1.0, std::max(Px * Px * low2, Py * Py * high2));
-    return std::sqrt(4.0 * dx * dx + 4.0 * dy * dy + ddz * ddz);
+    const double dz = std::min(1.0, std::abs(v[2]) + h * ddz);
+    return std::sqrt(4.0 * dz * dz * (dx * dx + dy * dy) + ddz * ddz);
   }
   // Sectional curvatures lie in [-1, 1], so nearby geodesics separate at most like e^t.
   double growth_rate() const { return 1.0; }

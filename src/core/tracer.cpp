@@ -338,24 +338,28 @@ class KernelTracer final : public Tracer {
     Vec3 end{kNaN, kNaN, kNaN};  // where a walk that met nothing stopped (chart)
   };
 
+  using LightHints = std::vector<typename Kernel::LightHint>;
+
   void trace_range(std::size_t begin, std::size_t end, Strided2<double> origins,
                    Strided2<double> directions, const TraceOptions& options,
                    const TraceOutputs& out, std::vector<double>* segments,
                    TraceStats& stats) const override {
     const WalkContext context = this->context(options);
+    LightHints hints(light_lifts_.size());  // rays of a chunk are neighbouring pixels
     for (std::size_t i = begin; i < end; ++i) {
       const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
       const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
-      trace_ray(i, o, d, context, options, out, segments, stats);
+      trace_ray(i, o, d, context, options, out, segments, stats, hints);
     }
   }
 
   // Follows the geodesic (P, V) for `length` through the domain and its face pairings, calling
-  // query(chord, tnear) on each chart chord that may meet the scene until it reports a hit. The
-  // first chord skips its first `first_skip` of chart length (shadow rays leaving a surface).
-  template <class Query>
+  // query(chord, tnear) on each chart chord that may meet the scene until it reports a hit, and
+  // then on_hit(walk) while the walk still holds that chord. The first chord skips its first
+  // `first_skip` of chart length (shadow rays leaving a surface).
+  template <class Query, class OnHit>
   WalkEnd walk(const WalkContext& context, const Vec4& P, const Vec4& V, double length,
-               int max_crossings, double first_skip, Query&& query) const {
+               int max_crossings, double first_skip, Query&& query, OnHit&& on_hit) const {
     Walk w(kernel_, context, P, V, length);
     int crossings = 0;
     for (bool first = true;; first = false) {
@@ -365,8 +369,10 @@ class KernelTracer final : public Tracer {
         const Vec3 d = sub3(chord.x1, chord.x0);
         const double tnear = first ? first_skip / std::sqrt(dot3(d, d)) : 0.0;
         if (tnear < 1.0 && context.may_hit(chord.x0, chord.x1, chord.margin) &&
-            query(chord, float(tnear)))
+            query(chord, float(tnear))) {
+          on_hit(w);
           return {kHit, w.chord_start_distance(), crossings, w.error()};
+        }
       }
       if (advance == Advance::kLimit) return {kDistanceLimit, length, crossings, 0.0, w.end_point()};
       if (advance == Advance::kCross) {
@@ -380,7 +386,7 @@ class KernelTracer final : public Tracer {
 
   void trace_ray(std::size_t i, const Vec4& origin, const Vec4& direction,
                  const WalkContext& context, const TraceOptions& options, const TraceOutputs& out,
-                 std::vector<double>* segments, TraceStats& stats) const {
+                 std::vector<double>* segments, TraceStats& stats, LightHints& hints) const {
     Vec4 P = origin, V = direction;
     if (!kernel_.start(P, V)) {  // no point or no direction: the ray goes nowhere
       write_miss(out, i, kDistanceLimit, 0, 0.0, 0);
@@ -388,25 +394,23 @@ class KernelTracer final : public Tracer {
     }
     int prim = -1, chords = 0;
     float hit_u = 0.0f;
-    Chord hit{};
+    Hit h{};
     const auto query = [&](const Chord& chord, float tnear) {
       ++chords;
       if (segments)
         segments->insert(segments->end(), {chord.x0[0], chord.x0[1], chord.x0[2], chord.x1[0],
                                            chord.x1[1], chord.x1[2]});
       prim = embree::intersect(scene_.get(), chord_ray(chord.x0, chord.x1, tnear), hit_u);
-      if (prim < 0) return false;
-      hit = chord;
-      return true;
+      return prim >= 0;
     };
+    const auto refine = [&](const Walk& w) { h = w.refine(triangle_planes_[prim], hit_u); };
     const WalkEnd end =
-        walk(context, P, V, options.max_distance, options.max_crossings, 0.0, query);
+        walk(context, P, V, options.max_distance, options.max_crossings, 0.0, query, refine);
     stats.chords += chords;
     if (end.stop != kHit) {
       write_miss(out, i, end.stop, end.crossings, end.distance, chords, end.end);
       return;
     }
-    const Hit h = kernel_.refine(hit, triangle_planes_[prim], hit_u);
     out.stop[i] = kHit;
     out.crossings[i] = end.crossings;
     out.chords[i] = chords;
@@ -427,7 +431,13 @@ class KernelTracer final : public Tracer {
     const Rgb& base = object_color_[object];
     const Rgb& emission = object_emission_[object];
     Rgb light{1.0f, 1.0f, 1.0f};
-    if (options.shade) light = illumination(context, h.X, N, options.max_crossings, stats);
+    if (options.shade) {
+      // Shadow rays need the accuracy of the point they shade, which the pixel sees at its depth.
+      WalkContext shadows = context;
+      shadows.tolerance = context.tolerance_at(out.depth[i]);
+      shadows.tolerance_per_distance = 0.0;
+      light = illumination(shadows, h.X, N, options.max_crossings, stats, hints);
+    }
     for (int a = 0; a < 3; ++a) {
       out.position[3 * i + a] = out.end[3 * i + a] = h.x[a];
       out.normal[3 * i + a] = float(chart_normal[a]);
@@ -439,11 +449,11 @@ class KernelTracer final : public Tracer {
   // Sum over lights of radiance * cos * falloff * visibility at the surface point H with normal N,
   // each light reached along the kernel's light path (the geodesic to its nearest copy).
   Rgb illumination(const WalkContext& context, const Vec4& H, const Vec4& N, int max_crossings,
-                   TraceStats& stats) const {
+                   TraceStats& stats, LightHints& hints) const {
     Rgb sum{0.0f, 0.0f, 0.0f};
     for (std::size_t l = 0; l < light_lifts_.size(); ++l) {
       LightPath path;
-      if (!kernel_.light_path(H, light_lifts_[l], path)) {
+      if (!kernel_.light_path(H, light_lifts_[l], path, hints[l])) {
         ++stats.light_failures;
         continue;
       }
@@ -464,8 +474,8 @@ class KernelTracer final : public Tracer {
       return embree::occluded(occluders_, chord_ray(chord.x0, chord.x1, tnear));
     };
     // Embree's float vertices are only good to about 1e-7 of the scene's scale.
-    return walk(context, H, dir, r * (1.0 - 1e-6), max_crossings, 1e-5 * scale_, query).stop !=
-           kHit;
+    return walk(context, H, dir, r * (1.0 - 1e-6), max_crossings, 1e-5 * scale_, query,
+                [](const Walk&) {}).stop != kHit;
   }
 
   Kernel kernel_;
