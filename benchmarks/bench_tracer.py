@@ -99,19 +99,23 @@ def full_table(space_ids, size, repeat):
           "(target >= 1.8); RSS growth includes the recorded chords (2 x 24 bytes each) used for the bare query.")
 
 
+def child_ratio(sid, size, repeat, core=None):
+    """ratio() in a fresh process (with the given build of the core, else the installed one)."""
+    command = [sys.executable, __file__, "--ratio-of", sid, "--size", f"{size[0]}x{size[1]}", "--repeat", str(repeat)]
+    if core:
+        command += ["--core", core]
+    return json.loads(subprocess.run(command, capture_output=True, text=True, check=True).stdout)
+
+
 def compare(space_ids, size, repeat, baseline, rounds):
-    """This build's tracer/bare ratio against the baseline build's, rounds alternating; each time
-    the least of all rounds (the runs least disturbed by the machine's other work)."""
+    """This build's tracer/bare ratio against the baseline build's, each in fresh processes, rounds
+    alternating; each time the least of all rounds (the runs least disturbed by other work)."""
     best = {sid: {"this": (float("inf"),) * 2, "baseline": (float("inf"),) * 2} for sid in space_ids}
     for _ in range(rounds):
         for sid in space_ids:
-            tracer, bare, chords = ratio(sid, size, repeat)
-            child = subprocess.run([sys.executable, __file__, "--core", baseline, "--ratio-of", sid,
-                                    "--size", f"{size[0]}x{size[1]}", "--repeat", str(repeat)],
-                                   capture_output=True, text=True, check=True)
-            theirs = json.loads(child.stdout)
-            for who, (t, b) in (("this", (tracer, bare)), ("baseline", (theirs["tracer"], theirs["bare"]))):
-                best[sid][who] = (min(best[sid][who][0], t), min(best[sid][who][1], b))
+            for who, core in (("this", None), ("baseline", baseline)):
+                r = child_ratio(sid, size, repeat, core)
+                best[sid][who] = (min(best[sid][who][0], r["tracer"]), min(best[sid][who][1], r["bare"]))
     print(f"\n{'space':<15} {'build':<9} {'tracer ns/chord':>16} {'bare ns/chord':>14} {'ratio':>6}")
     for sid in space_ids:
         for who in ("baseline", "this"):
@@ -119,7 +123,7 @@ def compare(space_ids, size, repeat, baseline, rounds):
             print(f"{sid:<15} {who:<9} {t:>16.1f} {b:>14.1f} {t / b:>6.3f}")
         change = (best[sid]["this"][0] / best[sid]["this"][1]) / (best[sid]["baseline"][0] / best[sid]["baseline"][1]) - 1
         print(f"{sid:<15} {'change':<9} {'':>16} {'':>14} {change * 100:>+5.1f}%")
-    print(f"least times of {rounds} alternating rounds of {repeat} repeats each; one thread")
+    print(f"least times of {rounds} alternating rounds of {repeat} repeats each, each in a fresh process; one thread")
 
 
 def main():

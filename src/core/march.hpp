@@ -157,6 +157,9 @@ class MarchingKernel {
   }
 
   class Walk;
+  template <class Query, class OnHit>
+  WalkEnd walk(const WalkContext& context, const Vec4& P, const Vec4& V, double length,
+               int max_crossings, double first_skip, Query&& query, OnHit&& on_hit) const;
 
  private:
   // exp_h(w) for a chart vector w at h (not of unit length).
@@ -459,5 +462,14 @@ class MarchingKernel<Flow>::Walk {
   bool ok_ = true;
   int exit_face_ = -1;
 };
+
+template <class Flow>
+template <class Query, class OnHit>
+WalkEnd MarchingKernel<Flow>::walk(const WalkContext& context, const Vec4& P, const Vec4& V,
+                                   double length, int max_crossings, double first_skip,
+                                   Query&& query, OnHit&& on_hit) const {
+  Walk w(*this, context, P, V, length);
+  return walk_chords(w, context, length, max_crossings, first_skip, query, on_hit);
+}
 
 }  // namespace thurston

@@ -217,36 +217,11 @@ struct ProjectiveKernel {
   double dot(const Vec4&, const Vec4& a, const Vec4& b) const { return inner(a, b); }
   bool normalise(const Vec4&, Vec4& v) const { return normalise(v); }
 
-  // A chart chord: the exact geodesic segment from (P, V) over the turn `turn`.
+  // A chart chord: the exact geodesic segment from the walk's (P, V) to its exit.
   struct Chord {
     Vec3 x0, x1;
     static constexpr double margin = 0.0;  // the curve is the chord
-    Vec4 P, V;
-    Turn turn;
-    bool exact;  // whether turn.t is exact (else an estimate: S3's usual exits)
-    double length() const { return exact ? turn.t : std::atan2(turn.s, turn.c); }
   };
-
-  // Embree's float hit at chord parameter u on the triangle's chart plane, refined in double
-  // precision; Embree's parameter is kept where the chord grazes the plane and the double solution
-  // is meaningless.
-  Hit refine(const Chord& chord, const Vec4& plane, double u) const {
-    const Vec3 n{plane[0], plane[1], plane[2]};
-    const Vec3 d = sub3(chord.x1, chord.x0);
-    const double denom = dot3(n, d);
-    if (std::abs(denom) > 1e-9 * std::sqrt(dot3(n, n) * dot3(d, d))) {
-      const double refined = -(dot3(n, chord.x0) + plane[3]) / denom;
-      if (refined > -1e-3 && refined < 1.0 + 1e-3) u = refined;
-    }
-    u = std::clamp(u, 0.0, 1.0);
-    Hit hit;
-    hit.x = {chord.x0[0] + u * d[0], chord.x0[1] + u * d[1], chord.x0[2] + u * d[2]};
-    hit.X = model(hit.x);
-    hit.s = std::clamp(arclength(chord.P, chord.V, hit.X), 0.0, chord.length());
-    Vec4 on_ray;
-    advance(chord.P, chord.V, turn(hit.s), on_ray, hit.V);
-    return hit;
-  }
 
   // The shortest geodesic from H to the light's nearest lift (all lifts are model points), in
   // closed form: nothing to remember from one point to the next.
@@ -286,9 +261,13 @@ struct ProjectiveKernel {
   Exit find_exit(const Domain& domain, const Vec4& P, const Vec4& V) const;
   Exit find_exit_exact(const Domain& domain, const Vec4& P, const Vec4& V) const;
 
-  class Walk;
+  struct ChordHit;
+  template <class Query, class OnHit>
+  WalkEnd walk(const WalkContext& context, Vec4 P, Vec4 V, double length, int max_crossings,
+               double first_skip, Query&& query, OnHit&& on_hit) const;
 
  private:
+  double scene_escape(const WalkContext& context, const Vec3& x0) const;
   static Vec4 sub4(const Vec4& a, const Vec4& b) { return lin4(1.0, a, -1.0, b); }
 };
 
@@ -407,116 +386,124 @@ class Odometer {
 // product (the same roundings).
 void mat_vec2(const Mat4& Mt, const Vec4& x, const Vec4& xv, Vec4& y, Vec4& yv);
 
-// One exact chord per cell: to the exit face, or to the end of the walk's length.
-class ProjectiveKernel::Walk {
- public:
-  Walk(const ProjectiveKernel& kernel, const WalkContext& context, const Vec4& P, const Vec4& V,
-       double length)
-      : kernel_(kernel), context_(context), P_(P), V_(V), length_(length) {}
+// A hit on a chord, for refinement: the chord is the exact geodesic segment from (P, V) over `turn`.
+struct ProjectiveKernel::ChordHit {
+  const ProjectiveKernel& kernel;
+  const Vec4 &P, &V;
+  const Vec3 &x0, &x1;
+  const Turn& turn;
+  bool exact;  // whether turn.t is exact (else an estimate: S3's usual exits)
 
-  THURSTON_HOT Advance next() {
-    const ProjectiveKernel& k = kernel_;
-    exit_ = k.find_exit(context_.domain, P_, V_);
+  // Embree's float hit at chord parameter u on the triangle's chart plane, refined in double
+  // precision; Embree's parameter is kept where the chord grazes the plane and the double solution
+  // is meaningless.
+  Hit refine(const Vec4& plane, double u) const {
+    const ProjectiveKernel& k = kernel;
+    const Vec3 n{plane[0], plane[1], plane[2]};
+    const Vec3 d = sub3(x1, x0);
+    const double denom = dot3(n, d);
+    if (std::abs(denom) > 1e-9 * std::sqrt(dot3(n, n) * dot3(d, d))) {
+      const double refined = -(dot3(n, x0) + plane[3]) / denom;
+      if (refined > -1e-3 && refined < 1.0 + 1e-3) u = refined;
+    }
+    u = std::clamp(u, 0.0, 1.0);
+    Hit hit;
+    hit.x = {x0[0] + u * d[0], x0[1] + u * d[1], x0[2] + u * d[2]};
+    hit.X = k.model(hit.x);
+    const double length = exact ? turn.t : std::atan2(turn.s, turn.c);
+    hit.s = std::clamp(k.arclength(P, V, hit.X), 0.0, length);
+    Vec4 on_ray;
+    k.advance(P, V, k.turn(hit.s), on_ray, hit.V);
+    return hit;
+  }
+};
+
+// One exact chord per cell: to the exit face, or to the end of the walk's length. The state
+// stays in local variables (the loop runs once per cell of every ray: this is the hot path).
+template <class Query, class OnHit>
+WalkEnd ProjectiveKernel::walk(const WalkContext& context, Vec4 P, Vec4 V, double length,
+                               int max_crossings, double first_skip, Query&& query,
+                               OnHit&& on_hit) const {
+  constexpr double kH3Reach = 40.0;  // beyond this a Klein chart point is within e^-80 of the sphere
+  constexpr int kS3Renormalise = 8;
+  Odometer odometer;
+  int crossings = 0;
+  for (bool first = true;; first = false) {
+    Exit exit = find_exit(context.domain, P, V);
     // Whether the walk crosses the exit face within its length: an estimated turn decides from
     // the odometer's bound while that is clear of the length, else from the exact numbers.
     bool crosses;
-    start_distance_ = kNaN;  // the distance before this chord, where computed
-    if (exit_.face >= 0 && !exit_.exact && odometer_.upper_after(exit_.turn.t) <= length_) {
+    double dist = kNaN;  // the distance before this step, where computed
+    double limit = kNaN;  // where a walk that leaves no face ends
+    if (exit.face >= 0 && !exit.exact && odometer.upper_after(exit.turn.t) <= length) {
       crosses = true;
     } else {
-      if (!exit_.exact) {
-        exit_.turn.t = std::atan2(exit_.turn.s, exit_.turn.c);
-        exit_.exact = true;
+      if (!exit.exact) {
+        exit.turn.t = std::atan2(exit.turn.s, exit.turn.c);
+        exit.exact = true;
       }
-      start_distance_ = odometer_.value();
+      dist = odometer.value();
       // How far the chart can follow the geodesic: S3 to its hemisphere's edge, H3 until the
       // point is indistinguishable from the sphere at infinity.
-      const double reach = exit_.face == kChartEdge ? exit_.turn.t * (1.0 - 1e-6)
-                           : k.k < 0                 ? kH3Reach
-                                                     : kInf;
-      const double limit = std::min(length_ - start_distance_, reach);
-      crosses = exit_.face >= 0 && exit_.turn.t <= limit;
+      const double reach = exit.face == kChartEdge ? exit.turn.t * (1.0 - 1e-6)
+                           : k < 0                  ? kH3Reach
+                                                    : kInf;
+      limit = std::min(length - dist, reach);
+      crosses = exit.face >= 0 && exit.turn.t <= limit;
       // A ray that leaves no face ends in this copy at `limit`; its chord need not go beyond the
       // scene's extent.
       if (!crosses) {
-        Vec4 velocity;
-        k.advance(P_, V_, k.turn(limit), end_, velocity);
-        exit_.turn = k.turn(std::min(limit, scene_escape(chart(P_))));
-        exit_.cu = exit_.su = 0.0;
+        exit.turn = turn(std::min(limit, scene_escape(context, chart(P))));
+        exit.cu = exit.su = 0.0;
       }
     }
-    const Turn& u = exit_.turn;
-    k.advance(P_, V_, u, X_, Xv_);
-    if (crosses) end_ = X_;
-    has_chord_ = u.t > 0.0;
-    if (has_chord_) {
+    const Turn& u = exit.turn;
+    Vec4 X, Xv;
+    advance(P, V, u, X, Xv);
+    if (u.t > 0.0) {
       // The chord's end from (cu, su) where known, so that Embree need not wait for the turn.
-      const Vec3 x1 = exit_.cu != 0.0 || exit_.su != 0.0 ? chart(lin4(exit_.cu, P_, exit_.su, V_))
-                                                         : chart(X_);
-      chord_ = {chart(P_), x1, P_, V_, u, exit_.exact};
+      const Chord chord{chart(P), exit.cu != 0.0 || exit.su != 0.0 ? chart(lin4(exit.cu, P, exit.su, V))
+                                                                  : chart(X)};
+      const Vec3 d = sub3(chord.x1, chord.x0);
+      const double tnear = first ? first_skip / std::sqrt(dot3(d, d)) : 0.0;
+      if (tnear < 1.0 && context.may_hit(chord.x0, chord.x1, chord.margin) &&
+          query(chord, float(tnear))) {
+        on_hit(ChordHit{*this, P, V, chord.x0, chord.x1, u, exit.exact});
+        return {kHit, std::isnan(dist) ? odometer.value() : dist, crossings, 0.0};
+      }
     }
-    return crosses ? Advance::kCross : Advance::kLimit;
-  }
-  bool has_chord() const { return has_chord_; }
-  const Chord& chord() const { return chord_; }
-  Hit refine(const Vec4& plane, double u) const { return kernel_.refine(chord_, plane, u); }
-  double chord_start_distance() const {
-    return std::isnan(start_distance_) ? odometer_.value() : start_distance_;
-  }
-  double distance() const { return odometer_.value(); }
-  double end_distance() {
-    travel();
-    return odometer_.value();
-  }
-  double error() const { return 0.0; }  // chords are the geodesic up to rounding
-  // Where the walk stands: the exit point of the last chord's face, or the end of its length.
-  Vec3 end_point() const { return chart(end_); }
-
-  // Through the exit face: the chord is travelled and (P, V) continue from the face map's image.
-  THURSTON_HOT bool cross(int crossings) {
-    travel();
-    mat_vec2(context_.domain.maps_t[exit_.face], X_, Xv_, P_, V_);
+    if (!crosses) {
+      Vec4 end, velocity;
+      advance(P, V, turn(limit), end, velocity);
+      return {kDistanceLimit, length, crossings, 0.0, chart(end)};
+    }
+    if (exit.exact)
+      odometer.add_exact(u.t);
+    else
+      odometer.add_turn(u);
+    if (crossings == max_crossings) return {kCrossingLimit, odometer.value(), crossings, 0.0, chart(X)};
+    ++crossings;
+    mat_vec2(context.domain.maps_t[exit.face], X, Xv, P, V);
     // S3's pairings are rotations and its turns unit complex numbers, so (P, V) stays orthonormal
     // to a few roundings per crossing; the exit points lie on the face planes whatever the scale.
     // Projecting back every kS3Renormalise crossings keeps the drift below 1e-14.
-    return !((kernel_.k <= 0 || crossings % kS3Renormalise == 0) && !kernel_.renormalise(P_, V_));
+    if ((k <= 0 || crossings % kS3Renormalise == 0) && !renormalise(P, V))
+      return {kDistanceLimit, odometer.value(), crossings, 0.0};
   }
+}
 
- private:
-  static constexpr double kH3Reach = 40.0;  // beyond this a Klein chart point is within e^-80 of
-                                            // the sphere
-  static constexpr int kS3Renormalise = 8;
-
-  void travel() {
-    if (exit_.exact)
-      odometer_.add_exact(exit_.turn.t);
-    else
-      odometer_.add_turn(exit_.turn);
+// E3 only: a chord from x0 longer than this leaves the scene's bounding ball for good.
+inline double ProjectiveKernel::scene_escape(const WalkContext& context, const Vec3& x0) const {
+  if (k != 0) return kInf;
+  const Vec3 &lo = context.bounds_lo, &hi = context.bounds_hi;
+  if (lo[0] > hi[0]) return 0.0;  // no triangles
+  Vec3 centre, half;
+  for (int a = 0; a < 3; ++a) {
+    centre[a] = 0.5 * (lo[a] + hi[a]);
+    half[a] = 0.5 * (hi[a] - lo[a]);
   }
-
-  // E3 only: a chord from x0 longer than this leaves the scene's bounding ball for good.
-  double scene_escape(const Vec3& x0) const {
-    if (kernel_.k != 0) return kInf;
-    const Vec3 &lo = context_.bounds_lo, &hi = context_.bounds_hi;
-    if (lo[0] > hi[0]) return 0.0;  // no triangles
-    Vec3 centre, half;
-    for (int a = 0; a < 3; ++a) {
-      centre[a] = 0.5 * (lo[a] + hi[a]);
-      half[a] = 0.5 * (hi[a] - lo[a]);
-    }
-    const Vec3 d = sub3(x0, centre);
-    return (std::sqrt(dot3(d, d)) + std::sqrt(dot3(half, half))) * 1.001;
-  }
-
-  const ProjectiveKernel& kernel_;
-  const WalkContext& context_;
-  Vec4 P_, V_, X_{}, Xv_{}, end_{};
-  double length_;
-  Odometer odometer_;
-  Exit exit_{};
-  Chord chord_{};
-  bool has_chord_ = false;
-  double start_distance_ = kNaN;
-};
+  const Vec3 d = sub3(x0, centre);
+  return (std::sqrt(dot3(d, d)) + std::sqrt(dot3(half, half))) * 1.001;
+}
 
 }  // namespace thurston

@@ -328,16 +328,7 @@ class KernelTracer final : public Tracer {
       : Tracer(scene, threads, occupancy), kernel_(kernel) {}
 
  private:
-  using Walk = typename Kernel::Walk;
   using Chord = typename Kernel::Chord;
-  struct WalkEnd {
-    Stop stop;
-    double distance;
-    int crossings;
-    double error;  // the kernel's bound of the last chord's distance from the true geodesic
-    Vec3 end{kNaN, kNaN, kNaN};  // where a walk that met nothing stopped (chart)
-  };
-
   using LightHints = std::vector<typename Kernel::LightHint>;
 
   void trace_range(std::size_t begin, std::size_t end, Strided2<double> origins,
@@ -350,37 +341,6 @@ class KernelTracer final : public Tracer {
       const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
       const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
       trace_ray(i, o, d, context, options, out, segments, stats, hints);
-    }
-  }
-
-  // Follows the geodesic (P, V) for `length` through the domain and its face pairings, calling
-  // query(chord, tnear) on each chart chord that may meet the scene until it reports a hit, and
-  // then on_hit(walk) while the walk still holds that chord. The first chord skips its first
-  // `first_skip` of chart length (shadow rays leaving a surface).
-  template <class Query, class OnHit>
-  WalkEnd walk(const WalkContext& context, const Vec4& P, const Vec4& V, double length,
-               int max_crossings, double first_skip, Query&& query, OnHit&& on_hit) const {
-    Walk w(kernel_, context, P, V, length);
-    int crossings = 0;
-    for (bool first = true;; first = false) {
-      const Advance advance = w.next();
-      if (w.has_chord()) {
-        const Chord& chord = w.chord();
-        const Vec3 d = sub3(chord.x1, chord.x0);
-        const double tnear = first ? first_skip / std::sqrt(dot3(d, d)) : 0.0;
-        if (tnear < 1.0 && context.may_hit(chord.x0, chord.x1, chord.margin) &&
-            query(chord, float(tnear))) {
-          on_hit(w);
-          return {kHit, w.chord_start_distance(), crossings, w.error()};
-        }
-      }
-      if (advance == Advance::kLimit) return {kDistanceLimit, length, crossings, 0.0, w.end_point()};
-      if (advance == Advance::kCross) {
-        if (crossings == max_crossings)
-          return {kCrossingLimit, w.end_distance(), crossings, 0.0, w.end_point()};
-        ++crossings;
-        if (!w.cross(crossings)) return {kDistanceLimit, w.distance(), crossings, 0.0};
-      }
     }
   }
 
@@ -403,9 +363,9 @@ class KernelTracer final : public Tracer {
       prim = embree::intersect(scene_.get(), chord_ray(chord.x0, chord.x1, tnear), hit_u);
       return prim >= 0;
     };
-    const auto refine = [&](const Walk& w) { h = w.refine(triangle_planes_[prim], hit_u); };
-    const WalkEnd end =
-        walk(context, P, V, options.max_distance, options.max_crossings, 0.0, query, refine);
+    const auto refine = [&](const auto& hit) { h = hit.refine(triangle_planes_[prim], hit_u); };
+    const WalkEnd end = kernel_.walk(context, P, V, options.max_distance, options.max_crossings, 0.0,
+                                     query, refine);
     stats.chords += chords;
     if (end.stop != kHit) {
       write_miss(out, i, end.stop, end.crossings, end.distance, chords, end.end);
@@ -474,8 +434,8 @@ class KernelTracer final : public Tracer {
       return embree::occluded(occluders_, chord_ray(chord.x0, chord.x1, tnear));
     };
     // Embree's float vertices are only good to about 1e-7 of the scene's scale.
-    return walk(context, H, dir, r * (1.0 - 1e-6), max_crossings, 1e-5 * scale_, query,
-                [](const Walk&) {}).stop != kHit;
+    return kernel_.walk(context, H, dir, r * (1.0 - 1e-6), max_crossings, 1e-5 * scale_, query,
+                        [](const auto&) {}).stop != kHit;
   }
 
   Kernel kernel_;

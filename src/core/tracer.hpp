@@ -45,8 +45,6 @@ struct Strided2 {
   }
 };
 
-enum Stop : std::uint8_t { kHit = 0, kDistanceLimit = 1, kCrossingLimit = 2, kCancelled = 3 };
-
 struct TraceOptions {
   double max_distance;
   int max_crossings;
