@@ -8,11 +8,19 @@
 #pragma once
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 #include "vec.hpp"
 
 namespace thurston {
+
+// 1 / k for the series' recurrences and integrals (divisions would dominate them).
+inline constexpr auto kReciprocal = [] {
+  std::array<double, 32> r{};
+  for (int k = 1; k < 32; ++k) r[k] = 1.0 / k;
+  return r;
+}();
 
 struct SolFlow {
   // The segment's acceleration bound, from its series, is far tighter than the state's.
@@ -65,9 +73,10 @@ struct SolFlow {
         zeta = zeta * h + c.Q[j];
         E = E * h + c.E[j];
         U = U * h + c.U[j];
-        dz = (dz + c.Q[j] / (j + 1)) * h;
-        dx = (dx + c.U[j] / (j + 1)) * h;
-        dy = (dy + c.E[j] / (j + 1)) * h;
+        const double r = kReciprocal[j + 1];
+        dz = (dz + c.Q[j] * r) * h;
+        dx = (dx + c.U[j] * r) * h;
+        dy = (dy + c.E[j] * r) * h;
       }
       const double iez = 1.0 / ez, ie2 = 1.0 / c.e2;
       // back from the local coordinates: (X, Y, Z) -> (x0 + e^{-z0} X, y0 + e^{z0} Y, z0 + Z)
@@ -108,14 +117,15 @@ struct SolFlow {
       double h = std::min(kMaxStep, length - done), power = h, previous = size(0);
       int N = Segment::kMaxOrder;
       for (int k = 0; k < Segment::kMaxOrder; ++k) {
-        Q[k + 1] = (a * U[k] - b * E[k]) / (k + 1);
+        const double r = kReciprocal[k + 1];
+        Q[k + 1] = (a * U[k] - b * E[k]) * r;
         double sE = 0.0, sU = 0.0;
         for (int j = 0; j <= k; ++j) {
           sE += Q[j] * E[k - j];
           sU += Q[j] * U[k - j];
         }
-        E[k + 1] = 2.0 * sE / (k + 1);
-        U[k + 1] = -2.0 * sU / (k + 1);
+        E[k + 1] = 2.0 * sE * r;
+        U[k + 1] = -2.0 * sU * r;
         const double term = size(k + 1) * power * h;
         if (k >= 2 && term < eps && previous < eps) {
           N = k + 1;
