@@ -11,9 +11,13 @@ For the default scene of each preset:
   3. the preview frame of each curved preset against the same frame of the baseline (torus, E3):
      the promise is Sol <= 10x torus;
   4. a sweep of absolute chord tolerances (Settings(tolerance=...)): error falling, cost rising;
-     the errors in pixel footprints are what a quality's footprint_fraction buys.
+     the errors in pixel footprints are what a quality's footprint_fraction buys;
+  5. what the tolerance does to the image: each quality's colour against the same render with a
+     hundredth of its footprint fraction (the chords' effect: silhouettes moved), next to its
+     colour against a 64-sample render (what the sampling leaves): a fraction is loose enough when
+     the first stays well below the second.
 Run: .venv/bin/python benchmarks/bench_curved.py [--size 320x180] [--repeat 3] [--spaces nil,sol]
-     [--baseline torus] [--tolerances 1e-2,1e-3,1e-4,1e-5,1e-6] [--tables quality,empty,frame,sweep]
+     [--baseline torus] [--tolerances 1e-2,1e-3,1e-4,1e-5,1e-6] [--tables quality,empty,frame,sweep,image]
 """
 import argparse
 import math
@@ -23,14 +27,7 @@ import time
 from thurston_addon import render, scene as scenes, spaces
 
 
-def best_of(repeat, fn):
-    """(least seconds, last result) over repeat calls of fn."""
-    best, out = math.inf, None
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
+
 
 
 def best_render(space, scene, tracer, settings, repeat):
@@ -67,6 +64,43 @@ def quality_rows(sid, space, scene, tracer, size, repeat):
                      "yes" if ok else "**NO**", f"{s['retrace_changed'] * 100:.1f}", f"{s['geodesic_error']:.1e}",
                      f"{s['error_estimate_median']:.1e}", f"{s['error_estimate_max']:.1e}"])
     return rows
+
+
+def image_rows(sid, space, scene, tracer, size):
+    """Per quality: the colour difference made by the chords (against a hundredth of the fraction)
+    and by the sampling (against 64 samples at the same fraction), RMS and 99th percentile of the
+    per-pixel largest channel difference, after clipping to [0, 1] as a display would."""
+    import numpy as np
+
+    def colour(settings):
+        return np.clip(render.render(space, scene, settings, tracer=tracer).passes["color"], 0, 1)
+
+    def spread(a, b):
+        d = np.abs(a - b).max(axis=2)
+        return f"{np.sqrt(np.mean(d ** 2)):.4f}", f"{np.percentile(d, 99):.3f}"
+
+    rows = []
+    for name, level in render.QUALITY.items():
+        settings = render.Settings(width=size[0], height=size[1], quality=name)
+        image = colour(settings)
+        tolerances = settings.tolerances(space, math.radians(space.camera.fov) / size[0])
+        # the same samples with a hundredth of the chord tolerance at every distance
+        render.QUALITY[name] = render.Quality(level.samples, level.footprint_fraction / 100)
+        try:
+            exact = colour(settings)
+        finally:
+            render.QUALITY[name] = level
+        sampled = colour(render.Settings(width=size[0], height=size[1], quality=name, samples=64))
+        rows.append([sid, name, str(level.samples), f"{level.footprint_fraction:g}", *spread(image, exact),
+                     *spread(image, sampled), f"{tolerances[0]:.1e} + {tolerances[1]:.1e} d"])
+    return rows
+
+
+def image_table(loaded, curved, size):
+    print("### What the chords do to the image, next to what the sampling does\n")
+    table(["space", "quality", "samples", "fraction", "chords RMS", "chords p99", "sampling RMS", "sampling p99",
+           "tolerance"],
+          [row for sid in curved for row in image_rows(sid, *loaded[sid], size)])
 
 
 def preview_rays(space, size):
@@ -168,7 +202,7 @@ def main():
     ap.add_argument("--spaces", default="nil,sol")
     ap.add_argument("--baseline", default="torus")
     ap.add_argument("--tolerances", default="1e-2,1e-3,1e-4,1e-5,1e-6")
-    ap.add_argument("--tables", default="quality,empty,frame,sweep")
+    ap.add_argument("--tables", default="quality,empty,frame,sweep,image")
     args = ap.parse_args()
     tables = args.tables.split(",")
     size = tuple(int(v) for v in args.size.split("x"))
@@ -184,6 +218,8 @@ def main():
         frame_table(loaded, args.baseline, size, args.repeat)
     if "sweep" in tables:
         sweep_table(loaded, curved, size, args.repeat, [float(t) for t in args.tolerances.split(",")])
+    if "image" in tables:
+        image_table(loaded, curved, size)
     print(f"load average at the end {os.getloadavg()[0]:.1f}")
 
 

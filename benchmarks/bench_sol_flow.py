@@ -19,7 +19,6 @@ Run: .venv/bin/python benchmarks/bench_sol_flow.py [--rays 200] [--lengths 0.1,1
 """
 import argparse
 import math
-import time
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -28,18 +27,13 @@ import thurston_core
 from thurston_addon.geometries import sol
 from thurston_addon.geometries.sol import Sol
 
+from timing import best_of
+
 ACCURACIES = (1e-6, 1e-9, 1e-12)
 REFERENCE_TOLERANCE = 1e-13
 LONG_DOUBLE = "Python Taylor, long double"
 
 
-def best_of(repeat, fn):
-    best, out = math.inf, None
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
 
 
 def frame_velocity(p, a):

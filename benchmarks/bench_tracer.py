@@ -18,7 +18,8 @@ import json
 import resource
 import subprocess
 import sys
-import time
+
+from timing import best_of
 
 
 def load_core(path):
@@ -30,13 +31,6 @@ def load_core(path):
     return core
 
 
-def best_of(repeat, fn):
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return min(times), out
 
 
 def rss_mb():

@@ -292,7 +292,7 @@ def prism_coordinates(space, points):
 
 @pytest.mark.parametrize("space,scale", [("nil", 1.0), ("sol", 1.5)])
 def test_domain_guide_of_nil_and_sol(space, scale):
-    sc = bh.fresh_scene(space, scale)
+    bh.fresh_scene(space, scale)
     assert bpy.ops.thurston.domain_guide() == {"FINISHED"}
     obj, pts = guide_points()
     assert obj["thurston_space"] == space

@@ -982,7 +982,7 @@ def test_paper_nil_generator_is_not_an_isometry(tmp_path):
 
 def test_paper_sol_square_is_not_a_fundamental_domain(tmp_path):
     """Errata: with the unit translations and the paper's third map the group is not discrete."""
-    text = f"""
+    text = """
 geometry = "Sol"
 [[generator]]
 matrix = [[1, 0, 0, 1], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
