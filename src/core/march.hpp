@@ -185,7 +185,6 @@ class MarchingKernel {
     return true;
   }
 
- public:
   // The root of n . x(t) + d = 0 in [0, h] along the segment, where the side function goes from
   // f0 to the other sign; `guess` is a starting point in [0, h].
   static double find_root(const typename Flow::Segment& segment, double h, const Vec3& n, double d,
@@ -214,7 +213,6 @@ class MarchingKernel {
     return (f0 < 0.0) ? hi : lo;
   }
 
- private:
   Flow flow_;
 };
 
