@@ -138,16 +138,17 @@ def cmd_trace(args):
                           space.max_crossings if args.max_crossings is None else args.max_crossings,
                           *settings.tolerances(space, render.REFERENCE_PIXEL_ANGLE),
                           shade=False, progress=Progress(f"trace {len(rays)} rays"))
-    result["chords"], result["error_estimate"] = result["ray_chords"], result["error"]
     tmp = out.with_name(f".{out.name}.partial.npz")
-    np.savez(tmp, **{k: result[k] for k in TRACE_OUTPUTS})
+    np.savez(tmp, **{name: result[key] for name, key in TRACE_OUTPUTS.items()})
     tmp.replace(out)
     hit = result["stop"] == 0
     print(f"{out}: {len(rays)} rays, {hit.mean() * 100:.1f}% hits, {result['crossings'].mean():.2f} crossings/ray, "
-          f"{result['chords'].mean():.2f} chords/ray")
+          f"{result['ray_chords'].mean():.2f} chords/ray")
 
 
-TRACE_OUTPUTS = ("depth", "object", "position", "normal", "crossings", "stop", "chords", "error_estimate")
+# HITS.npz: its arrays by the names of the core's outputs
+TRACE_OUTPUTS = {"depth": "depth", "object": "object", "position": "position", "normal": "normal",
+                 "crossings": "crossings", "stop": "stop", "chords": "ray_chords", "error_estimate": "error"}
 
 
 def cmd_render_blend(args):

@@ -23,8 +23,8 @@ class Quality:
     footprint_fraction: float
 
 
-# The same names are used by the add-on. The fractions are the cheapest that keep the image
-# error below what the samples resolve (benchmarks/bench_accuracy.py measures them).
+# The same names are used by the add-on. The fractions keep what the chords do to the image below
+# what the sampling does at each quality (benchmarks/bench_curved.py, its image table).
 QUALITY = {"draft": Quality(1, 1.0), "preview": Quality(1, 0.5), "standard": Quality(4, 0.25),
            "final": Quality(16, 0.1)}
 # `thurston trace` has no pixels: its qualities use the pixel of the default view (640 pixels
@@ -407,7 +407,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         if jitter == CENTRE:
             first = out
             sample = _error_sample(out, space.geometry)
-            probe = (origins[sample], directions[sample], out)
+            probe = (origins[sample], directions[sample])
         del origins, directions
         if colour:
             color = _colorize(out, settings, space)
@@ -429,9 +429,8 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     }
     hits = first["stop"] == 0
     median_depth = float(np.median(first["depth"][hits])) if hits.any() else 0.0
-    origins, directions, centre = probe
-    sample = _error_sample(centre, space.geometry)
-    measured, measured_pixels, changed = retrace_error(space, tracer, origins, directions, centre, sample, limits,
+    origins, directions = probe
+    measured, measured_pixels, changed = retrace_error(space, tracer, origins, directions, first, sample, limits,
                                                        pixel_angle)
     stats = {
         "rays": len(offsets) * pixels, "rays_traced": total, "chords": chords, "seconds": seconds,
@@ -450,8 +449,8 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         # the fraction of them that met another object)
         "measured_error": measured, "measured_error_pixels": measured_pixels, "retrace_changed": changed,
         # measured: the largest distance of a (sampled) hit point from the reference geodesic
-        "geodesic_error": geodesic_error(space, origins, directions, centre["depth"][sample],
-                                         centre["position"][sample]),
+        "geodesic_error": geodesic_error(space, origins, directions, first["depth"][sample],
+                                         first["position"][sample]),
         "light_failures": light_failures,
         "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},
     }
@@ -508,7 +507,7 @@ def retrace_error(space: Space, tracer, origins, directions, out, sample, limits
     again = trace(tracer, P, D, max_distance, max_crossings, *fine, shade=False)
     changed = float(np.mean(again["object"] != out["object"][sample]))
     g = space.geometry
-    path = make_tracer(space, Scene())  # the geodesics alone
+    path = make_tracer(space, Scene(), threads=1)  # the geodesics alone, one ray at a time
     paths = np.linspace(0, len(sample) - 1, min(len(sample), PATH_SAMPLES)).astype(int)
     depth = out["depth"][sample][paths]
     ends = np.array([trace(path, P[i:i + 1], D[i:i + 1], depth[k], max_crossings, *fine, shade=False)["end"][0]

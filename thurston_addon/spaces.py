@@ -165,7 +165,7 @@ class Space:
         self.max_crossings = _count(data.get("max_crossings", 64), f"{where}: max_crossings")
         self.generators = []
         self.generator_names = []
-        for name, gen, M in _generator_tables(data, where, self.geometry):
+        for name, M in _generator_tables(data, where, self.geometry):
             self.generators.append(M)
             self.generator_names.append(name)
         self.camera = self._camera(data.get("camera", {}), f"{where}: camera")
@@ -268,27 +268,6 @@ class Space:
             classes.append(seen.setdefault(key, len(seen)))
         return classes
 
-    @cached_property
-    def volume(self) -> float:
-        """Riemannian volume of the domain: the volume density integrated over the cones from the
-        origin over the face triangles, by a collapsed Gauss-Legendre rule on each."""
-        g = self.geometry
-        u, w = np.polynomial.legendre.leggauss(16)
-        u, w = 0.5 * (u + 1), 0.5 * w
-        # (a, b, c) in the unit cube -> the tetrahedron (0, p, q, r): x = a (p + b (q - p + c (r - q)))
-        A, B, Cc = np.meshgrid(u, u, u, indexing="ij")
-        W = np.einsum("i,j,k->ijk", w, w, w) * A**2 * B
-        V = self.domain.vertices
-        total = 0.0
-        for face in self.domain.faces:
-            ring = V[face.vertices]
-            centre = ring.mean(axis=0)
-            for p, q in zip(ring, np.roll(ring, -1, axis=0)):
-                X = A[..., None] * (centre + B[..., None] * (p - centre + Cc[..., None] * (q - p)))
-                jac = abs(np.linalg.det(np.array([centre, p - centre, q - p])))
-                total += float(np.sum(W * jac * g.volume_density(X)))
-        return total
-
     # --- using the domain ---------------------------------------------------------------------
     def bring_inside(self, X, V=None):
         """One model point (and a tangent vector) moved into the domain: (X, V, M) with M the
@@ -346,7 +325,7 @@ def _geometry(data, where):
 
 
 def _generator_tables(data, where, geometry):
-    """(name, table, isometry) for each [[generator]] table."""
+    """(name, isometry) for each [[generator]] table."""
     gens = data.get("generator")
     if not isinstance(gens, list) or not gens:
         raise SpaceError(f"{where}: no [[generator]] tables: a space needs generator matrices")
@@ -362,7 +341,7 @@ def _generator_tables(data, where, geometry):
         M = np.array([_vector(r, 4, f"{w} row {k}") for k, r in enumerate(rows)])
         if not geometry.is_isometry(M, tol=1e-9):
             raise SpaceError(f"{w}: the matrix is not an isometry of {geometry.name}")
-        out.append((name, gen, geometry.reorthonormalize(M)))
+        out.append((name, geometry.reorthonormalize(M)))
     return out
 
 
@@ -684,6 +663,28 @@ class CoordinateSpace(Space):
                 corners.append(ring[i] + np.linalg.solve(G, [inset, inset]) @ np.array([a, b]))
             groups[c] += [(corners[i], corners[(i + 1) % k]) for i in range(k)]
         return groups
+
+    @cached_property
+    def volume(self) -> float:
+        """Riemannian volume of the domain: the volume density integrated over the cones from the
+        origin over the face triangles, by a collapsed Gauss-Legendre rule on each (the Dirichlet
+        domains' radial closed form needs a projective chart)."""
+        g = self.geometry
+        u, w = np.polynomial.legendre.leggauss(16)
+        u, w = 0.5 * (u + 1), 0.5 * w
+        # (a, b, c) in the unit cube -> the tetrahedron (0, p, q, r): x = a (p + b (q - p + c (r - q)))
+        A, B, Cc = np.meshgrid(u, u, u, indexing="ij")
+        W = np.einsum("i,j,k->ijk", w, w, w) * A**2 * B
+        V = self.domain.vertices
+        total = 0.0
+        for face in self.domain.faces:
+            ring = V[face.vertices]
+            centre = ring.mean(axis=0)
+            for p, q in zip(ring, np.roll(ring, -1, axis=0)):
+                X = A[..., None] * (centre + B[..., None] * (p - centre + Cc[..., None] * (q - p)))
+                jac = abs(np.linalg.det(np.array([centre, p - centre, q - p])))
+                total += float(np.sum(W * jac * g.volume_density(X)))
+        return total
 
     def reduces_to_identity(self, M, probes) -> bool:
         """Whether the isometry M is an element of the group: the probes' images under M reduce

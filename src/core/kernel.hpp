@@ -8,8 +8,7 @@
 //       on each chart chord that may meet the scene (context.may_hit) until it reports a hit,
 //       then on_hit(hit) with something whose refine(plane, u) puts the hit (Embree's parameter u
 //       on that chord) onto the true curve; the first chord skips `first_skip` of chart length.
-//       The projective kernel walks one exact chord per cell in a loop of its own; the marching
-//       kernels run walk_chords below over a Walk of theirs.
+//       The projective kernel walks one exact chord per cell; the marching kernel steps its Walk.
 //   K::Chord    x0, x1 (the chart segment Embree tests) and margin (how far the curve may stray
 //               from it);
 //   bool start(Vec4& P, Vec4& V)                 P a point and V a unit tangent there (projected);
@@ -94,8 +93,6 @@ struct WalkContext {
   }
 };
 
-enum class Advance { kContinue, kCross, kLimit };
-
 enum Stop : std::uint8_t { kHit = 0, kDistanceLimit = 1, kCrossingLimit = 2, kCancelled = 3 };
 
 // How a walk ended: the distance travelled (to the start of the hit's chord on a hit), the face
@@ -108,35 +105,6 @@ struct WalkEnd {
   double error;
   Vec3 end{kNaN, kNaN, kNaN};
 };
-
-// The walk loop over a kernel's Walk, which provides next() (lay the next chord: kCross, kLimit
-// or kContinue in the same cell), has_chord(), chord(), cross(crossings), chord_start_distance(),
-// distance(), end_distance(), error(), end_point() and refine(plane, u).
-template <class Walk, class Query, class OnHit>
-WalkEnd walk_chords(Walk& w, const WalkContext& context, double length, int max_crossings,
-                    double first_skip, Query&& query, OnHit&& on_hit) {
-  int crossings = 0;
-  for (bool first = true;; first = false) {
-    const Advance advance = w.next();
-    if (w.has_chord()) {
-      const auto& chord = w.chord();
-      const Vec3 d = sub3(chord.x1, chord.x0);
-      const double tnear = first ? first_skip / std::sqrt(dot3(d, d)) : 0.0;
-      if (tnear < 1.0 && context.may_hit(chord.x0, chord.x1, chord.margin) &&
-          query(chord, float(tnear))) {
-        on_hit(w);
-        return {kHit, w.chord_start_distance(), crossings, w.error()};
-      }
-    }
-    if (advance == Advance::kLimit) return {kDistanceLimit, length, crossings, 0.0, w.end_point()};
-    if (advance == Advance::kCross) {
-      if (crossings == max_crossings)
-        return {kCrossingLimit, w.end_distance(), crossings, 0.0, w.end_point()};
-      ++crossings;
-      if (!w.cross(crossings)) return {kDistanceLimit, w.distance(), crossings, 0.0};
-    }
-  }
-}
 
 // A hit refined onto the true curve: arclength from the chord's start, the point and the unit
 // tangent of the ray there (model 4-vectors) and the chart point.

@@ -36,6 +36,37 @@
 
 namespace thurston {
 
+enum class Advance { kContinue, kCross, kLimit };
+
+// The walk loop over a Walk, which provides next() (lay the next chord: kCross, kLimit
+// or kContinue in the same cell), has_chord(), chord(), cross(crossings), chord_start_distance(),
+// distance(), end_distance(), error(), end_point() and refine(plane, u).
+template <class Walk, class Query, class OnHit>
+WalkEnd walk_chords(Walk& w, const WalkContext& context, double length, int max_crossings,
+                    double first_skip, Query&& query, OnHit&& on_hit) {
+  int crossings = 0;
+  for (bool first = true;; first = false) {
+    const Advance advance = w.next();
+    if (w.has_chord()) {
+      const auto& chord = w.chord();
+      const Vec3 d = sub3(chord.x1, chord.x0);
+      const double tnear = first ? first_skip / std::sqrt(dot3(d, d)) : 0.0;
+      if (tnear < 1.0 && context.may_hit(chord.x0, chord.x1, chord.margin) &&
+          query(chord, float(tnear))) {
+        on_hit(w);
+        return {kHit, w.chord_start_distance(), crossings, w.error()};
+      }
+    }
+    if (advance == Advance::kLimit) return {kDistanceLimit, length, crossings, 0.0, w.end_point()};
+    if (advance == Advance::kCross) {
+      if (crossings == max_crossings)
+        return {kCrossingLimit, w.end_distance(), crossings, 0.0, w.end_point()};
+      ++crossings;
+      if (!w.cross(crossings)) return {kDistanceLimit, w.distance(), crossings, 0.0};
+    }
+  }
+}
+
 template <class Flow>
 class MarchingKernel {
  public:

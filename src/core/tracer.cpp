@@ -457,10 +457,19 @@ bool normalise_projective(int k, Vec4& X) {
   return finite4(X);
 }
 
+// Chart points (x, 1): the marching geometries' model.
+bool normalise_affine(int, Vec4& X) {
+  if (!(X[3] != 0.0)) return false;
+  X = scaled(1.0 / X[3], X);
+  X[3] = 1.0;
+  return finite4(X);
+}
+
 struct Geometry {
   const char* name;
   int curvature;  // projective kernels; unused by the others
   std::unique_ptr<Tracer> (*make)(int curvature, SceneData scene, unsigned threads);
+  bool (*normalise)(int curvature, Vec4& X);
   bool (*flow)(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt);
 };
 
@@ -483,11 +492,11 @@ bool flow_of(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, 
 }
 
 const Geometry kGeometries[] = {
-    {"E3", 0, make_projective, nullptr},
-    {"S3", 1, make_projective, nullptr},
-    {"H3", -1, make_projective, nullptr},
-    {"Nil", 0, make_marching<NilFlow>, flow_of<NilFlow>},
-    {"Sol", 0, make_marching<SolFlow>, flow_of<SolFlow>},
+    {"E3", 0, make_projective, normalise_projective, nullptr},
+    {"S3", 1, make_projective, normalise_projective, nullptr},
+    {"H3", -1, make_projective, normalise_projective, nullptr},
+    {"Nil", 0, make_marching<NilFlow>, normalise_affine, flow_of<NilFlow>},
+    {"Sol", 0, make_marching<SolFlow>, normalise_affine, flow_of<SolFlow>},
 };
 
 const Geometry& find(const std::string& name) {
@@ -512,11 +521,7 @@ bool has_geometry(const std::string& name) {
 
 bool normalise_point(const std::string& geometry, Vec4& X) {
   const Geometry& g = find(geometry);
-  if (g.make == make_projective) return normalise_projective(g.curvature, X);
-  if (!(X[3] != 0.0)) return false;
-  X = scaled(1.0 / X[3], X);
-  X[3] = 1.0;
-  return finite4(X);
+  return g.normalise(g.curvature, X);
 }
 
 std::unique_ptr<Tracer> make_tracer(const std::string& geometry, SceneData scene, unsigned threads) {
