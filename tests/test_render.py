@@ -777,6 +777,27 @@ def test_geodesic_error_is_small_for_presets(space_cache, sid):
     assert "geodesic error" in res.summary()
 
 
+@pytest.mark.parametrize("sid", ["nil", "sol"])
+@pytest.mark.parametrize("quality", ["draft", "standard"])
+def test_curved_render_states_and_keeps_its_bound(space_cache, sid, quality):
+    """A Nil or Sol render's summary states its bound, chords per ray and measured error, and the
+    measured error (against the re-traced geodesic) and the error against the Python reference are
+    within the bound: the quality's fraction of the pixel footprint at the hit's distance."""
+    space = space_cache(sid)
+    res = render.render(space, default_scene(space), render.Settings(width=64, height=36, quality=quality))
+    st, fraction = res.stats, render.QUALITY[quality].footprint_fraction
+    assert res.stats["hit_fraction"] > 0.5 and st["chords_per_ray"] > 1
+    assert f"within {fraction:g} of the pixel footprint" in st["bound"]
+    summary = res.summary()
+    for text in (st["bound"], "chords/ray", "measured error", "pixel footprints"):
+        assert text in summary
+    assert 0 <= st["measured_error_pixels"] <= fraction
+    # the nearest hit's footprint bounds the reference's error in chart units from below
+    nearest = np.nanmin(np.where(res.passes["stop"] == 0, res.passes["depth"], np.nan))
+    pixel = math.radians(space.camera.fov) / 64
+    assert st["geodesic_error"] <= fraction * pixel * (nearest + render.NEAR_FRACTION * space.extent)
+
+
 def test_geodesic_error_sees_a_perturbed_pairing(space_cache):
     """A tracer built by hand whose pairing of an x face of the torus also translates 1e-6 (then
     1e-5) along y: each crossing of that face moves the ray sideways by that much, and the
