@@ -15,8 +15,8 @@ bpy = pytest.importorskip("bpy")
 
 import thurston_addon  # noqa: E402
 from thurston_addon import cli, render, spaces  # noqa: E402
-from thurston_addon.blender import batch, export, guide, properties  # noqa: E402
-from thurston_addon.blender.engine import ThurstonRenderEngine  # noqa: E402
+from thurston_addon import batch, export, guide, properties  # noqa: E402
+from thurston_addon.engine import ThurstonRenderEngine  # noqa: E402
 
 import blender_helpers as bh  # noqa: E402
 

@@ -2,18 +2,34 @@
 
 Importable without Blender: the geometry kernels, the spaces, the scene description and the tracer
 work in plain Python. Blender calls `register()` / `unregister()`, which load the Blender layer
-(`thurston_addon.blender`) only then.
+(`engine`, `properties`, `export`, `guide`, `batch`, `operators/`, `panels/`) only then.
 """
 __version__ = "0.1.0"
 
 
 def register():
-    from . import blender
+    import bpy
 
-    blender.register()
+    from . import engine, properties
+
+    for cls in _classes():
+        bpy.utils.register_class(cls)
+    properties.register()
+    engine.register()
 
 
 def unregister():
-    from . import blender
+    import bpy
 
-    blender.unregister()
+    from . import engine, properties
+
+    engine.unregister()
+    properties.unregister()
+    for cls in reversed(_classes()):
+        bpy.utils.unregister_class(cls)
+
+
+def _classes():
+    from . import engine, operators, panels, properties
+
+    return [*properties.CLASSES, *operators.CLASSES, *engine.CLASSES, *panels.CLASSES]

@@ -8,8 +8,7 @@ import os
 import bpy
 import numpy as np
 
-from .. import render, scene as scenes, spaces
-from . import properties
+from .. import properties, render, scene as scenes, spaces
 
 GUIDE_TAG = "thurston_guide"
 _space_cache: dict = {}

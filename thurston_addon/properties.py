@@ -1,9 +1,10 @@
 """Scene-level settings (bpy.types.Scene.thurston) and the last render's statistics."""
 import bpy
 
-from .. import render, spaces
+from . import render, spaces
 
 DEFAULT_SPACE = "poincare"
+PRESET_SUBDIR = "thurston"  # the settings presets' folder under Blender's presets
 FILE = "FILE"  # space_id of a user's space file (space_file)
 # The space enum's items before the setting stored the id: .blend files saved then hold an index into
 # this list under the key "space".

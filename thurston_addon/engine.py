@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 import bpy
 
-from .. import render
-from . import export
+from . import export, render
 
 CROSSINGS_AOV = "Crossings"
 # Callables (done, total) told of the progress of final renders; batch renders show it on the terminal.
@@ -136,7 +135,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         gpu.state.blend_set("NONE")
 
     def _viewport_frame(self, context, depsgraph, w, h):
-        from .. import scene as scenes
+        from . import scene as scenes
 
         bscene = depsgraph.scene
         if isinstance(self._viewport_world, Exception):

@@ -1,30 +1,15 @@
 """The panel in the render properties, and a presets menu for its settings."""
 import bpy
-from bl_operators.presets import AddPresetBase
 
-from . import guide, properties
+from .. import guide, properties
 
-PRESET_SUBDIR = "thurston"
 
 
 class THURSTON_MT_presets(bpy.types.Menu):
     bl_label = "Thurston Presets"
-    preset_subdir = PRESET_SUBDIR
+    preset_subdir = properties.PRESET_SUBDIR
     preset_operator = "script.execute_preset"
     draw = bpy.types.Menu.draw_preset
-
-
-class THURSTON_OT_add_preset(AddPresetBase, bpy.types.Operator):
-    """Save the Thurston settings as a preset, or remove one"""
-
-    bl_idname = "thurston.add_preset"
-    bl_label = "Add Thurston Preset"
-    preset_menu = "THURSTON_MT_presets"
-    preset_subdir = PRESET_SUBDIR
-    preset_defines = ["settings = bpy.context.scene.thurston"]
-    preset_values = [f"settings.{name}" for name in (
-        "space_id", "space_file", "scale", "quality", "tolerance", "shading", "max_distance", "max_crossings",
-        "fog", "passes", "panorama_width")]
 
 
 class THURSTON_PT_render(bpy.types.Panel):
@@ -36,8 +21,8 @@ class THURSTON_PT_render(bpy.types.Panel):
     def draw_header_preset(self, context):
         row = self.layout.row(align=True)
         row.menu(THURSTON_MT_presets.__name__, text=THURSTON_MT_presets.bl_label)
-        row.operator(THURSTON_OT_add_preset.bl_idname, text="", icon="ADD")
-        row.operator(THURSTON_OT_add_preset.bl_idname, text="", icon="REMOVE").remove_active = True
+        row.operator("thurston.add_preset", text="", icon="ADD")
+        row.operator("thurston.add_preset", text="", icon="REMOVE").remove_active = True
 
     def draw(self, context):
         layout = self.layout
@@ -50,11 +35,11 @@ class THURSTON_PT_render(bpy.types.Panel):
         elif properties.space_missing(s):
             col.label(text=f"No preset {s.space_id!r}: its file is gone; choose another space", icon="ERROR")
         col.prop(s, "scale")
-        col.operator(guide.THURSTON_OT_domain_guide.bl_idname, icon="MESH_ICOSPHERE")
+        col.operator("thurston.domain_guide", icon="MESH_ICOSPHERE")
         if guide.camera_outside(context.scene):
             box = layout.box()
             box.label(text="The camera is outside the domain", icon="ERROR")
-            box.operator(guide.THURSTON_OT_camera_inside.bl_idname, icon="CAMERA_DATA")
+            box.operator("thurston.camera_inside", icon="CAMERA_DATA")
 
         col = layout.column(heading="Accuracy")
         col.prop(s, "quality")
@@ -90,4 +75,4 @@ class THURSTON_PT_render(bpy.types.Panel):
             grid.label(text=f"Geodesic error: {st.geodesic_error:.1e}")
 
 
-CLASSES = (THURSTON_MT_presets, THURSTON_OT_add_preset, THURSTON_PT_render)
+CLASSES = (THURSTON_MT_presets, THURSTON_PT_render)

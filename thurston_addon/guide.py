@@ -1,7 +1,6 @@
 """The domain guide: a wireframe of the fundamental domain, in its own collection, excluded from
-export and from Blender's own renders."""
+export and from Blender's own renders; and the camera moved into the domain by the pairings."""
 import bpy
-import mathutils
 import numpy as np
 
 from . import export
@@ -63,46 +62,6 @@ def refresh(scene):
         pass  # the panel shows the space error; the old guide stays until the space is valid
 
 
-class THURSTON_OT_domain_guide(bpy.types.Operator):
-    """Add (or update) a wireframe of the fundamental domain to model inside"""
-
-    bl_idname = "thurston.domain_guide"
-    bl_label = "Add Domain Guide"
-    bl_options = {"REGISTER", "UNDO"}
-
-    def execute(self, context):
-        try:
-            obj = build(context.scene)
-        except export.ExportError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        self.report({"INFO"}, f"Domain guide: {len(obj.data.vertices)} vertices, {len(obj.data.edges)} edges")
-        return {"FINISHED"}
-
-
-class THURSTON_OT_camera_inside(bpy.types.Operator):
-    """Move the scene camera into the fundamental domain through the face pairings (the view is the same)"""
-
-    bl_idname = "thurston.camera_inside"
-    bl_label = "Bring Camera Inside"
-    bl_options = {"REGISTER", "UNDO"}
-
-    def execute(self, context):
-        scene = context.scene
-        cam = scene.camera
-        if cam is None:
-            self.report({"ERROR"}, "The scene has no camera")
-            return {"CANCELLED"}
-        try:
-            space = export.load_space(scene.thurston)
-            moved = inside_matrix(space, np.array(cam.matrix_world, float), scene.thurston.scale)
-        except (export.ExportError, ValueError) as exc:
-            self.report({"ERROR"}, f"camera {cam.name!r}: {exc}")
-            return {"CANCELLED"}
-        cam.matrix_world = mathutils.Matrix(moved.tolist())
-        return {"FINISHED"}
-
-
 def inside_matrix(space, M, scale):
     """A camera matrix moved into the domain by the pairing isometry, with the same view. The tracer
     builds its frame by Gram-Schmidt in the metric from forward, right = forward x up and up (chart
@@ -140,6 +99,3 @@ def camera_outside(scene) -> bool:
     g = space.geometry
     p = np.array(cam.matrix_world.translation, float) / scene.thurston.scale
     return not (g.in_chart(p) and space.domain.contains(g.to_model(p), tol=FLOAT32_SLACK))
-
-
-CLASSES = (THURSTON_OT_domain_guide, THURSTON_OT_camera_inside)

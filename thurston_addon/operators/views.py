@@ -8,8 +8,7 @@ import threading
 import bpy
 import numpy as np
 
-from .. import images, render
-from . import export
+from .. import export, images, render
 
 IMAGE_TAG = "thurston_image"
 

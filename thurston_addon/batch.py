@@ -5,13 +5,13 @@ from pathlib import Path
 
 import bpy
 
-from .. import images
-from . import engine, export
+from . import engine, export, images
+
 
 
 def ensure_registered():
     if not hasattr(bpy.types.Scene, "thurston"):
-        from .. import register
+        from . import register
 
         register()
 
