@@ -245,6 +245,27 @@ def test_object_reaching_two_domains_away_is_whole(space_cache):
     assert out["stop"][2] == 1  # x = -0.3 maps to 0.7 and 1.7: the bar is not there
 
 
+@pytest.mark.parametrize("sid, word", [("torus", (0, 0, 0, 0, 2, 2, 2)), ("poincare", (0, 0)),
+                                       ("seifert_weber", (0, 0))])
+def test_object_far_out_in_the_cover_is_brought_in(space_cache, sid, word):
+    """A ball placed by a word in the face pairings, outside the domain and its neighbouring copies
+    (H3: 4 from the centre; farther, chart coordinates lose the ball's shape), is the same point set
+    of the manifold as the ball at home: the depths are the closed-form first entries into the copies
+    of the ball at home."""
+    space = space_cache(sid)
+    g = space.geometry
+    rho = 0.08
+    V, F, centre, sag = ball_mesh(g, np.array([0.3, -0.5, 0.8]), 0.12, rho, subdivisions=4)
+    M = np.eye(4)
+    for k in word:
+        M = space.domain.faces[k].pairing @ M
+    far = g.to_chart(g.to_model(V) @ M.T)
+    assert not space.domain.contains(g.to_model(far.mean(axis=0)))
+    rng = np.random.default_rng(11)
+    P, D = model_rays(g, np.zeros((3000, 3)), random_units(rng, 3000))
+    check_against_balls(space, far, F, centre, rho, sag, P, D, 2.0)
+
+
 def test_straddling_ball_on_poincare_face(space_cache):
     space = space_cache("poincare")
     g = space.geometry

@@ -146,9 +146,15 @@ class Result:
 
 def _object_copies(space: Space, obj, C):
     """The copies g(obj) that can reach the domain, each as (model vertices, kept triangles), and
-    whether every vertex of the object is brought into the domain by one of them."""
+    whether every vertex of the object is brought into the domain by one of them. The copies are
+    taken around the copy whose centre (the chart mean of its vertices) lies in the domain, so an
+    object anywhere in the universal cover is shown, as the camera is."""
     g = space.geometry
-    X = g.to_model(obj.vertices)
+    try:
+        _, _, inside = space.bring_inside(g.to_model(obj.vertices.mean(axis=0)))
+    except SpaceError as exc:
+        raise SceneError(f"object {obj.name!r}: {exc}") from None
+    X = g.to_model(obj.vertices) @ inside.T
     T = obj.triangles
     for rings in range(1, g.copy_rings + 1):
         copies = []
