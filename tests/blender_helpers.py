@@ -205,6 +205,8 @@ def write_scene_files(scene, folder: Path, scale: float):
     fov = math.degrees(cam.data.angle_x)  # Blender's own horizontal angle (float32, from lens and sensor width)
     toml += ["[camera]", f"position = [{', '.join(map(repr, map(float, M[:3, 3] / scale)))}]",
              f"forward = [{', '.join(map(repr, map(float, -M[:3, 2])))}]",
-             f"up = [{', '.join(map(repr, map(float, M[:3, 1])))}]", f"fov = {fov!r}"]
+             f"up = [{', '.join(map(repr, map(float, M[:3, 1])))}]", f"fov = {fov!r}",
+             f"shift = [{cam.data.shift_x!r}, {cam.data.shift_y!r}]",  # in widths under the default sensor fit
+             f"clip_start = {cam.data.clip_start / scale!r}", f"clip_end = {cam.data.clip_end / scale!r}"]
     (folder / "scene.toml").write_text("\n".join(toml) + "\n")
     return folder / "scene.toml"

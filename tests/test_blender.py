@@ -235,7 +235,7 @@ def test_export_skips_non_mesh_objects_with_a_note():
     bh.link(bpy.data.objects.new("Curve", cu))
     bh.link(bpy.data.objects.new("Text", bpy.data.curves.new("Text", "FONT")))
     objs, _, notes = exported()
-    text = " ".join(notes)
+    text = " ".join(n.message for n in notes)
     assert "Curve" in text and "Text" in text
     assert list(objs) == ["B"], list(objs)
 
@@ -445,9 +445,17 @@ def test_baked_panorama_seen_by_cycles_matches_the_scene(tmp_path):
 # --- 7. the render engine ---------------------------------------------------------------------------
 def enable_passes(sc):
     vl = sc.view_layers[0]
-    vl.use_pass_z = vl.use_pass_normal = vl.use_pass_object_index = True
-    aov = vl.aovs.add()
-    aov.name, aov.type = "Crossings", "VALUE"
+    vl.use_pass_z = vl.use_pass_normal = vl.use_pass_object_index = vl.use_pass_position = True
+    vl.thurston.use_pass_geodesic_distance = vl.thurston.use_pass_crossings = True
+
+
+def view_axis_cosines(cam, w, h):
+    """Blender's camera (horizontal sensor fit): the cosine between each pixel centre's ray and the
+    optical axis."""
+    t = math.tan(cam.data.angle_x / 2)
+    sx = (2 * (np.arange(w) + 0.5) / w - 1) * t
+    sy = (1 - 2 * (np.arange(h) + 0.5) / h) * t * h / w
+    return 1 / np.sqrt(1 + sx[None, :] ** 2 + sy[:, None] ** 2)
 
 
 def test_engine_passes_match_core(tmp_path):
@@ -459,8 +467,13 @@ def test_engine_passes_match_core(tmp_path):
     L = "ViewLayer."
     hit = np.isfinite(truth["Z"])
     assert 0.3 < hit.mean() < 1.0
-    close(np.where(hit, ch[L + "Depth.Z"], 0), np.where(hit, truth["Z"], 0))
-    assert np.all(ch[L + "Depth.Z"][~hit] >= 1e9)
+    close(np.where(hit, ch[L + "Geodesic Distance.X"], 0), np.where(hit, truth["Z"], 0))
+    # Blender's depth: along the view axis
+    cos = view_axis_cosines(sc.camera, bh.W, bh.H)
+    close(np.where(hit, ch[L + "Depth.Z"], 0), np.where(hit, truth["Z"] * cos, 0))
+    assert np.all(ch[L + "Depth.Z"][~hit] >= 1e9) and np.all(ch[L + "Geodesic Distance.X"][~hit] >= 1e9)
+    for a in "XYZ":
+        close(ch[f"{L}Position.{a}"][hit], truth[f"Position.{a}"][hit])
     for a in "XYZ":
         close(ch[f"{L}Normal.{a}"][hit], truth[f"Normal.{a}"][hit])
     np.testing.assert_array_equal(ch[L + "Crossings.X"], truth["Crossings"])
@@ -473,19 +486,20 @@ def test_engine_passes_match_core(tmp_path):
     assert len(set(expected[hit].tolist())) >= 2
 
 
-def test_engine_depth_is_geodesic_distance_times_scale(tmp_path):
+def test_engine_depth_along_the_view_axis_and_geodesic_distance(tmp_path):
+    """A wall square to the view axis, d ahead: Blender's Depth is d everywhere on it (as Cycles
+    writes it), the geodesic distance d / cos(angle off the axis); both in Blender units."""
     scale = 2.0
     sc = bh.fresh_scene("torus", scale)
     sc.view_layers[0].use_pass_z = True
+    sc.view_layers[0].thurston.use_pass_geodesic_distance = True
     d = 0.29  # chart distance from the camera to the wall's near face
     bh.box("Wall", (0.9 * scale, 0.02 * scale, 0.9 * scale), (0, (d + 0.01) * scale, 0))
     cam = bh.camera((0, 0, 0), lens=35.0)
     ch = bh.f12(sc, tmp_path / "depth.exr")
-    t = math.tan(2 * math.atan(cam.data.sensor_width / 2 / cam.data.lens) / 2)
-    sx = (2 * (np.arange(bh.W) + 0.5) / bh.W - 1) * t
-    sy = (1 - 2 * (np.arange(bh.H) + 0.5) / bh.H) * t * bh.H / bh.W
-    want = d * scale * np.sqrt(1 + sx[None, :] ** 2 + sy[:, None] ** 2)
-    np.testing.assert_allclose(ch["ViewLayer.Depth.Z"], want, rtol=1e-5)
+    np.testing.assert_allclose(ch["ViewLayer.Depth.Z"], d * scale, rtol=1e-5)
+    np.testing.assert_allclose(ch["ViewLayer.Geodesic Distance.X"], d * scale / view_axis_cosines(cam, bh.W, bh.H),
+                               rtol=1e-5)
 
 
 def test_engine_reports_errors():
@@ -712,7 +726,7 @@ def test_render_blend_subprocess(tmp_path):
     assert sorted(out.iterdir()) == frames
     one, two = (bh.read_exr(f) for f in frames)
     # the passes saved in the file, as Blender's multilayer EXR names them
-    assert set(one) == {"ViewLayer.Combined." + c for c in "RGBA"} | {"ViewLayer.Depth.Z"}
+    assert set(one) == {"ViewLayer.Combined." + c for c in "RGBA"} | {"ViewLayer.Depth.Z", "ViewLayer.Geodesic Distance.X"}
     L = "ViewLayer.Combined."
     close(bh.rgb(one, L), truth)
     assert np.abs(bh.rgb(one, L) - bh.rgb(two, L)).max() > 0.05  # the camera moved
@@ -792,6 +806,7 @@ def test_f12_animation_moves_the_camera(tmp_path):
     sc = bh.fresh_scene("torus", size=(9, 9))
     bh.box("Wall", (0.6, 0.02, 0.6), (0, 0.3, 0))
     cam = bh.camera((0, 0, 0))
+    cam.data.clip_start = 0.01  # the wall comes to 0.09, nearer than the default clip start
     for frame, y in ((1, 0.0), (3, 0.2)):
         cam.location = (0, y, 0)
         cam.keyframe_insert("location", frame=frame)

@@ -40,16 +40,13 @@ def frame_range(spec: str | None, bscene) -> range:
 
 
 def _configure_output(bscene, suffix: str):
-    """The THURSTON engine, the view layer passes that the settings ask for, and the file format."""
+    """The THURSTON engine, on every view layer the passes that the settings ask for (and no others),
+    and the file format."""
     bscene.render.engine = "THURSTON"
-    wanted = set(bscene.thurston.passes)
-    layer = bscene.view_layers[0]
-    layer.use_pass_z = "DEPTH" in wanted
-    layer.use_pass_normal = "NORMAL" in wanted
-    layer.use_pass_object_index = "OBJECT" in wanted
-    if "CROSSINGS" in wanted and engine.CROSSINGS_AOV not in layer.aovs:
-        aov = layer.aovs.add()
-        aov.name, aov.type = engine.CROSSINGS_AOV, "VALUE"
+    wanted = {p.lower() for p in bscene.thurston.passes}
+    for layer in bscene.view_layers:
+        for p in export.BLENDER_PASSES:
+            setattr(layer.thurston if p.addon_flag else layer, p.flag, p.source in wanted)
     settings = bscene.render.image_settings
     if suffix == "exr":
         if hasattr(settings, "media_type"):  # Blender 5
@@ -79,13 +76,19 @@ def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, ov
         bscene.render.filepath = str(out)
         listener = progress_for(f"frame {frame}")
         engine.progress_listeners.append(listener)
+        stats = bscene.thurston.stats
+        stats.valid = False  # set again by a render that finished
         try:
             bpy.ops.render.render(write_still=True)
         except RuntimeError as exc:  # the engine's self.report(ERROR) arrives here
             raise export.ExportError(f"frame {frame}: {str(exc).strip()}") from None
         finally:
             engine.progress_listeners.remove(listener)
+        if not stats.valid:
+            raise export.ExportError(f"frame {frame}: the render did not finish")
         if not out.exists():
             raise export.ExportError(f"frame {frame}: Blender wrote no file to {out}")
-        log(f"{out}: {bscene.thurston.stats.summary}")
+        for note in stats.notes:
+            log(f"{out}: warning: {note.message}")
+        log(f"{out}: {stats.summary}")
     return outputs

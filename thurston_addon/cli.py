@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -86,12 +87,8 @@ def cmd_render(args):
         raise CommandError(f"output {str(out)!r}: use .exr (all passes) or .png/.jpg/.tif (colour)")
     space, scene = _load_world(args)
     cam = scene.camera or scenes.Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
-    camera = scenes.Camera(
-        args.camera_position if args.camera_position is not None else cam.position,
-        args.camera_forward if args.camera_forward is not None else cam.forward,
-        args.camera_up if args.camera_up is not None else cam.up,
-        args.fov if args.fov is not None else cam.fov,
-    )
+    given = {"position": args.camera_position, "forward": args.camera_forward, "up": args.camera_up, "fov": args.fov}
+    camera = dataclasses.replace(cam, **{k: v for k, v in given.items() if v is not None})
     w, h = args.size
     settings = render.Settings(width=w, height=h, projection=args.projection, quality=args.quality, samples=args.samples,
                                shading=args.shading, max_distance=args.max_distance,

@@ -1,6 +1,6 @@
-"""The THURSTON render engine: F12 renders through the tracer into the Combined pass and the
-requested passes (Depth, Normal, IndexOB, and Crossings as an AOV); the viewport in rendered mode
-draws progressively refined frames."""
+"""The THURSTON render engine: F12 renders each view layer through the tracer into the Combined pass
+and the passes its view layer enables (export.BLENDER_PASSES); the viewport in rendered mode draws
+progressively refined frames."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,7 +8,6 @@ import bpy
 
 from . import export, render
 
-CROSSINGS_AOV = "Crossings"
 # Callables (done, total) told of the progress of final renders; batch renders show it on the terminal.
 progress_listeners: list = []
 
@@ -31,27 +30,24 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
 
     def update_render_passes(self, scene=None, renderlayer=None):
         self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", "COLOR")
-        if renderlayer.use_pass_z:
-            self.register_pass(scene, renderlayer, "Depth", 1, "Z", "VALUE")
-        if renderlayer.use_pass_normal:
-            self.register_pass(scene, renderlayer, "Normal", 3, "XYZ", "VECTOR")
-        if renderlayer.use_pass_object_index:
-            self.register_pass(scene, renderlayer, "IndexOB", 1, "X", "VALUE")
-        for aov in renderlayer.aovs:
-            if aov.name == CROSSINGS_AOV:
-                self.register_pass(scene, renderlayer, aov.name, 1 if aov.type == "VALUE" else 3,
-                                   "X" if aov.type == "VALUE" else "RGB", aov.type)
+        for p in export.BLENDER_PASSES:
+            if export.pass_enabled(renderlayer, p):
+                self.register_pass(scene, renderlayer, p.name, len(p.chan_id), p.chan_id, p.type)
 
     def render(self, depsgraph):
+        """One view layer (Blender calls this once per layer, each with its own depsgraph): the
+        render region only, the layer's passes, and every note in the render report."""
         bscene = depsgraph.scene
         w, h = export.resolution(bscene)
         try:
-            space, scene, camera, settings, notes = export.collect(bscene, depsgraph, w, h, camera_object=self.camera_override)
+            job = export.RenderJob(bscene, depsgraph, w, h, camera_object=self.camera_override,
+                                   region=export.border_region(bscene, w, h))
         except (export.ExportError, render.RenderError) as exc:
             self.report({"ERROR"}, f"Thurston: {exc}")
             return
-        for note in notes:
-            self.report({"WARNING"}, f"Thurston: {note}")
+        except Exception as exc:  # RenderEngine.render swallows exceptions: report instead
+            self.report({"ERROR"}, f"Thurston render failed: {exc}")
+            return
 
         def progress(done, total):
             self.update_progress(done / max(total, 1))
@@ -59,39 +55,30 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
                 listener(done, total)
             return not self.test_break()
 
-        try:
-            result = render.render(space, scene, settings, camera=camera, progress=progress)
-        except render.Cancelled:
+        job.run(progress)
+        if isinstance(job.error, render.Cancelled):
             return
-        except Exception as exc:  # RenderEngine.render swallows exceptions: report instead
-            self.report({"ERROR"}, f"Thurston render failed: {exc}")
+        if job.error is not None:  # RenderEngine.render swallows exceptions: report instead
+            self.report({"ERROR"}, f"Thurston render failed: {job.error}")
             return
-        export.store_stats(bscene.thurston, result)
-        self.update_stats("Thurston", result.summary())
-        self.write_result(bscene, result, scene, w, h)
+        for message in job.messages():
+            self.report({"WARNING"}, f"Thurston: {message}")
+        export.store_stats(bscene.thurston, job)
+        self.update_stats("Thurston", job.result.summary())
+        self.write_result(job, depsgraph.view_layer.name)
 
-    def write_result(self, bscene, result, scene, w, h):
-        passes = export.blender_passes(result, bscene.thurston.scale)
-        out = self.begin_result(0, 0, w, h)
+    def write_result(self, job, layer_name):
+        x, y, w, h = job.settings.window
+        # Blender's result rectangle counts rows from the bottom
+        out = self.begin_result(x, job.settings.height - y - h, w, h, layer=layer_name)
         layer = out.layers[0]
         rgba = np.ones((h, w, 4), np.float32)
-        rgba[..., :3] = np.nan_to_num(passes["color"])
-        values = {
-            "Combined": rgba,
-            # Blender's Z pass holds a large value where nothing is hit
-            "Depth": np.where(np.isfinite(passes["depth"]), passes["depth"], 1e10)[..., None],
-            "Normal": np.nan_to_num(passes["normal"]),
-            "IndexOB": export.index_pass(result, scene)[..., None],
-            CROSSINGS_AOV: passes["crossings"][..., None].astype(np.float32),
-        }
+        rgba[..., :3] = np.nan_to_num(job.result.passes["color"])
+        values = {"Combined": rgba, **export.pass_values(job)}
         for rp in layer.passes:
             a = values.get(rp.name)
-            if a is None:
-                continue
-            a = np.asarray(a, np.float32)
-            if a.shape[-1] != rp.channels:
-                a = np.repeat(a[..., :1], rp.channels, axis=-1)
-            rp.rect.foreach_set(_flip_rows(a).ravel())
+            if a is not None:
+                rp.rect.foreach_set(_flip_rows(a).ravel())
         self.end_result(out)
 
     # --- viewport: progressive refinement, coarse first ---------------------------------------------
@@ -157,24 +144,40 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         return _flip_rows(rgba)
 
 
-def _compatible_panels():
-    """Blender's own panels that make sense with this engine (as other engines register them)."""
-    keep = {"RENDER_PT_format", "RENDER_PT_frame_range", "RENDER_PT_output", "RENDER_PT_dimensions",
-            "VIEWLAYER_PT_layer_passes", "VIEWLAYER_PT_layer_passes_data", "VIEWLAYER_PT_layer_passes_aov",
-            "DATA_PT_lens", "DATA_PT_camera", "DATA_PT_light", "DATA_PT_EEVEE_light", "MATERIAL_PT_preview"}
-    return [getattr(bpy.types, name) for name in keep if hasattr(bpy.types, name)]
+# Blender's panels that are not generic (Blender's generic panels list BLENDER_RENDER) but that a user of
+# this engine needs: material slots and surface, the world's surface, the view layer's passes.
+_SHARED_PANELS = ("EEVEE_MATERIAL_PT_context_material", "EEVEE_MATERIAL_PT_surface", "EEVEE_WORLD_PT_surface",
+                  "VIEWLAYER_PT_layer_passes", "VIEWLAYER_PT_layer_passes_aov", "DATA_PT_EEVEE_light")
+
+
+def _walk(cls):
+    for sub in cls.__subclasses__():
+        yield sub
+        yield from _walk(sub)
+
+
+def compatible_panels():
+    """Blender's own Properties panels shown under this engine, as other engines register them: the
+    generic ones (all that list BLENDER_RENDER, but Freestyle's, which the tracer does not draw) and
+    _SHARED_PANELS."""
+    panels = {}
+    for panel in _walk(bpy.types.Panel):
+        engines = getattr(panel, "COMPAT_ENGINES", None)
+        if engines is None or getattr(panel, "bl_space_type", "") != "PROPERTIES":
+            continue
+        if ("BLENDER_RENDER" in engines and "freestyle" not in panel.__name__.lower()) or panel.__name__ in _SHARED_PANELS:
+            panels[panel.__name__] = panel
+    return list(panels.values())
 
 
 def register():
-    for panel in _compatible_panels():
-        if hasattr(panel, "COMPAT_ENGINES"):
-            panel.COMPAT_ENGINES.add(ThurstonRenderEngine.bl_idname)
+    for panel in compatible_panels():
+        panel.COMPAT_ENGINES.add(ThurstonRenderEngine.bl_idname)
 
 
 def unregister():
-    for panel in _compatible_panels():
-        if hasattr(panel, "COMPAT_ENGINES"):
-            panel.COMPAT_ENGINES.discard(ThurstonRenderEngine.bl_idname)
+    for panel in compatible_panels():
+        panel.COMPAT_ENGINES.discard(ThurstonRenderEngine.bl_idname)
 
 
 CLASSES = (ThurstonRenderEngine,)

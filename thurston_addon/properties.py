@@ -59,6 +59,11 @@ def _space_changed(self, context):
     guide.refresh(context.scene)
 
 
+class ThurstonNote(bpy.types.PropertyGroup):
+    kind: bpy.props.StringProperty(name="Kind", description="What the note is about (checks.py's kinds)")
+    message: bpy.props.StringProperty(name="Message")
+
+
 class ThurstonStats(bpy.types.PropertyGroup):
     valid: bpy.props.BoolProperty(default=False)
     seconds: bpy.props.FloatProperty(name="Time", unit="TIME_ABSOLUTE")
@@ -70,6 +75,8 @@ class ThurstonStats(bpy.types.PropertyGroup):
     bound: bpy.props.StringProperty(name="Accuracy", description="The hit-position accuracy the render promises")
     measured_error: bpy.props.FloatProperty(name="Measured Error", description="Largest hit-position difference, over sampled hits, to the same rays traced at 1/100 of the tolerance (chart units)")
     summary: bpy.props.StringProperty(name="Summary")
+    notes: bpy.props.CollectionProperty(type=ThurstonNote, name="Notes",
+                                        description="What the last render found that can make it look wrong, and what to change")
 
 
 class ThurstonSettings(bpy.types.PropertyGroup):
@@ -103,17 +110,29 @@ class ThurstonSettings(bpy.types.PropertyGroup):
                                         description="Also save renders here (.exr: all passes, .png: colour); empty: don't save")
     overwrite: bpy.props.BoolProperty(name="Overwrite", default=False, description="Replace the file at Save To if it exists")
     threads: bpy.props.IntProperty(name="Threads", default=0, min=0, description="0: all cores")
+    samples: bpy.props.IntProperty(name="Samples", default=0, min=0, max=4096,
+                                   description="Samples per pixel (0: the quality's)")
     stats: bpy.props.PointerProperty(type=ThurstonStats)
 
 
-CLASSES = (ThurstonStats, ThurstonSettings)
+class ThurstonViewLayerSettings(bpy.types.PropertyGroup):
+    """The add-on's own passes of a view layer (Blender's own, such as Depth, are on the view layer)."""
+    use_pass_geodesic_distance: bpy.props.BoolProperty(
+        name="Geodesic Distance", description="The length of the geodesic from the camera to the hit (Blender units)")
+    use_pass_crossings: bpy.props.BoolProperty(
+        name="Crossings", description="How many times the ray crossed a face of the domain before the hit")
+
+
+CLASSES = (ThurstonNote, ThurstonStats, ThurstonSettings, ThurstonViewLayerSettings)
 
 
 def register():
     bpy.types.Scene.thurston = bpy.props.PointerProperty(type=ThurstonSettings)
+    bpy.types.ViewLayer.thurston = bpy.props.PointerProperty(type=ThurstonViewLayerSettings)
     bpy.app.handlers.load_post.append(migrate_space_index)
 
 
 def unregister():
     bpy.app.handlers.load_post.remove(migrate_space_index)
+    del bpy.types.ViewLayer.thurston
     del bpy.types.Scene.thurston

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import checks
 from .scene import Camera, Scene, SceneError
 from .spaces import Space, SpaceError
 
@@ -80,10 +81,22 @@ class Settings:
     fog: float | None = None  # distance at which colour falls to 1/e; None: no fog
     threads: int = 0
     tolerance: float | None = None  # chord tolerance in chart units; None: the quality's bound
+    # (x, y, w, h): render only this window of the width x height image, x, y its top-left pixel
+    # (rows top-down); None: the whole image
+    region: tuple[int, int, int, int] | None = None
+
+    @property
+    def window(self) -> tuple[int, int, int, int]:
+        return self.region or (0, 0, self.width, self.height)
 
     def check(self):
         if self.width < 1 or self.height < 1:
             raise RenderError(f"image size {self.width}x{self.height} is not usable")
+        if self.region is not None:
+            x, y, w, h = self.region
+            if not (all(_whole(v) for v in self.region) and w >= 1 and h >= 1 and 0 <= x and x + w <= self.width
+                    and 0 <= y and y + h <= self.height):
+                raise RenderError(f"render region {self.region} is not a window of the {self.width}x{self.height} image")
         need, have = memory_needed(self.width, self.height), physical_memory()
         if have is not None and need > MEMORY_FRACTION * have:
             raise RenderError(f"image size {self.width}x{self.height} needs about {need / 2**30:.1f} GiB of memory "
@@ -125,7 +138,7 @@ def _whole(n) -> bool:
 
 @dataclass
 class Result:
-    passes: dict  # name -> (H, W, C) or (H, W) arrays, rows top-down
+    passes: dict  # name -> (h, w, C) or (h, w) arrays of the rendered window, rows top-down
     stats: dict = field(default_factory=dict)
 
     def summary(self) -> str:
@@ -148,13 +161,13 @@ def _object_copies(space: Space, obj, C):
     """The copies g(obj) that can reach the domain, each as (model vertices, kept triangles), and
     whether every vertex of the object is brought into the domain by one of them. The copies are
     taken around the copy whose centre (the chart mean of its vertices) lies in the domain, so an
-    object anywhere in the universal cover is shown, as the camera is."""
+    object anywhere in the universal cover is shown, as the camera is (checks.home_element)."""
     g = space.geometry
     try:
-        _, _, inside = space.bring_inside(g.to_model(obj.vertices.mean(axis=0)))
+        home = checks.home_element(space, obj.vertices)
     except SpaceError as exc:
         raise SceneError(f"object {obj.name!r}: {exc}") from None
-    X = g.to_model(obj.vertices) @ inside.T
+    X = g.to_model(obj.vertices) @ home.T
     T = obj.triangles
     for rings in range(1, g.copy_rings + 1):
         copies = []
@@ -293,29 +306,42 @@ def camera_frame(space: Space, camera: Camera):
     return X, basis
 
 
-def camera_rays(space: Space, camera: Camera, settings: Settings, jitter=(0.5, 0.5), frame=None):
-    """Origins and unit directions (model) for every pixel, rows top-down. `frame`: the result of
-    camera_frame(space, camera), computed once per render and passed in for every sample."""
-    X, (f, r, u) = frame if frame is not None else camera_frame(space, camera)
+def view_directions(camera: Camera, settings: Settings, jitter=(0.5, 0.5)):
+    """Unit directions of the window's pixels in the camera's orthonormal frame: the components
+    (forward, right, up), each (h, w), rows top-down. The forward component is the cosine between a
+    ray's initial direction and the optical axis."""
     W, H = settings.width, settings.height
-    j = (np.arange(W) + jitter[0]) / W
-    i = (np.arange(H) + jitter[1]) / H
+    x0, y0, w, h = settings.window
+    j = (x0 + np.arange(w) + jitter[0]) / W
+    i = (y0 + np.arange(h) + jitter[1]) / H
     if settings.projection == "perspective":
         t = math.tan(math.radians(camera.fov) / 2)
-        sx = (2 * j - 1) * t
-        sy = (1 - 2 * i) * t * H / W
-        a, b, c = np.ones((H, W)), np.broadcast_to(sx, (H, W)), np.broadcast_to(sy[:, None], (H, W))
+        sx = (2 * j - 1 + 2 * camera.shift[0]) * t
+        sy = ((1 - 2 * i) * H / W + 2 * camera.shift[1]) * t
+        a, b, c = np.ones((h, w)), np.broadcast_to(sx, (h, w)), np.broadcast_to(sy[:, None], (h, w))
         n = np.sqrt(a * a + b * b + c * c)
-        a, b, c = a / n, b / n, c / n
-    else:  # equirectangular: longitude 0 is forward, increasing to the right; latitude up
-        lon = (2 * j - 1) * math.pi
-        lat = (0.5 - i) * math.pi
-        a = np.cos(lat)[:, None] * np.cos(lon)[None, :]
-        b = np.cos(lat)[:, None] * np.sin(lon)[None, :]
-        c = np.broadcast_to(np.sin(lat)[:, None], (H, W))
-    D = a[..., None] * f + b[..., None] * r + c[..., None] * u
-    origins = np.broadcast_to(X, (H * W, 4)).copy()
-    return origins, np.ascontiguousarray(D.reshape(-1, 4))
+        return a / n, b / n, c / n
+    # equirectangular: longitude 0 is forward, increasing to the right; latitude up
+    lon = (2 * j - 1) * math.pi
+    lat = (0.5 - i) * math.pi
+    return (np.cos(lat)[:, None] * np.cos(lon)[None, :], np.cos(lat)[:, None] * np.sin(lon)[None, :],
+            np.broadcast_to(np.sin(lat)[:, None], (h, w)))
+
+
+def camera_rays(space: Space, camera: Camera, settings: Settings, jitter=(0.5, 0.5), frame=None):
+    """Origins and unit directions (model) for every pixel of the window, rows top-down. `frame`:
+    the result of camera_frame(space, camera), computed once per render and passed in for every
+    sample. Rays start at the camera's clip start along their geodesics (moved into the domain)."""
+    g = space.geometry
+    X, (f, r, u) = frame if frame is not None else camera_frame(space, camera)
+    a, b, c = view_directions(camera, settings, jitter)
+    D = np.ascontiguousarray((a[..., None] * f + b[..., None] * r + c[..., None] * u).reshape(-1, 4))
+    origins = np.broadcast_to(X, (len(D), 4)).copy()
+    if camera.clip_start > 0:
+        origins, D = g.geodesic(origins, D, np.full(len(D), camera.clip_start))
+        origins, D, _ = space.move_inside(origins, D)
+        origins, D = np.ascontiguousarray(origins, float), np.ascontiguousarray(D, float)
+    return origins, D
 
 
 CENTRE = (0.5, 0.5)
@@ -381,13 +407,19 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     camera = camera or scene.camera or Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
     if not (0 < camera.fov < 180):
         raise RenderError(f"camera field of view must be between 0 and 180 degrees, got {camera.fov}")
-    max_distance = settings.max_distance or space.max_distance
+    # rays are traced from the clip start to the nearer of the distance limit and the clip end
+    reach = min(settings.max_distance or space.max_distance, camera.clip_end or math.inf)
+    if not 0 <= camera.clip_start < reach:
+        raise RenderError(f"camera clip start {camera.clip_start} must be at least 0 and less than the distance the "
+                          f"rays reach ({reach})")
+    max_distance = reach - camera.clip_start
     max_crossings = space.max_crossings if settings.max_crossings is None else settings.max_crossings
     t0 = time.perf_counter()
     frame = camera_frame(space, camera)  # once: bring_inside and the re-orthonormalised frame
     tracer = tracer or make_tracer(space, scene, settings.threads)
     offsets = _sample_offsets(settings.samples or QUALITY[settings.quality].samples)
-    W, H = settings.width, settings.height
+    W = settings.width
+    _, _, w, h = settings.window  # the pixels rendered
     pixel_angle = (math.radians(camera.fov) if settings.projection == "perspective" else 2 * math.pi) / W
     tolerances = settings.tolerances(space, pixel_angle)
     limits = (max_distance, max_crossings, *tolerances)
@@ -396,7 +428,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     jobs = [(o, shade, True) for o in offsets]
     if CENTRE not in offsets:
         jobs.insert(0, (CENTRE, False, False))
-    pixels = W * H
+    pixels = w * h
     total = len(jobs) * pixels
     color_sum = None
     first = None
@@ -425,13 +457,13 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         del out
     seconds = time.perf_counter() - t0
     passes = {
-        "color": (color_sum / len(offsets)).reshape(H, W, 3).astype(np.float32),
-        "depth": first["depth"].reshape(H, W),
-        "normal": first["normal"].reshape(H, W, 3),
-        "position": first["position"].reshape(H, W, 3),
-        "object": first["object"].reshape(H, W),
-        "crossings": first["crossings"].reshape(H, W),
-        "stop": first["stop"].reshape(H, W),
+        "color": (color_sum / len(offsets)).reshape(h, w, 3).astype(np.float32),
+        "depth": first["depth"].reshape(h, w) + camera.clip_start,
+        "normal": first["normal"].reshape(h, w, 3),
+        "position": first["position"].reshape(h, w, 3),
+        "object": first["object"].reshape(h, w),
+        "crossings": first["crossings"].reshape(h, w),
+        "stop": first["stop"].reshape(h, w),
     }
     hits = first["stop"] == 0
     median_depth = float(np.median(first["depth"][hits])) if hits.any() else 0.0

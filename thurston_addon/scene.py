@@ -52,6 +52,9 @@ class Camera:
     forward: np.ndarray
     up: np.ndarray
     fov: float = 90.0  # horizontal field of view, degrees
+    shift: tuple[float, float] = (0.0, 0.0)  # lens shift (x right, y up), in units of the image width
+    clip_start: float = 0.0  # geodesic distance before which nothing is seen
+    clip_end: float | None = None  # geodesic distance after which nothing is seen; None: no limit
 
 
 @dataclass
@@ -253,6 +256,7 @@ def load_scene_file(path: str | Path) -> Scene:
         power = 1.0
         [camera]
         position = [0, 0, 0]; forward = [0, 1, 0]; up = [0, 0, 1]; fov = 90
+        shift = [0, 0]; clip_start = 0  # lens shift in image widths; clip_end (absent: none)
     """
     path = Path(path)
     if path.suffix.lower() != ".toml":
@@ -306,6 +310,9 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
             _vec(c.get("forward", [0, 1, 0]), f"{path}: camera.forward"),
             _vec(c.get("up", [0, 0, 1]), f"{path}: camera.up"),
             _number(c, "fov", 90.0, f"{path}: camera"),
+            shift=tuple(_vec(c.get("shift", [0, 0]), f"{path}: camera.shift", 2)),
+            clip_start=_number(c, "clip_start", 0.0, f"{path}: camera"),
+            clip_end=_number(c, "clip_end", 0.0, f"{path}: camera") if "clip_end" in c else None,
         )
     return scene
 

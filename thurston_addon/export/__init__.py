@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
+from dataclasses import dataclass
 
 import bpy
 import numpy as np
 
-from .. import properties, render, scene as scenes, spaces
+from .. import checks, properties, render, scene as scenes, spaces
 
 GUIDE_TAG = "thurston_guide"
 _space_cache: dict = {}
@@ -42,9 +44,10 @@ def load_space(settings) -> spaces.Space:
     return _space_cache[key]
 
 
-def render_settings(settings, width: int, height: int, projection: str = "perspective") -> render.Settings:
+def render_settings(settings, width: int, height: int, projection: str = "perspective", region=None) -> render.Settings:
     return render.Settings(
         width=width, height=height, projection=projection, quality=settings.quality, shading=settings.shading,
+        samples=settings.samples or None, region=region,
         # the panel's distances are in Blender units; the tracer's in chart units
         max_distance=settings.max_distance / settings.scale or None,
         max_crossings=None if settings.max_crossings < 0 else settings.max_crossings,
@@ -83,47 +86,41 @@ def _is_guide(obj) -> bool:
     return bool(obj.get(GUIDE_TAG)) or any(c.get(GUIDE_TAG) for c in obj.users_collection)
 
 
-def _render_disabled(obj, hidden_collections) -> bool:
-    """Disabled in renders: the object, or every collection it is in (directly or by a parent)."""
+def _render_disabled(inst, hidden_collections) -> bool:
+    """Disabled in renders: the object, or every collection it is in (directly or by a parent). An
+    instance is as visible as its instancer: a collection instance shows also when its source
+    collection is excluded from the view layer (as in Cycles)."""
+    obj = (inst.parent if inst.is_instance else inst.object).original
     return obj.hide_render or (bool(obj.users_collection) and all(c in hidden_collections for c in obj.users_collection))
 
 
-def _hidden_collections(bscene):
-    """Collections whose contents Blender does not render: hide_render on them or on a parent,
-    or excluded from the view layer."""
+def _hidden_collections(view_layer):
+    """Collections whose contents Blender does not render in this view layer: hide_render on them
+    or on a parent, or excluded from the view layer."""
     hidden = set()
 
-    def walk(coll, parent_hidden):
-        h = parent_hidden or coll.hide_render
+    def walk(layer_coll, parent_hidden):
+        coll = layer_coll.collection
+        h = parent_hidden or coll.hide_render or layer_coll.exclude
         if h:
             hidden.add(coll)
-        for child in coll.children:
+        for child in layer_coll.children:
             walk(child, h)
 
-    walk(bscene.collection, False)
-
-    def excluded(layer_coll):
-        if layer_coll.exclude:
-            hidden.add(layer_coll.collection)
-            hidden.update(layer_coll.collection.children_recursive)
-        for child in layer_coll.children:
-            excluded(child)
-
-    for view_layer in bscene.view_layers[:1]:
-        excluded(view_layer.layer_collection)
+    walk(view_layer.layer_collection, False)
     return hidden
 
 
-def export_scene(depsgraph, scale: float, notes: list[str]) -> scenes.Scene:
+def export_scene(depsgraph, scale: float, notes: list[checks.Note]) -> scenes.Scene:
     """Mesh objects and instances (modifiers applied, world matrices), materials and point lights,
     in chart coordinates (world / scale). Skipped things are described in `notes`."""
     scene = scenes.Scene()
     skipped: dict[str, list[str]] = {}
-    hidden_collections = _hidden_collections(depsgraph.scene.original)
+    hidden_collections = _hidden_collections(depsgraph.view_layer)
     for inst in depsgraph.object_instances:
         obj = inst.object
         original = obj.original
-        if _is_guide(original) or _render_disabled(original, hidden_collections):
+        if _is_guide(original) or _render_disabled(inst, hidden_collections):
             continue
         if inst.is_instance and inst.parent.original.type not in ("MESH", "EMPTY"):
             continue  # geometry of a curve, text, ... object: skipped (and noted) as that object
@@ -161,12 +158,13 @@ def export_scene(depsgraph, scale: float, notes: list[str]) -> scenes.Scene:
             skipped.setdefault(f"{obj.type.lower()} objects (only meshes)", []).append(original.name)
     for what, names in skipped.items():
         shown = ", ".join(sorted(set(names))[:5]) + (" ..." if len(set(names)) > 5 else "")
-        notes.append(f"skipped {what}: {shown}")
+        notes.append(checks.Note(checks.DROPPED, f"skipped {what}: {shown}"))
     return scene
 
 
 def export_camera(bscene, depsgraph, scale: float, width: int, height: int, camera_object=None) -> scenes.Camera:
-    """The scene camera as evaluated in this depsgraph (animated cameras move with the frame)."""
+    """The scene camera as evaluated in this depsgraph (animated cameras move with the frame): its
+    field of view by Blender's sensor fit, its lens shift and its clip distances."""
     cam = camera_object or bscene.camera
     if cam is None:
         raise ExportError("the scene has no camera: add one (Add > Camera) and make it the scene camera")
@@ -177,13 +175,15 @@ def export_camera(bscene, depsgraph, scale: float, width: int, height: int, came
     data = cam.data
     if data.type != "PERSP":
         raise ExportError(f"camera {cam.name!r} is {data.type.lower()}; only perspective cameras are supported")
-    # Blender's angle spans the larger image side under AUTO sensor fit
+    # Blender's angle spans the sensor-fit side (AUTO: the larger side); its lens shift is in units of
+    # that side; the tracer's angle and shift are the width's
     fit = data.sensor_fit
-    if fit == "VERTICAL" or (fit == "AUTO" and height > width):
-        fov = 2 * math.atan(math.tan(data.angle / 2) * width / height)
-    else:
-        fov = data.angle
-    return scenes.Camera(position, forward, up, math.degrees(fov))
+    vertical = fit == "VERTICAL" or (fit == "AUTO" and height > width)
+    fov = 2 * math.atan(math.tan(data.angle / 2) * width / height) if vertical else data.angle
+    per_width = height / width if vertical else 1.0
+    return scenes.Camera(position, forward, up, math.degrees(fov),
+                         shift=(data.shift_x * per_width, data.shift_y * per_width),
+                         clip_start=data.clip_start / scale, clip_end=data.clip_end / scale)
 
 
 def resolution(bscene) -> tuple[int, int]:
@@ -191,18 +191,78 @@ def resolution(bscene) -> tuple[int, int]:
     return max(1, r.resolution_x * r.resolution_percentage // 100), max(1, r.resolution_y * r.resolution_percentage // 100)
 
 
-def collect(context_scene, depsgraph, width=None, height=None, projection="perspective", camera_object=None):
-    """Everything a render needs: (space, scene, camera, settings, notes)."""
-    settings = context_scene.thurston
-    space = load_space(settings)
-    w, h = (width, height) if width else resolution(context_scene)
-    notes: list[str] = []
-    scene = export_scene(depsgraph, settings.scale, notes)
-    if not scene.objects:
-        raise ExportError("nothing to render: the scene has no visible mesh objects (the domain guide does not count)")
-    camera = export_camera(context_scene, depsgraph, settings.scale, w, h, camera_object)
-    rs = render_settings(settings, w, h, projection)
-    return space, scene, camera, rs, notes
+def border_region(bscene, width: int, height: int) -> tuple[int, int, int, int] | None:
+    """The render border as a window (x, y, w, h) of the image, y from the top, by Blender's rule
+    (the border's fractions times the size, truncated); None without a border."""
+    r = bscene.render
+    if not r.use_border:
+        return None
+    x0, x1 = int(r.border_min_x * width), int(r.border_max_x * width)
+    y0, y1 = int(r.border_min_y * height), int(r.border_max_y * height)  # from the bottom
+    if x1 <= x0 or y1 <= y0:
+        raise ExportError("the render region is empty: draw a larger region (Ctrl+B) or clear it (Ctrl+Alt+B)")
+    return x0, height - y1, x1 - x0, y1 - y0
+
+
+# Blender's fix for each kind of note: (operator, what to click).
+FIXES = {
+    checks.CAMERA_OUTSIDE: ("thurston.camera_inside", "Bring Camera Inside"),
+    checks.SCENE_TOO_LARGE: ("thurston.fit_scale", "Fit Scale"),
+    checks.SCENE_TOO_SMALL: ("thurston.fit_scale", "Fit Scale"),
+}
+
+
+def _with_fix(note: checks.Note) -> checks.Note:
+    fix = FIXES.get(note.kind)
+    return note if fix is None else checks.Note(note.kind, f"{note.message} ({fix[1]} in the Thurston panel does it)")
+
+
+class RenderJob:
+    """A render of the Blender scene: exported, checked and compiled on the calling thread (Blender
+    data is read there), traced by run() on any thread. `notes` gathers everything the user should
+    hear about: what was skipped or cut, and the checks before and after the render."""
+
+    def __init__(self, bscene, depsgraph, width=None, height=None, projection="perspective", camera_object=None,
+                 region=None):
+        settings = bscene.thurston
+        self.notes: list[checks.Note] = []
+        self.space = load_space(settings)
+        self.scale = settings.scale
+        w, h = (width, height) if width else resolution(bscene)
+        with warnings.catch_warnings(record=True) as caught:  # the scene's and the compiler's warnings
+            warnings.simplefilter("always")
+            self.scene = export_scene(depsgraph, settings.scale, self.notes)
+            if not self.scene.objects:
+                raise ExportError("nothing to render: the scene has no visible mesh objects (the domain guide does not count)")
+            self.camera = export_camera(bscene, depsgraph, settings.scale, w, h, camera_object)
+            self.settings = render_settings(settings, w, h, projection, region)
+            lambert = self.settings.shading == "lambert"
+            self.notes += checks.before_render(self.space, self.scene, self.camera, lambert)
+            try:
+                self.tracer = render.make_tracer(self.space, self.scene, self.settings.threads)
+            except scenes.SceneError as exc:
+                raise ExportError(str(exc)) from None
+        self.notes += [checks.Note(checks.DROPPED, str(w.message)) for w in caught]
+        self.cancelled = False
+        self.fraction = 0.0
+        self.result: render.Result | None = None
+        self.error: Exception | None = None
+
+    def progress(self, done, total):
+        self.fraction = done / max(total, 1)
+        return not self.cancelled
+
+    def run(self, progress=None):
+        """Trace; the result (or the exception: cancelled or failed) is kept for the main thread."""
+        try:
+            self.result = render.render(self.space, self.scene, self.settings, camera=self.camera,
+                                        progress=progress or self.progress, tracer=self.tracer)
+            self.notes += checks.after_render(self.scene, self.result.passes, self.settings.shading == "lambert")
+        except Exception as exc:
+            self.error = exc
+
+    def messages(self) -> list[str]:
+        return [_with_fix(n).message for n in self.notes]
 
 
 def blender_passes(result: render.Result, scale: float) -> dict:
@@ -213,17 +273,74 @@ def blender_passes(result: render.Result, scale: float) -> dict:
     return passes
 
 
-def index_pass(result: render.Result, scene) -> np.ndarray:
-    """Blender's IndexOB: each object's pass_index where it is seen, 0 where nothing is hit."""
-    lookup = np.array([o.pass_index for o in scene.objects] + [0], np.float32)  # object -1 -> the 0 at the end
-    return lookup[result.passes["object"]]
+@dataclass(frozen=True)
+class BlenderPass:
+    """A render pass the engine fills besides Combined."""
+    name: str  # Blender's pass name
+    chan_id: str  # Blender's channel letters; their number is the channel count
+    type: str  # VALUE or VECTOR
+    flag: str  # the view layer property that enables it
+    addon_flag: bool  # the flag is on view_layer.thurston (the add-on's), not on the view layer
+    source: str  # the render pass it comes from (render.PASSES); render-blend enables it from the settings
 
 
-def store_stats(settings, result: render.Result):
+# Every pass the engine can fill, in one place: the engine registers and fills them, the View Layer
+# panel shows their switches, render-blend turns them on from the settings' passes.
+BLENDER_PASSES = (
+    BlenderPass("Depth", "Z", "VALUE", "use_pass_z", False, "depth"),
+    BlenderPass("Geodesic Distance", "X", "VALUE", "use_pass_geodesic_distance", True, "depth"),
+    BlenderPass("Normal", "XYZ", "VECTOR", "use_pass_normal", False, "normal"),
+    BlenderPass("Position", "XYZ", "VECTOR", "use_pass_position", False, "position"),
+    BlenderPass("IndexOB", "X", "VALUE", "use_pass_object_index", False, "object"),
+    BlenderPass("Crossings", "X", "VALUE", "use_pass_crossings", True, "crossings"),
+)
+NO_HIT_DEPTH = 1e10  # what Blender's depth passes hold where nothing is hit
+
+
+def pass_enabled(view_layer, p: BlenderPass) -> bool:
+    return getattr(view_layer.thurston if p.addon_flag else view_layer, p.flag)
+
+
+def enable_pass(view_layer, p: BlenderPass):
+    setattr(view_layer.thurston if p.addon_flag else view_layer, p.flag, True)
+
+
+def pass_values(job: RenderJob) -> dict[str, np.ndarray]:
+    """Each BLENDER_PASSES entry's pixels, (h, w, channels) float32, in Blender's conventions: world
+    units; Depth along the camera's view axis (the geodesic distance times the cosine between the
+    ray's initial direction and the optical axis), the geodesic distance as its own pass; the
+    object's pass_index; NO_HIT_DEPTH where nothing is hit."""
+    passes, scale = job.result.passes, job.scale
+    hit = np.isfinite(passes["depth"])
+    distance = np.where(hit, passes["depth"] * scale, NO_HIT_DEPTH)
+    along_axis = render.view_directions(job.camera, job.settings)[0]
+    pass_index = np.array([o.pass_index for o in job.scene.objects] + [0])  # object -1 (none): the 0 at the end
+    values = {
+        "Depth": np.where(hit, distance * along_axis, NO_HIT_DEPTH),
+        "Geodesic Distance": distance,
+        "Normal": np.nan_to_num(passes["normal"]),
+        "Position": np.nan_to_num(passes["position"] * scale),
+        "IndexOB": pass_index[passes["object"]],
+        "Crossings": passes["crossings"],
+    }
+    return {name: np.asarray(a, np.float32).reshape(*a.shape[:2], -1) for name, a in values.items()}
+
+
+def store_stats(settings, job: RenderJob):
+    """The last render's statistics and notes, for the panel (and render-blend's output)."""
     s = settings.stats
-    st = result.stats
+    st = job.result.stats
     s.valid = True
     s.seconds, s.rays, s.crossings_per_ray = st["seconds"], st["rays"], st["crossings_per_ray"]
     s.footprint, s.geodesic_error = st["footprint"], st["geodesic_error"]
     s.chords_per_ray, s.bound, s.measured_error = st["chords_per_ray"], st["bound"], st["measured_error"]
-    s.summary = result.summary()
+    s.summary = job.result.summary()
+    store_notes(settings, job.notes)
+
+
+def store_notes(settings, notes: list[checks.Note]):
+    stored = settings.stats.notes
+    stored.clear()
+    for note in notes:
+        item = stored.add()
+        item.kind, item.message = note.kind, _with_fix(note).message

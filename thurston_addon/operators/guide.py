@@ -1,9 +1,10 @@
-"""Operators on the domain guide and the camera: Add Domain Guide, Bring Camera Inside."""
+"""Operators on the domain guide, the scale and the camera: Add Domain Guide, Fit Scale, Bring
+Camera Inside."""
 import bpy
 import mathutils
 import numpy as np
 
-from .. import export, guide
+from .. import checks, export, guide
 
 
 class THURSTON_OT_domain_guide(bpy.types.Operator):
@@ -46,4 +47,32 @@ class THURSTON_OT_camera_inside(bpy.types.Operator):
         return {"FINISHED"}
 
 
-CLASSES = (THURSTON_OT_domain_guide, THURSTON_OT_camera_inside)
+class THURSTON_OT_fit_scale(bpy.types.Operator):
+    """Set the scale so that the scene's objects fit the fundamental domain (their copies do not overlap)"""
+
+    bl_idname = "thurston.fit_scale"
+    bl_label = "Fit Scale"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        settings = context.scene.thurston
+        try:
+            space = export.load_space(settings)
+            world = export.export_scene(context.evaluated_depsgraph_get(), 1.0, [])  # Blender units
+        except export.ExportError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        if not world.objects:
+            self.report({"ERROR"}, "The scene has no visible mesh objects to fit")
+            return {"CANCELLED"}
+        V = np.vstack([o.vertices for o in world.objects])
+        size = float(np.linalg.norm(np.ptp(V, axis=0)))
+        if size == 0:
+            self.report({"ERROR"}, "The scene's objects have no extent to fit")
+            return {"CANCELLED"}
+        settings.scale = checks.fit_scale(space, size)
+        self.report({"INFO"}, f"Scale set to {settings.scale:.4g} Blender units per chart unit")
+        return {"FINISHED"}
+
+
+CLASSES = (THURSTON_OT_domain_guide, THURSTON_OT_fit_scale, THURSTON_OT_camera_inside)

@@ -87,45 +87,18 @@ def set_world_panorama(bscene, image):
 
 
 # --- the operators -----------------------------------------------------------------------------------
-class _RenderJob:
-    """Shared by the operators: export now (main thread), trace on demand (any thread)."""
-
-    def __init__(self, context, width=None, height=None, projection="perspective", quality=None, camera=None):
-        depsgraph = context.evaluated_depsgraph_get()
-        self.space, self.scene, self.camera, self.settings, self.notes = export.collect(
-            context.scene, depsgraph, width, height, projection)
-        if quality:
-            self.settings.quality = quality
-        if camera is not None:
-            self.camera = camera
-        self.cancelled = False
-        self.fraction = 0.0
-        self.result = None
-        self.error = None
-
-    def progress(self, done, total):
-        self.fraction = done / max(total, 1)
-        return not self.cancelled
-
-    def run(self):
-        try:
-            self.result = render.render(self.space, self.scene, self.settings, camera=self.camera, progress=self.progress)
-        except Exception as exc:  # cancelled or failed: reported on the main thread
-            self.error = exc
-
-
 class _ThurstonRenderOperator(bpy.types.Operator):
     bl_options = {"REGISTER"}
     image_name = "Thurston View"
 
-    _job: _RenderJob | None = None
+    _job: export.RenderJob | None = None
     _thread = None
     _timer = None
 
-    def make_job(self, context) -> _RenderJob:
+    def make_job(self, context) -> export.RenderJob:
         raise NotImplementedError
 
-    def finish(self, context, job: _RenderJob):
+    def finish(self, context, job: export.RenderJob):
         image = store_image(self.image_name, job.result.passes["color"])
         show_image(context, image)
 
@@ -136,8 +109,6 @@ class _ThurstonRenderOperator(bpy.types.Operator):
         except (export.ExportError, render.RenderError, images.OutputError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        for note in job.notes:
-            self.report({"WARNING"}, note)
         if bpy.app.background:
             job.run()
             return self._conclude(context, job)
@@ -173,7 +144,9 @@ class _ThurstonRenderOperator(bpy.types.Operator):
         if job.error is not None:
             self.report({"ERROR"}, f"Thurston render failed: {job.error}")
             return {"CANCELLED"}
-        export.store_stats(context.scene.thurston, job.result)
+        for message in job.messages():
+            self.report({"WARNING"}, message)
+        export.store_stats(context.scene.thurston, job)
         try:
             self.finish(context, job)
             save_if_asked(context.scene.thurston, job.result, self.report)
@@ -191,7 +164,7 @@ class THURSTON_OT_render_view(_ThurstonRenderOperator):
     bl_label = "Render View to Image"
 
     def make_job(self, context):
-        return _RenderJob(context)
+        return export.RenderJob(context.scene, context.evaluated_depsgraph_get())
 
 
 class THURSTON_OT_preview(_ThurstonRenderOperator):
@@ -204,7 +177,9 @@ class THURSTON_OT_preview(_ThurstonRenderOperator):
     def make_job(self, context):
         w, h = export.resolution(context.scene)
         k = max(1, max(w, h) // 320)
-        return _RenderJob(context, width=max(1, w // k), height=max(1, h // k), quality="preview")
+        job = export.RenderJob(context.scene, context.evaluated_depsgraph_get(), width=max(1, w // k), height=max(1, h // k))
+        job.settings.quality = "preview"
+        return job
 
 
 class THURSTON_OT_bake_panorama(_ThurstonRenderOperator):
@@ -216,7 +191,8 @@ class THURSTON_OT_bake_panorama(_ThurstonRenderOperator):
 
     def make_job(self, context):
         w = context.scene.thurston.panorama_width
-        job = _RenderJob(context, width=w, height=max(1, w // 2), projection="equirect")
+        job = export.RenderJob(context.scene, context.evaluated_depsgraph_get(), width=w, height=max(1, w // 2),
+                               projection="equirect")
         # Blender's equirectangular mapping: the image centre looks along +X, the right half of the
         # image towards -Y, up is +Z (world axes)
         job.camera.forward, job.camera.up = np.array([1.0, 0, 0]), np.array([0, 0, 1.0])

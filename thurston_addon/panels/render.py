@@ -1,8 +1,10 @@
-"""The panel in the render properties, and a presets menu for its settings."""
+"""The add-on's panels: the settings in Render Properties (under the Thurston engine only), its film
+and view layer passes, and the operators in the 3D viewport's sidebar (under any engine)."""
 import bpy
 
-from .. import guide, properties
+from .. import export, guide, properties
 
+ENGINE = "THURSTON"
 
 
 class THURSTON_MT_presets(bpy.types.Menu):
@@ -12,7 +14,39 @@ class THURSTON_MT_presets(bpy.types.Menu):
     draw = bpy.types.Menu.draw_preset
 
 
-class THURSTON_PT_render(bpy.types.Panel):
+class _UnderThurston:
+    @classmethod
+    def poll(cls, context):
+        return context.engine == ENGINE
+
+
+def draw_space(layout, context):
+    """The space, its scale and the fixes that keep the camera and the scene in the domain."""
+    s = context.scene.thurston
+    col = layout.column()
+    col.prop(s, "space")
+    if s.space_id == properties.FILE:
+        col.prop(s, "space_file")
+    elif properties.space_missing(s):
+        col.label(text=f"No preset {s.space_id!r}: its file is gone; choose another space", icon="ERROR")
+    row = col.row(align=True)
+    row.prop(s, "scale")
+    row.operator("thurston.fit_scale", text="", icon="FULLSCREEN_ENTER")
+    col.operator("thurston.domain_guide", icon="MESH_ICOSPHERE")
+    if guide.camera_outside(context.scene):
+        box = layout.box()
+        box.label(text="The camera is outside the domain", icon="ERROR")
+        box.operator("thurston.camera_inside", icon="CAMERA_DATA")
+
+
+def draw_renders(layout):
+    row = layout.row(align=True)
+    row.operator("thurston.render_view", icon="RENDER_STILL")
+    row.operator("thurston.bake_panorama", icon="WORLD")
+    row.operator("thurston.preview", icon="HIDE_OFF")
+
+
+class THURSTON_PT_render(_UnderThurston, bpy.types.Panel):
     bl_label = "Thurston"
     bl_space_type = "PROPERTIES"
     bl_region_type = "WINDOW"
@@ -28,51 +62,92 @@ class THURSTON_PT_render(bpy.types.Panel):
         layout = self.layout
         layout.use_property_split = True
         s = context.scene.thurston
-        col = layout.column()
-        col.prop(s, "space")
-        if s.space_id == properties.FILE:
-            col.prop(s, "space_file")
-        elif properties.space_missing(s):
-            col.label(text=f"No preset {s.space_id!r}: its file is gone; choose another space", icon="ERROR")
-        col.prop(s, "scale")
-        col.operator("thurston.domain_guide", icon="MESH_ICOSPHERE")
-        if guide.camera_outside(context.scene):
-            box = layout.box()
-            box.label(text="The camera is outside the domain", icon="ERROR")
-            box.operator("thurston.camera_inside", icon="CAMERA_DATA")
-
+        draw_space(layout, context)
         col = layout.column(heading="Accuracy")
         col.prop(s, "quality")
+        col.prop(s, "samples")
         col.prop(s, "tolerance")
         col.prop(s, "max_distance")
         col.prop(s, "max_crossings")
         col = layout.column()
         col.prop(s, "shading")
         col.prop(s, "fog")
+        col.prop(s, "threads")
         col.prop(s, "passes")
         col.prop(s, "save_path")
         col.prop(s, "overwrite")
         col.prop(s, "panorama_width")
-
-        row = layout.row(align=True)
-        row.operator("thurston.render_view", icon="RENDER_STILL")
-        row.operator("thurston.bake_panorama", icon="WORLD")
-        row.operator("thurston.preview", icon="HIDE_OFF")
-
-        st = s.stats
-        if st.valid:
-            box = layout.box()
-            box.label(text="Last render")
-            grid = box.grid_flow(columns=2, even_columns=True)
-            grid.label(text=f"Time: {st.seconds:.2f} s")
-            grid.label(text=f"Rays: {st.rays:,}")
-            grid.label(text=f"Crossings/ray: {st.crossings_per_ray:.2f}")
-            grid.label(text=f"Chords/ray: {st.chords_per_ray:.2f}")
-            grid.label(text=f"Pixel footprint: {st.footprint:.2e}")
-            box.label(text=f"Accuracy: {st.bound}")
-            grid = box.grid_flow(columns=2, even_columns=True)
-            grid.label(text=f"Measured error: {st.measured_error:.1e}")
-            grid.label(text=f"Geodesic error: {st.geodesic_error:.1e}")
+        draw_renders(layout)
+        draw_last_render(layout, s.stats)
 
 
-CLASSES = (THURSTON_MT_presets, THURSTON_PT_render)
+def draw_last_render(layout, st):
+    if not st.valid:
+        return
+    box = layout.box()
+    box.label(text="Last render")
+    grid = box.grid_flow(columns=2, even_columns=True)
+    grid.label(text=f"Time: {st.seconds:.2f} s")
+    grid.label(text=f"Rays: {st.rays:,}")
+    grid.label(text=f"Crossings/ray: {st.crossings_per_ray:.2f}")
+    grid.label(text=f"Chords/ray: {st.chords_per_ray:.2f}")
+    grid.label(text=f"Pixel footprint: {st.footprint:.2e}")
+    box.label(text=f"Accuracy: {st.bound}")
+    grid = box.grid_flow(columns=2, even_columns=True)
+    grid.label(text=f"Measured error: {st.measured_error:.1e}")
+    grid.label(text=f"Geodesic error: {st.geodesic_error:.1e}")
+    for note in st.notes:
+        row = box.row()
+        row.label(text=note.message, icon="ERROR")
+        fix = export.FIXES.get(note.kind)
+        if fix:
+            row.operator(fix[0], text=fix[1])
+
+
+class THURSTON_PT_film(_UnderThurston, bpy.types.Panel):
+    bl_label = "Film"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        self.layout.use_property_split = True
+        self.layout.prop(context.scene.render, "film_transparent", text="Transparent")
+
+
+class THURSTON_PT_layer_passes(_UnderThurston, bpy.types.Panel):
+    """View Layer > Passes > Data: the passes the engine fills (Blender's and the add-on's)."""
+
+    bl_label = "Data"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "view_layer"
+    bl_parent_id = "VIEWLAYER_PT_layer_passes"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        col = layout.column(heading="Include", align=True)
+        layer = context.view_layer
+        for p in export.BLENDER_PASSES:
+            col.prop(layer.thurston if p.addon_flag else layer, p.flag)
+
+
+class THURSTON_PT_tools(bpy.types.Panel):
+    """The add-on's operators, under any render engine: the 3D viewport's sidebar, tab Thurston."""
+
+    bl_label = "Thurston"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Thurston"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        draw_space(layout, context)
+        draw_renders(layout)
+        draw_last_render(layout, context.scene.thurston.stats)
+
+
+CLASSES = (THURSTON_MT_presets, THURSTON_PT_render, THURSTON_PT_film, THURSTON_PT_layer_passes, THURSTON_PT_tools)

@@ -1,0 +1,140 @@
+"""What makes a render come out black, empty or not as meant, found before and after it. Each finding
+is a Note: a kind (so a front end can offer its fix) and a message saying what to change. No Blender
+here: the command line prints the notes as warnings, the Blender layer puts them in its report."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .scene import Camera, Scene
+from .spaces import Space
+
+CAMERA_OUTSIDE = "camera_outside"
+CAMERA_IN_OBJECT = "camera_in_object"
+NO_LIGHTS = "no_lights"
+UNLIT = "unlit"
+SCENE_TOO_LARGE = "scene_too_large"
+SCENE_TOO_SMALL = "scene_too_small"
+DROPPED = "dropped"  # objects or parts of them not rendered (the message names them)
+
+# An object whose chart size exceeds the domain's extent this many times fills the domain with its
+# overlapping copies; a scene smaller than 1/TOO_SMALL of the extent shows as specks.
+TOO_LARGE = 1.5
+TOO_SMALL = 200.0
+# The scene's size after Fit Scale: this fraction of the domain's inscribed ball's diameter.
+FIT_FRACTION = 0.6
+
+
+@dataclass(frozen=True)
+class Note:
+    kind: str
+    message: str
+
+
+def home_element(space: Space, vertices) -> np.ndarray:
+    """The isometry that brings an object (chart vertices) home: its centre, the chart mean of its
+    vertices, into the domain. Raises SpaceError if the centre cannot be brought in."""
+    g = space.geometry
+    return space.bring_inside(g.to_model(np.asarray(vertices, float).mean(axis=0)))[2]
+
+
+def fit_scale(space: Space, scene_size: float) -> float:
+    """The scale (scene units per chart unit) at which a scene of diagonal `scene_size` spans
+    FIT_FRACTION of the diameter of the domain's inscribed chart ball."""
+    return scene_size / (FIT_FRACTION * 2 * space.chart_inradius)
+
+
+def _diagonal(vertices) -> float:
+    return float(np.linalg.norm(np.ptp(vertices, axis=0)))
+
+
+def _names(objects) -> str:
+    names = sorted({o.name for o in objects})
+    return ", ".join(repr(n) for n in names[:5]) + (" ..." if len(names) > 5 else "")
+
+
+def winding_numbers(points, vertices, triangles, chunk=100_000) -> np.ndarray:
+    """The winding number of a triangle mesh about each point: the solid angles of its triangles
+    (Van Oosterom and Strackee) over 4 pi; 1 inside a closed outward mesh, 0 outside. Chart
+    triangles: the number is topological, so any chart gives the manifold's answer."""
+    P = np.asarray(points, float)
+    out = np.zeros(len(P))
+    for start in range(0, len(triangles), chunk):
+        T = triangles[start:start + chunk]
+        a, b, c = (vertices[T[:, k]][None, :, :] - P[:, None, :] for k in range(3))
+        la, lb, lc = (np.linalg.norm(v, axis=-1) for v in (a, b, c))
+        det = np.einsum("pti,pti->pt", a, np.cross(b, c))
+        div = (la * lb * lc + np.einsum("pti,pti->pt", a, b) * lc + np.einsum("pti,pti->pt", a, c) * lb
+               + np.einsum("pti,pti->pt", b, c) * la)
+        out += np.sum(2 * np.arctan2(det, div), axis=1) / (4 * math.pi)
+    return out
+
+
+def _copies_near(space: Space, point_model, obj, M_home) -> np.ndarray:
+    """Chart positions of the copies of a point around an object where it lies in the cover: the
+    point's images around the domain, taken back by the object's home element."""
+    g = space.geometry
+    back = np.linalg.inv(M_home)
+    P = np.array([back @ E @ point_model for E in space.neighbourhood(1)])
+    P = np.asarray(g.to_chart(P), float)
+    lo, hi = obj.vertices.min(axis=0), obj.vertices.max(axis=0)
+    inside_box = np.all((P >= lo) & (P <= hi), axis=1)
+    return P[inside_box]
+
+
+def _encloses(space, obj, M_home, point_model) -> bool:
+    P = _copies_near(space, point_model, obj, M_home)
+    return bool(len(P)) and bool(np.any(np.abs(winding_numbers(P, obj.vertices, obj.triangles)) > 0.5))
+
+
+def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> list[Note]:
+    """Notes on the scene and camera as given: camera outside the domain or inside an unlit closed
+    object, no lights, objects far larger or smaller than the domain."""
+    g = space.geometry
+    notes = []
+    X = g.to_model(np.asarray(camera.position, float))
+    if not space.domain.contains(X):
+        notes.append(Note(CAMERA_OUTSIDE, "the camera lies outside the fundamental domain: the face pairings "
+                                          "move it in, to the same point of the space (the view is the same)"))
+    homes = [home_element(space, o.vertices) for o in scene.objects]
+    lights = [g.to_model(np.asarray(light.position, float)) for light in scene.lights]
+    for obj, M in zip(scene.objects, homes):
+        if np.any(obj.emission > 0) or not _encloses(space, obj, M, X):
+            continue
+        if not any(_encloses(space, obj, M, L) for L in lights):
+            notes.append(Note(CAMERA_IN_OBJECT, f"the camera is inside object {obj.name!r} and no light is: "
+                                                f"it sees the object's unlit inside; move the camera out of it"))
+    emissive = [o for o in scene.objects if np.any(o.emission > 0)]
+    if lambert and not scene.lights:
+        notes.append(Note(NO_LIGHTS, "the scene has no lights: "
+                          + ("only emissive objects show" if emissive else "everything renders black")
+                          + "; add a point light inside the domain"))
+    extent = space.extent
+    large = [o for o in scene.objects if _diagonal(o.vertices) > TOO_LARGE * extent]
+    if large:
+        one = len(large) == 1
+        notes.append(Note(SCENE_TOO_LARGE, f"{_names(large)} {'is' if one else 'are'} larger than the domain "
+                                           f"({_diagonal(large[0].vertices):.3g} against {extent:.3g} chart units): "
+                                           f"{'its' if one else 'their'} copies overlap and fill it; scale the scene "
+                                           f"to fit the domain"))
+    elif scene.objects and max(_diagonal(o.vertices) for o in scene.objects) < extent / TOO_SMALL:
+        notes.append(Note(SCENE_TOO_SMALL, f"the scene is over {TOO_SMALL:g} times smaller than the domain "
+                                           f"({extent:.3g} chart units): its copies show as specks; scale the scene "
+                                           f"to fit the domain"))
+    return notes
+
+
+def after_render(scene: Scene, passes: dict, lambert: bool) -> list[Note]:
+    """Notes on the rendered passes: lights that reach no surface the camera sees."""
+    if not (lambert and scene.lights):
+        return []
+    obj = passes["object"]
+    hit = obj >= 0
+    emissive = np.array([np.any(o.emission > 0) for o in scene.objects] + [False])
+    lit_surface = hit & ~emissive[obj]
+    if lit_surface.any() and not np.any(passes["color"][lit_surface] > 0):
+        return [Note(UNLIT, "no light reaches any surface the camera sees: the lights are inside objects or "
+                            "hidden from the visible surfaces; move a light into view of them")]
+    return []
