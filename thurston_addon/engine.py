@@ -68,9 +68,9 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         self.write_result(job, depsgraph.view_layer.name)
 
     def write_result(self, job, layer_name):
-        x, y, w, h = job.settings.window
-        # Blender's result rectangle counts rows from the bottom
-        out = self.begin_result(x, job.settings.height - y - h, w, h, layer=layer_name)
+        _, _, w, h = job.settings.window
+        # with a render region, Blender's result rectangle is relative to the region
+        out = self.begin_result(0, 0, w, h, layer=layer_name)
         layer = out.layers[0]
         rgba = np.ones((h, w, 4), np.float32)
         rgba[..., :3] = np.nan_to_num(job.result.passes["color"])

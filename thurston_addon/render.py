@@ -331,17 +331,39 @@ def view_directions(camera: Camera, settings: Settings, jitter=(0.5, 0.5)):
 def camera_rays(space: Space, camera: Camera, settings: Settings, jitter=(0.5, 0.5), frame=None):
     """Origins and unit directions (model) for every pixel of the window, rows top-down. `frame`:
     the result of camera_frame(space, camera), computed once per render and passed in for every
-    sample. Rays start at the camera's clip start along their geodesics (moved into the domain)."""
+    sample. Rays start at their clip start (clip_range) along their geodesics, moved into the domain."""
     g = space.geometry
     X, (f, r, u) = frame if frame is not None else camera_frame(space, camera)
     a, b, c = view_directions(camera, settings, jitter)
     D = np.ascontiguousarray((a[..., None] * f + b[..., None] * r + c[..., None] * u).reshape(-1, 4))
     origins = np.broadcast_to(X, (len(D), 4)).copy()
     if camera.clip_start > 0:
-        origins, D = g.geodesic(origins, D, np.full(len(D), camera.clip_start))
+        origins, D = g.geodesic(origins, D, clip_range(camera, settings, jitter, math.inf)[0])
         origins, D, _ = space.move_inside(origins, D)
         origins, D = np.ascontiguousarray(origins, float), np.ascontiguousarray(D, float)
     return origins, D
+
+
+def clip_range(camera: Camera, settings: Settings, jitter, reach: float):
+    """Per ray of the window, the geodesic distances (start, end) between which it sees: Blender's
+    clipping, by planes square to the view axis at the clip distances (the ray's distance over its
+    cosine to the axis; panoramas: spheres), the end no farther than `reach`."""
+    cos = view_directions(camera, settings, jitter)[0].ravel() if settings.projection == "perspective" else 1.0
+    start = np.broadcast_to(camera.clip_start / cos, (settings.window[2] * settings.window[3],))
+    return start, np.minimum(reach, (camera.clip_end or math.inf) / cos)
+
+
+def _miss_beyond(out: dict, limit):
+    """Hits farther than each ray's limit (its clip end) become misses at the distance limit."""
+    beyond = out["depth"] > limit
+    if not beyond.any():
+        return
+    out["depth"][beyond] = np.inf
+    out["stop"][beyond] = STOP_REASONS.index("distance")
+    out["object"][beyond] = -1
+    out["color"][beyond] = 0
+    for name in ("normal", "position", "error"):
+        out[name][beyond] = np.nan
 
 
 CENTRE = (0.5, 0.5)
@@ -407,12 +429,10 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     camera = camera or scene.camera or Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
     if not (0 < camera.fov < 180):
         raise RenderError(f"camera field of view must be between 0 and 180 degrees, got {camera.fov}")
-    # rays are traced from the clip start to the nearer of the distance limit and the clip end
-    reach = min(settings.max_distance or space.max_distance, camera.clip_end or math.inf)
-    if not 0 <= camera.clip_start < reach:
-        raise RenderError(f"camera clip start {camera.clip_start} must be at least 0 and less than the distance the "
-                          f"rays reach ({reach})")
-    max_distance = reach - camera.clip_start
+    reach = settings.max_distance or space.max_distance
+    if not (0 <= camera.clip_start < min(reach, camera.clip_end or math.inf)):
+        raise RenderError(f"camera clip start {camera.clip_start} must be at least 0 and less than the clip end "
+                          f"({camera.clip_end}) and the distance the rays reach ({reach})")
     max_crossings = space.max_crossings if settings.max_crossings is None else settings.max_crossings
     t0 = time.perf_counter()
     frame = camera_frame(space, camera)  # once: bring_inside and the re-orthonormalised frame
@@ -422,7 +442,9 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     _, _, w, h = settings.window  # the pixels rendered
     pixel_angle = (math.radians(camera.fov) if settings.projection == "perspective" else 2 * math.pi) / W
     tolerances = settings.tolerances(space, pixel_angle)
-    limits = (max_distance, max_crossings, *tolerances)
+    # every ray is traced from its clip start, as far as the farthest ray's clip end needs
+    ranges = (clip_range(camera, settings, jitter, reach) for jitter in (CENTRE, *offsets))
+    limits = (float(max(np.max(end - start) for start, end in ranges)), max_crossings, *tolerances)
     shade = settings.shading == "lambert"
     # (jitter, shade, is colour sample): the centre pass first where no colour sample gives it
     jobs = [(o, shade, True) for o in offsets]
@@ -440,6 +462,8 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         out = trace(tracer, origins, directions, *limits, shade=shaded, progress=report)
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
+        start, end = clip_range(camera, settings, jitter, reach)
+        _miss_beyond(out, end - start)
         chords += int(out["chords"])
         light_failures += int(out["light_failures"])
         if jitter == CENTRE:
@@ -458,7 +482,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     seconds = time.perf_counter() - t0
     passes = {
         "color": (color_sum / len(offsets)).reshape(h, w, 3).astype(np.float32),
-        "depth": first["depth"].reshape(h, w) + camera.clip_start,
+        "depth": (first["depth"] + clip_range(camera, settings, CENTRE, reach)[0]).reshape(h, w),
         "normal": first["normal"].reshape(h, w, 3),
         "position": first["position"].reshape(h, w, 3),
         "object": first["object"].reshape(h, w),

@@ -1,0 +1,301 @@
+"""The THURSTON engine as a Blender user meets it (real bpy 5.0.1, background): the factory startup
+scene, render regions, what the render report says, view layers and collection instances, the
+camera's lens shift, sensor fit and clip distances (against Cycles rendering the scene tiled in the
+universal cover), Blender's own panels."""
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+import thurston_addon  # noqa: E402
+from thurston_addon import checks, engine  # noqa: E402
+
+import blender_helpers as bh  # noqa: E402
+
+THURSTON = Path(sys.executable).with_name("thurston")
+
+
+@pytest.fixture(autouse=True)
+def registered():
+    if not hasattr(bpy.types.Scene, "thurston"):
+        thurston_addon.register()
+    yield
+
+
+def note_kinds(sc):
+    return {n.kind for n in sc.thurston.stats.notes}
+
+
+def depth_pass(sc, path):
+    sc.view_layers[0].use_pass_z = True
+    return bh.f12(sc, path)["ViewLayer.Depth.Z"]
+
+
+# --- first use ---------------------------------------------------------------------------------------
+def test_first_use_of_the_factory_scene(tmp_path):
+    """Blender's startup scene (a 2 m cube, a light and a camera 11 m away), engine switched to
+    Thurston, F12: the report says the cube is larger than the domain and the camera outside it,
+    naming the fixes; after Fit Scale the image shows the lit cube and its copies."""
+    bpy.ops.wm.read_factory_settings(use_empty=False)
+    sc = bpy.context.scene
+    assert sc.thurston.space_id == "poincare"  # the default space, stored by id
+    sc.render.engine = "THURSTON"
+    sc.render.resolution_percentage = 5  # 96 x 54
+    sc.thurston.threads = 2
+    bh.f12(sc, tmp_path / "first.exr")
+    assert {checks.SCENE_TOO_LARGE, checks.CAMERA_OUTSIDE} <= note_kinds(sc)
+    messages = " ".join(n.message for n in sc.thurston.stats.notes)
+    assert "'Cube'" in messages and "Fit Scale" in messages and "Bring Camera Inside" in messages
+
+    assert bpy.ops.thurston.fit_scale() == {"FINISHED"}
+    assert sc.thurston.scale == pytest.approx(checks.fit_scale(bh_space("poincare"), 2 * math.sqrt(3)), rel=1e-6)
+    sc.view_layers[0].use_pass_z = True
+    ch = bh.f12(sc, tmp_path / "fitted.exr")
+    assert checks.SCENE_TOO_LARGE not in note_kinds(sc)
+    # every ray meets a copy of the cube in this finite space; lit faces and faces turned away
+    lit = bh.rgb(ch, "ViewLayer.Combined.").max(axis=-1) > 0.05
+    assert 0.1 < lit.mean() < 0.9
+    assert np.ptp(np.log(ch["ViewLayer.Depth.Z"])) > 1  # near and far copies
+
+
+def bh_space(sid):
+    from thurston_addon import spaces
+
+    return spaces.load(sid)
+
+
+# --- the render region ---------------------------------------------------------------------------------
+def scene_with_boxes():
+    sc = bh.fresh_scene("torus", size=(40, 24))
+    bh.box("Red", 0.15, (0.1, 0.3, 0.05), color=(0.9, 0.2, 0.1))
+    bh.box("Floor", (0.8, 0.8, 0.02), (0, 0.2, -0.12), color=(0.5, 0.5, 0.7))
+    bh.point_light((0.05, 0.05, 0.1), energy=3.0)
+    bh.camera((0, -0.1, 0), lens=30.0)
+    return sc
+
+
+@pytest.mark.parametrize("crop", [False, True])
+def test_render_region_is_rendered(tmp_path, crop):
+    """F12 with a render region: the region's pixels equal those of the full frame (Blender's border
+    rule: fractions times the size, truncated); without crop the rest is empty (alpha 0, as Cycles
+    leaves it), with crop the image is the region."""
+    sc = scene_with_boxes()
+    full = bh.f12(sc, tmp_path / "full.exr")
+    r = sc.render
+    r.use_border, r.use_crop_to_border = True, crop
+    r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = 0.3, 0.83, 0.1, 0.65
+    x0, x1, y0, y1 = int(0.3 * 40), int(0.83 * 40), int(0.1 * 24), int(0.65 * 24)
+    part = bh.f12(sc, tmp_path / "part.exr")
+    rows = slice(24 - y1, 24 - y0)  # top-down
+    cols = slice(x0, x1)
+    L = "ViewLayer.Combined."
+    window = bh.rgb(part, L) if crop else bh.rgb(part, L)[rows, cols]
+    assert window.shape == (y1 - y0, x1 - x0, 3)
+    np.testing.assert_allclose(window, bh.rgb(full, L)[rows, cols], rtol=1e-5, atol=1e-7)
+    assert window.max() > 0.05
+    if not crop:
+        alpha = part[L + "A"]
+        outside = np.ones_like(alpha, bool)
+        outside[rows, cols] = False
+        assert np.all(alpha[outside] == 0) and np.all(alpha[~outside] == 1)
+
+
+def test_region_in_render_blend(tmp_path):
+    """render-blend honours the region saved in the file and exits 0 with a non-empty image."""
+    sc = scene_with_boxes()
+    r = sc.render
+    r.use_border, r.use_crop_to_border = True, True
+    r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = 0.25, 0.75, 0.25, 0.75
+    blend = tmp_path / "region.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    run = subprocess.run([str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path),
+                          "--format", "exr"], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    image = bh.read_exr(tmp_path / "region_0001.exr")
+    color = bh.rgb(image, "ViewLayer.Combined.")
+    assert color.shape == (12, 20, 3) and color.max() > 0.05
+
+
+# --- the render report ------------------------------------------------------------------------------------
+def test_notes_reach_the_report(tmp_path):
+    sc = bh.fresh_scene("torus", size=(16, 10))
+    bh.box("Floor", (0.8, 0.8, 0.02), (0, 0.2, -0.12))
+    bh.camera((0, -0.1, 0), lens=30.0)
+    bh.f12(sc, tmp_path / "a.exr")
+    assert checks.NO_LIGHTS in note_kinds(sc)
+
+    # a light shut inside a closed box: nothing the camera sees is lit
+    bh.box("Shell", 0.1, (0.3, 0.3, 0.3))
+    bh.point_light((0.3, 0.3, 0.3), energy=5.0)
+    bh.f12(sc, tmp_path / "b.exr")
+    assert checks.UNLIT in note_kinds(sc) and checks.NO_LIGHTS not in note_kinds(sc)
+
+
+def test_camera_inside_an_object():
+    """Inside a closed box with no light in it the camera sees an unlit inside: noted; with a light
+    inside it, not (a room)."""
+    sc = bh.fresh_scene("torus", size=(8, 6))
+    bh.box("Room", 0.4, (0, 0.02, 0))
+    light = bh.point_light((0.6, 0.6, 0.6), energy=5.0)  # outside the room (inside the next copies' gaps)
+    light.location = (0.45, 0.45, 0.45)
+    bh.camera((0, 0, 0))
+    sc.render.engine = "THURSTON"
+    bpy.ops.render.render()
+    assert checks.CAMERA_IN_OBJECT in note_kinds(sc)
+    messages = " ".join(n.message for n in sc.thurston.stats.notes)
+    assert "'Room'" in messages
+    light.location = (0.1, 0.1, 0.1)
+    bpy.ops.render.render()
+    assert checks.CAMERA_IN_OBJECT not in note_kinds(sc)
+
+
+def test_scene_far_smaller_than_the_domain_is_noted():
+    sc = bh.fresh_scene("torus", size=(8, 6))
+    bh.box("Speck", 1e-3, (0, 0.2, 0))
+    bh.point_light((0, 0, 0.1))
+    bh.camera((0, 0, 0))
+    sc.render.engine = "THURSTON"
+    bpy.ops.render.render()
+    assert checks.SCENE_TOO_SMALL in note_kinds(sc)
+    assert bpy.ops.thurston.fit_scale() == {"FINISHED"}
+    assert sc.thurston.scale == pytest.approx(checks.fit_scale(bh_space("torus"), math.sqrt(3) * 1e-3), rel=1e-3)
+
+
+def test_render_blend_prints_notes_and_fails_on_a_failed_frame(tmp_path):
+    sc = bh.fresh_scene("torus", size=(8, 6))
+    bh.box("Floor", (0.8, 0.8, 0.02), (0, 0.2, -0.12))
+    bh.camera((0, -0.1, 0), lens=30.0)
+    blend = tmp_path / "dark.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    run = subprocess.run([str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert "warning: the scene has no lights" in run.stdout + run.stderr
+
+    sc = bh.fresh_scene("seifert_weber", size=(8, 6))
+    bh.box("B", 0.1, (0, 0.3, 0))
+    bh.camera((3, 0, 0))  # not a point of H3's chart
+    blend = tmp_path / "broken.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    run = subprocess.run([str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode != 0
+    assert "frame 1" in run.stderr and "camera" in run.stderr and "Traceback" not in run.stderr
+    assert not (tmp_path / "broken_0001.exr").exists()
+
+
+# --- view layers and instances -------------------------------------------------------------------------------
+def test_each_view_layer_renders_with_its_own_visibility(tmp_path):
+    """Two view layers; a collection excluded from the second: F12 renders both layers, the box in
+    that collection is straight ahead at distance 0.25 in the first and absent in the second."""
+    sc = bh.fresh_scene("torus", size=(9, 9))
+    coll = bpy.data.collections.new("OnlyFirst")
+    sc.collection.children.link(coll)
+    box = bh.box("Box", 0.1, (0, 0.3, 0))
+    sc.collection.objects.unlink(box)
+    coll.objects.link(box)
+    bh.box("Far", (0.9, 0.02, 0.9), (0, 0.45, 0))
+    bh.point_light((0, 0, 0.1))
+    bh.camera((0, 0, 0))
+    first = sc.view_layers[0]
+    second = sc.view_layers.new("Second")
+    second.layer_collection.children["OnlyFirst"].exclude = True
+    for layer in (first, second):
+        layer.use_pass_z = True
+    ch = bh.f12(sc, tmp_path / "layers.exr")
+    assert ch[f"{first.name}.Depth.Z"][4, 4] == pytest.approx(0.25, abs=1e-6)
+    assert ch["Second.Depth.Z"][4, 4] == pytest.approx(0.44, abs=1e-6)  # the far wall
+
+
+def test_instances_of_an_excluded_collection_render(tmp_path):
+    """As in Cycles: a collection excluded from the view layer still renders through an instancer."""
+    sc = bh.fresh_scene("torus", size=(9, 9))
+    source = bpy.data.collections.new("Source")
+    sc.collection.children.link(source)
+    box = bh.box("Box", 0.1, (0, 0, 0))
+    sc.collection.objects.unlink(box)
+    source.objects.link(box)
+    sc.view_layers[0].layer_collection.children["Source"].exclude = True
+    empty = bpy.data.objects.new("Instancer", None)
+    empty.instance_type = "COLLECTION"
+    empty.instance_collection = source
+    empty.location = (0, 0.3, 0)
+    sc.collection.objects.link(empty)
+    bh.point_light((0, 0, 0.1))
+    bh.camera((0, 0, 0))
+    assert depth_pass(sc, tmp_path / "inst.exr")[4, 4] == pytest.approx(0.25, abs=1e-6)
+
+
+# --- the camera against Cycles -----------------------------------------------------------------------------
+def test_lens_shift_sensor_fit_and_clipping_match_cycles(tmp_path):
+    """Emissive boxes in the torus, a camera with lens shift, vertical sensor fit, and clip start
+    and end: Thurston's image equals Cycles' image of the scene tiled 3 x 3 x 3 in the universal
+    cover (the clip end keeps every ray inside the tiling). A box nearer than the clip start and
+    the copies beyond the clip end are cut in both."""
+    sc = bh.fresh_scene("torus", size=(40, 30))
+    black = (0, 0, 0)
+    boxes = [bh.box("Red", 0.18, (0.22, 0.35, 0.1), color=black, emission=(1, 0.1, 0.1)),
+             bh.box("Green", (0.3, 0.12, 0.2), (-0.2, 0.4, -0.15), color=black, emission=(0.1, 1, 0.2)),
+             bh.box("Near", 0.08, (0.0, 0.18, 0.0), color=black, emission=(0.2, 0.2, 1))]
+    cam = bh.camera((0, 0, 0), rotation=(math.pi / 2 - 0.1, 0, 0.15), lens=28.0)
+    cam.data.sensor_fit = "VERTICAL"
+    cam.data.shift_x, cam.data.shift_y = 0.12, -0.08
+    cam.data.clip_start, cam.data.clip_end = 0.25, 0.9
+    sc.thurston.shading = "lambert"
+    thurston = bh.rgb(bh.f12(sc, tmp_path / "thurston.exr"), "ViewLayer.Combined.")
+
+    for b in boxes:  # the 26 neighbouring copies
+        for offset in np.ndindex(3, 3, 3):
+            if offset != (1, 1, 1):
+                copy = b.copy()
+                copy.location = np.array(b.location) + np.array(offset) - 1
+                sc.collection.objects.link(copy)
+    sc.render.engine = "CYCLES"
+    sc.cycles.device = "CPU"
+    sc.cycles.samples = 16
+    sc.cycles.max_bounces = 0
+    sc.cycles.use_denoising = False
+    sc.render.filter_size = 0.01  # a box filter of no width: pixel centres, as Thurston's draft quality
+    sc.render.filepath = str(tmp_path / "cycles.exr")
+    bpy.ops.render.render(write_still=True)
+    cycles = bh.rgb(bh.read_exr(tmp_path / "cycles.exr"), "ViewLayer.Combined.")
+    def seen(image):  # which box each pixel mostly shows: 0 red, 1 green, 2 blue, 3 none
+        return np.where(image.max(axis=-1) > 0.5, np.argmax(image, axis=-1), 3)
+
+    differs = seen(thurston) != seen(cycles)
+    assert differs.mean() < 0.01, f"{differs.mean():.1%} of pixels show another box"
+    for box in (0, 1):  # the colours, over each box's pixels (Cycles' are noisy by a few per cent)
+        mask = (seen(cycles) == box) & ~differs
+        np.testing.assert_allclose(thurston[mask].mean(axis=0), cycles[mask].mean(axis=0), rtol=0.03, atol=0.005)
+    counts = np.bincount(seen(cycles).ravel(), minlength=4)
+    assert counts[0] > 20 and counts[1] > 20 and counts[2] == 0  # the near box is clipped
+
+
+# --- Blender's panels ------------------------------------------------------------------------------------
+NEEDED_PANELS = ("EEVEE_MATERIAL_PT_context_material", "EEVEE_MATERIAL_PT_surface", "DATA_PT_uv_texture",
+                 "DATA_PT_vertex_groups", "OBJECT_PT_visibility", "RENDER_PT_color_management", "RENDER_PT_output",
+                 "RENDER_PT_format", "RENDER_PT_stamp", "VIEWLAYER_PT_layer_passes", "EEVEE_WORLD_PT_surface",
+                 "DATA_PT_lens", "DATA_PT_camera", "DATA_PT_light", "RENDER_PT_frame_range")
+
+
+def test_blender_panels_show_under_the_engine():
+    for name in NEEDED_PANELS:
+        assert "THURSTON" in getattr(bpy.types, name).COMPAT_ENGINES, name
+    assert not any("THURSTON" in p.COMPAT_ENGINES for p in engine.compatible_panels() if "freestyle" in p.__name__.lower())
+
+
+def test_the_settings_panel_only_under_thurston_and_the_tools_always():
+    sc = bh.fresh_scene()
+    panel = bpy.types.THURSTON_PT_render
+    sc.render.engine = "CYCLES"
+    assert not panel.poll(bpy.context)
+    sc.render.engine = "THURSTON"
+    assert panel.poll(bpy.context)
+    assert bpy.types.THURSTON_PT_layer_passes.bl_parent_id == "VIEWLAYER_PT_layer_passes"
+    tools = bpy.types.THURSTON_PT_tools
+    assert tools.bl_space_type == "VIEW_3D" and tools.bl_category == "Thurston"
