@@ -80,6 +80,7 @@ class Settings:
     fog: float | None = None  # distance at which colour falls to 1/e; None: no fog
     threads: int = 0
     tolerance: float | None = None  # chord tolerance in chart units; None: the quality's bound
+    transparent: bool = False  # alpha: the share of a pixel's samples that hit something (else 1)
 
     def check(self):
         if self.width < 1 or self.height < 1:
@@ -167,6 +168,102 @@ def _object_copies(space: Space, obj, C):
     return copies, covered
 
 
+class _Surfaces:
+    """The tracer's surface arrays of the objects' copies: each triangle's material (the objects'
+    materials numbered in one table, their textures shared), corner UVs, and corner normals
+    carried to each copy."""
+
+    def __init__(self, objects):
+        self.objects = objects
+        self.material_offset, self.materials, self.textures = [], [], {}
+        for obj in objects:
+            self.material_offset.append(len(self.materials))
+            self.materials += obj.surface_materials()[0]
+        for m in self.materials:
+            for t in (m.color_texture, m.emission_texture):
+                if t is not None:
+                    self.textures.setdefault(id(t), t)
+        self.with_normals = any(o.corner_normals is not None for o in objects)
+        self.with_uvs = any(o.corner_uvs is not None for o in objects)
+        self.material, self.normals, self.uvs = [], [], []
+
+    def add_copy(self, space: Space, index: int, Y, T):
+        """The copy Y (model vertices) of object `index` with the triangles T of it."""
+        obj = self.objects[index]
+        kept = _kept_triangles(obj.triangles, T)
+        self.material.append(obj.surface_materials()[1][kept] + self.material_offset[index])
+        if self.with_uvs:
+            self.uvs.append(obj.corner_uvs[kept] if obj.corner_uvs is not None else np.zeros((len(T), 3, 2)))
+        if self.with_normals:
+            self.normals.append(_copy_normals(space, obj, Y, T, kept))
+
+    def arrays(self, triangles: int) -> dict:
+        textures = {key: i for i, key in enumerate(self.textures)}
+
+        def texture_index(t):
+            return -1 if t is None else textures[id(t)]
+
+        def stacked(parts, shape):
+            return np.ascontiguousarray(np.concatenate(parts) if parts else np.zeros((0, *shape)), np.float32)
+
+        out = dict(
+            triangle_material=np.ascontiguousarray(np.concatenate(self.material) if self.material else
+                                                   np.zeros(0), np.int32),
+            material_color=np.array([m.color for m in self.materials], np.float32).reshape(-1, 3),
+            material_emission=np.array([m.emission for m in self.materials], np.float32).reshape(-1, 3),
+            material_color_texture=np.array([texture_index(m.color_texture) for m in self.materials], np.int32),
+            material_emission_texture=np.array([texture_index(m.emission_texture) for m in self.materials], np.int32),
+            textures=[np.ascontiguousarray(t, np.float32) for t in self.textures.values()],
+        )
+        if self.with_uvs:
+            out["corner_uvs"] = stacked(self.uvs, (3, 2))
+        if self.with_normals:
+            out["corner_normals"] = stacked(self.normals, (3, 3))
+        return out
+
+
+def _kept_triangles(triangles, kept_rows):
+    """Indices of the rows kept_rows of triangles (in order, as the copies keep them). Whether a
+    triangle is kept depends on its vertices only, so equal rows are kept or dropped together."""
+    def rows(a):
+        return np.ascontiguousarray(a, np.int32).view(np.dtype((np.void, 12))).ravel()
+
+    return np.flatnonzero(np.isin(rows(triangles), rows(kept_rows)))
+
+
+def _copy_isometry(space: Space, X0, Y0):
+    """The group element M of the copies around the domain with M X0 = Y0 (the group acts freely,
+    so one point decides it)."""
+    g = space.geometry
+    for rings in range(g.copy_rings + 1):
+        for M in space.neighbourhood(rings):
+            if np.allclose(g.normalize_point(M @ X0), g.normalize_point(Y0), atol=1e-9):
+                return M
+    raise AssertionError("a copy of an object that is no group element's image")
+
+
+def _copy_normals(space: Space, obj, Y, T, kept):
+    """The object's corner normals (or its face normals) on its copy Y = M X: chart covectors move
+    by the inverse transpose of the differential of x -> chart(M model(x)) at each vertex,
+    computed by the geometry's own differentials of the chart."""
+    g = space.geometry
+    x = obj.vertices
+    P = x[T]
+    if obj.corner_normals is None:  # flat shading: the face's chart normal at every corner
+        n = np.repeat(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])[:, None, :], 3, axis=1)
+    else:
+        n = obj.corner_normals[kept]
+    X = g.to_model(x)
+    M = _copy_isometry(space, X[T[0, 0]], Y[T[0, 0]])
+    used, local = np.unique(T, return_inverse=True)
+    # the differential's columns: the images of the chart's unit vectors at each used vertex
+    J = np.stack([g.tangent_to_chart(Y[used], g.tangent_to_model(x[used], np.broadcast_to(e, (len(used), 3))) @ M.T)
+                  for e in np.eye(3)], axis=-1)
+    Jt = np.swapaxes(J, 1, 2)[local.reshape(-1, 3)]  # (m, 3, 3, 3): J^T at each corner
+    carried = np.linalg.solve(Jt, n[..., None])[..., 0]
+    return carried / np.maximum(np.linalg.norm(carried, axis=-1, keepdims=True), 1e-300)
+
+
 def compile_scene(space: Space, scene: Scene):
     """Tracer arrays: triangles of every object and of its copies g(object) that can reach the domain
     (parts sticking out re-enter through the paired faces), and the lights' copies near the domain."""
@@ -180,6 +277,7 @@ def compile_scene(space: Space, scene: Scene):
     # grows fast, so more rings would cost much more per shaded point).
     elements = space.light_elements()
     verts, tris, owner = [], [], []
+    surfaces = _Surfaces(scene.objects)
     offset = 0
     for index, obj in enumerate(scene.objects):
         if not np.all(g.in_chart(obj.vertices)):
@@ -191,6 +289,7 @@ def compile_scene(space: Space, scene: Scene):
             tris.append(local.reshape(-1, 3) + offset)
             owner.append(np.full(len(T), index, np.int32))
             offset += len(used)
+            surfaces.add_copy(space, index, Y, T)
         if not copies:
             warnings.warn(f"object {obj.name!r} lies outside the domain and its neighbouring copies: not shown", stacklevel=2)
         elif not covered.all():
@@ -221,6 +320,7 @@ def compile_scene(space: Space, scene: Scene):
         face_maps=np.ascontiguousarray(np.array([f.pairing for f in space.domain.faces])),
         vertices=np.ascontiguousarray(V, np.float64), triangles=np.ascontiguousarray(T),
         triangle_object=np.ascontiguousarray(O), object_color=colors, object_emission=emission,
+        **surfaces.arrays(len(T)),
         light_lifts=np.array(lifts, np.float64).reshape(-1, 4), light_of_lift=np.array(of_lift, np.int32),
         light_radiance=np.array(radiance, np.float32).reshape(-1, 3),
     )
@@ -393,6 +493,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     pixels = W * H
     total = len(jobs) * pixels
     color_sum = None
+    hit_sum = np.zeros(W * H)
     first = None
     chords = light_failures = 0
     for k, (jitter, shaded, colour) in enumerate(jobs):
@@ -410,6 +511,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
             probe = (origins[sample], directions[sample])
         del origins, directions
         if colour:
+            hit_sum += out["stop"] == 0
             color = _colorize(out, settings, space)
             if color_sum is None:
                 color_sum = color
@@ -420,6 +522,8 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     seconds = time.perf_counter() - t0
     passes = {
         "color": (color_sum / len(offsets)).reshape(H, W, 3).astype(np.float32),
+        # the colour of a miss is 0, so the colour is premultiplied by this alpha
+        "alpha": (hit_sum / len(offsets) if settings.transparent else np.ones(W * H)).reshape(H, W).astype(np.float32),
         "depth": first["depth"].reshape(H, W),
         "normal": first["normal"].reshape(H, W, 3),
         "position": first["position"].reshape(H, W, 3),
