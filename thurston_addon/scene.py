@@ -199,6 +199,8 @@ def _read_obj(path: Path) -> list[SceneObject]:
                 mtl = args[0]
             elif tag == "mtllib" and args:
                 materials.update(_read_mtl(path.parent / " ".join(args)))
+        except SceneError:
+            raise
         except ValueError:
             raise SceneError(f"{path}:{lineno}: cannot parse {raw.strip()!r}") from None
     flush()
