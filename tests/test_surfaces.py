@@ -245,3 +245,15 @@ def test_copies_carry_flat_corner_normals_to_the_geometric_normal(space_id):
     assert hit.mean() > 0.3
     np.testing.assert_allclose(np.linalg.norm(b["normal"][hit], axis=1), 1, atol=1e-5)
     np.testing.assert_allclose(b["normal"][hit], a["normal"][hit], atol=1e-4)
+
+
+def test_transparent_alpha_is_zero_where_nothing_is_hit(torus):
+    scene = Scene(objects=[sphere(True)], lights=[PointLight(np.zeros(3))])
+    settings = render.Settings(width=32, height=18, quality="standard", max_distance=0.4, transparent=True)
+    p = render.render(torus, scene, settings).passes
+    missed, hit = ~np.isfinite(p["depth"]), np.isfinite(p["depth"])
+    assert missed.any() and hit.any()
+    # the centre ray and the four samples agree away from the silhouette; edges are partly covered
+    assert np.mean(p["alpha"][missed] == 0) > 0.9 and np.mean(p["alpha"][hit] == 1) > 0.9
+    assert np.all((p["alpha"] >= 0) & (p["alpha"] <= 1))
+    np.testing.assert_array_equal(p["color"][p["alpha"] == 0], 0)
