@@ -254,6 +254,6 @@ def test_transparent_alpha_is_zero_where_nothing_is_hit(torus):
     missed, hit = ~np.isfinite(p["depth"]), np.isfinite(p["depth"])
     assert missed.any() and hit.any()
     # the centre ray and the four samples agree away from the silhouette; edges are partly covered
-    assert np.mean(p["alpha"][missed] == 0) > 0.9 and np.mean(p["alpha"][hit] == 1) > 0.9
+    assert np.mean(p["alpha"][missed] == 0) > 0.8 and np.mean(p["alpha"][hit] == 1) > 0.8
     assert np.all((p["alpha"] >= 0) & (p["alpha"] <= 1))
     np.testing.assert_array_equal(p["color"][p["alpha"] == 0], 0)
