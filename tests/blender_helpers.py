@@ -256,17 +256,13 @@ def tile_torus_for_cycles(scene):
 
 
 def cycles_render(scene, path, samples=32):
-    """Cycles, direct light only, CPU, into a multilayer EXR (the settings of f12)."""
+    """Cycles, direct light only, CPU, after f12 (whose multilayer EXR settings stay)."""
     b = bpy()
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
     scene.cycles.samples = samples
     scene.cycles.max_bounces = 0
     scene.cycles.use_denoising = False
-    s = scene.render.image_settings
-    s.media_type = "MULTI_LAYER_IMAGE"
-    s.file_format = "OPEN_EXR_MULTILAYER"
-    s.color_depth = "32"
     scene.render.filepath = str(path)
     b.ops.render.render(write_still=True)
     return read_exr(path)
