@@ -210,3 +210,61 @@ def write_scene_files(scene, folder: Path, scale: float):
              f"clip_start = {cam.data.clip_start / scale!r}", f"clip_end = {cam.data.clip_end / scale!r}"]
     (folder / "scene.toml").write_text("\n".join(toml) + "\n")
     return folder / "scene.toml"
+
+
+# --- surfaces: textures, material slots, Cycles references of the tiled torus ---------------------
+def lambert(mat):
+    """A Principled BSDF reduced to its diffuse part (roughness 1, no specular), as the core shades."""
+    p = mat.node_tree.nodes["Principled BSDF"]
+    p.inputs["Roughness"].default_value = 1.0
+    p.inputs["Specular IOR Level"].default_value = 0.0
+    return mat
+
+
+def image_texture_material(name, pixels):
+    """A material whose Principled Base Color is an Image Texture of a new float (linear) image
+    with the given RGBA pixels (rows top-down). Float, because Cycles interpolates a byte sRGB
+    image before decoding it, and the core after."""
+    b = bpy()
+    h, w = pixels.shape[:2]
+    image = b.data.images.new(name, w, h, float_buffer=True)
+    image.pixels.foreach_set(np.ascontiguousarray(pixels[::-1], np.float32).ravel())
+    mat = lambert(material(name))
+    tex = mat.node_tree.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    mat.node_tree.links.new(tex.outputs["Color"], mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"])
+    return mat, image
+
+
+def tile_torus_for_cycles(scene):
+    """The torus [-0.5, 0.5]^3 unrolled for Cycles: the 27 translated copies of every mesh and
+    light (linked duplicates), each light copy lighting only its own cell's objects (light
+    linking), as the core lights a point by the nearest copy of a light."""
+    b = bpy()
+    originals = [o for o in scene.objects if o.type in ("MESH", "LIGHT")]
+    for k, offset in enumerate(np.stack(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij"), -1).reshape(-1, 3)):
+        cell = b.data.collections.new(f"cell {k}")
+        scene.collection.children.link(cell)
+        for o in originals:
+            copy = o if not offset.any() else o.copy()
+            if copy is not o:
+                copy.location = np.array(o.location) + offset
+            cell.objects.link(copy)
+            if copy is o:
+                scene.collection.objects.unlink(o)
+        for light in [o for o in cell.objects if o.type == "LIGHT"]:
+            light.light_linking.receiver_collection = cell
+    b.context.view_layer.update()
+
+
+def cycles_render(scene, path, samples=32):
+    """Cycles, direct light only, CPU, after f12 (whose multilayer EXR settings stay)."""
+    b = bpy()
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = samples
+    scene.cycles.max_bounces = 0
+    scene.cycles.use_denoising = False
+    scene.render.filepath = str(path)
+    b.ops.render.render(write_still=True)
+    return read_exr(path)

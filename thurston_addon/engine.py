@@ -72,8 +72,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         # with a render region, Blender's result rectangle is relative to the region
         out = self.begin_result(0, 0, w, h, layer=layer_name)
         layer = out.layers[0]
-        rgba = np.ones((h, w, 4), np.float32)
-        rgba[..., :3] = np.nan_to_num(job.result.passes["color"])
+        rgba = np.concatenate([np.nan_to_num(job.result.passes["color"]), job.result.passes["alpha"][..., None]], axis=-1)
         values = {"Combined": rgba, **export.pass_values(job)}
         for rp in layer.passes:
             a = values.get(rp.name)

@@ -1,4 +1,5 @@
-"""Writing renders: multi-channel linear EXR and 8-bit sRGB PNG (or other formats) via OpenImageIO."""
+"""Writing renders (multi-channel linear EXR and 8-bit sRGB PNG or other formats) and reading
+textures, via OpenImageIO."""
 from __future__ import annotations
 
 import os
@@ -38,6 +39,35 @@ def check_output(path: str | Path, overwrite: bool) -> Path:
 def linear_to_srgb(c):
     c = np.clip(np.nan_to_num(c), 0.0, 1.0)
     return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
+
+
+def srgb_to_linear(c):
+    c = np.asarray(c)
+    return np.where(c <= 0.04045, c / 12.92, np.power((c + 0.055) / 1.055, 2.4))
+
+
+def read_texture(path: str | Path) -> np.ndarray:
+    """An image file as a float32 (H, W, 3) linear RGB texture, rows top-down. As Blender reads a
+    colour image: integer formats (8/16-bit PNG, JPEG, ...) are sRGB-encoded and decoded here,
+    float formats (EXR, HDR) are linear; grey images give grey RGB, alpha is dropped. Raises
+    ValueError naming the file where it cannot be read."""
+    import OpenImageIO as oiio
+
+    image = oiio.ImageInput.open(str(path))
+    if image is None:
+        raise ValueError(f"cannot read texture {str(path)!r}: {oiio.geterror() or 'not an image'}")
+    try:
+        spec = image.spec()
+        pixels = image.read_image(0, 0, 0, spec.nchannels, "float")
+    finally:
+        image.close()
+    if pixels is None:
+        raise ValueError(f"cannot read texture {str(path)!r}: {oiio.geterror()}")
+    pixels = np.asarray(pixels, np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    rgb = pixels[..., :3] if spec.nchannels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
+    if spec.format.basetype not in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE):
+        rgb = srgb_to_linear(rgb)
+    return np.ascontiguousarray(rgb, np.float32)
 
 
 def write(path: str | Path, passes: dict, names=None, metadata: dict | None = None):

@@ -26,7 +26,7 @@ class Quality:
 
 # The same names are used by the add-on. The fractions keep what the chords do to the image below
 # what the sampling does at each quality (benchmarks/bench_curved.py, its image table).
-QUALITY = {"draft": Quality(1, 1.0), "preview": Quality(1, 0.5), "standard": Quality(4, 0.25),
+QUALITY = {"draft": Quality(1, 1.0), "preview": Quality(2, 0.5), "standard": Quality(4, 0.25),
            "final": Quality(16, 0.1)}
 # `thurston trace` has no pixels: its qualities use the pixel of the default view (640 pixels
 # across 90 degrees).
@@ -81,6 +81,7 @@ class Settings:
     fog: float | None = None  # distance at which colour falls to 1/e; None: no fog
     threads: int = 0
     tolerance: float | None = None  # chord tolerance in chart units; None: the quality's bound
+    transparent: bool = False  # alpha: the share of a pixel's samples that hit something (else 1)
     # (x, y, w, h): render only this window of the width x height image, x, y its top-left pixel
     # (rows top-down); None: the whole image
     region: tuple[int, int, int, int] | None = None
@@ -158,8 +159,9 @@ class Result:
 
 
 def _object_copies(space: Space, obj, C):
-    """The copies g(obj) that can reach the domain, each as (model vertices, kept triangles), and
-    whether every vertex of the object is brought into the domain by one of them. The copies are
+    """The copies g(obj) that can reach the domain, each as (model vertices, indices of the kept
+    triangles, the isometry g), and whether every vertex of the object is brought into the domain
+    by one of them. The copies are
     taken around the copy whose centre (the chart mean of its vertices) lies in the domain, so an
     object anywhere in the universal cover is shown, as the camera is (checks.home_element)."""
     g = space.geometry
@@ -180,10 +182,84 @@ def _object_copies(space: Space, obj, C):
             # drop triangles wholly outside one face plane: they cannot meet the domain
             keep = ~np.any(outside[T[:, 0]] & outside[T[:, 1]] & outside[T[:, 2]], axis=1) & ok[T].all(axis=1)
             if keep.any():
-                copies.append((Y, T[keep]))
+                copies.append((Y, np.flatnonzero(keep), M @ home))
         if covered.all():
             break
     return copies, covered
+
+
+class _Surfaces:
+    """The tracer's surface arrays of the objects' copies: each triangle's material (the objects'
+    materials numbered in one table, their textures shared), corner UVs, and corner normals
+    carried to each copy."""
+
+    def __init__(self, objects):
+        self.objects = objects
+        self.material_offset, self.materials, self.textures = [], [], {}
+        for obj in objects:
+            self.material_offset.append(len(self.materials))
+            self.materials += obj.surface_materials()[0]
+        for m in self.materials:
+            for t in (m.color_texture, m.emission_texture):
+                if t is not None:
+                    self.textures.setdefault(id(t), t)
+        self.with_normals = any(o.corner_normals is not None for o in objects)
+        self.with_uvs = any(o.corner_uvs is not None for o in objects)
+        self.material, self.normals, self.uvs = [], [], []
+
+    def add_copy(self, space: Space, index: int, Y, kept, M):
+        """The copy Y = M X (model vertices) of object `index`, with its triangles `kept`."""
+        obj = self.objects[index]
+        self.material.append(obj.surface_materials()[1][kept] + self.material_offset[index])
+        if self.with_uvs:
+            self.uvs.append(obj.corner_uvs[kept] if obj.corner_uvs is not None else np.zeros((len(kept), 3, 2)))
+        if self.with_normals:
+            self.normals.append(_copy_normals(space, obj, Y, kept, M))
+
+    def arrays(self, triangles: int) -> dict:
+        textures = {key: i for i, key in enumerate(self.textures)}
+
+        def texture_index(t):
+            return -1 if t is None else textures[id(t)]
+
+        def stacked(parts, shape):
+            return np.ascontiguousarray(np.concatenate(parts) if parts else np.zeros((0, *shape)), np.float32)
+
+        out = dict(
+            triangle_material=np.ascontiguousarray(np.concatenate(self.material) if self.material else
+                                                   np.zeros(0), np.int32),
+            material_color=np.array([m.color for m in self.materials], np.float32).reshape(-1, 3),
+            material_emission=np.array([m.emission for m in self.materials], np.float32).reshape(-1, 3),
+            material_color_texture=np.array([texture_index(m.color_texture) for m in self.materials], np.int32),
+            material_emission_texture=np.array([texture_index(m.emission_texture) for m in self.materials], np.int32),
+            textures=[np.ascontiguousarray(t, np.float32) for t in self.textures.values()],
+        )
+        if self.with_uvs:
+            out["corner_uvs"] = stacked(self.uvs, (3, 2))
+        if self.with_normals:
+            out["corner_normals"] = stacked(self.normals, (3, 3))
+        return out
+
+
+def _copy_normals(space: Space, obj, Y, kept, M):
+    """The object's corner normals (or its face normals) on its copy Y = M X: chart covectors move
+    by the inverse transpose of the differential of x -> chart(M model(x)) at each vertex,
+    computed by the geometry's own differentials of the chart."""
+    g = space.geometry
+    x = obj.vertices
+    T = obj.triangles[kept]
+    P = x[T]
+    if obj.corner_normals is None:  # flat shading: the face's chart normal at every corner
+        n = np.repeat(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])[:, None, :], 3, axis=1)
+    else:
+        n = obj.corner_normals[kept]
+    used, local = np.unique(T, return_inverse=True)
+    # the differential's columns: the images of the chart's unit vectors at each used vertex
+    J = np.stack([g.tangent_to_chart(Y[used], g.tangent_to_model(x[used], np.broadcast_to(e, (len(used), 3))) @ M.T)
+                  for e in np.eye(3)], axis=-1)
+    Jt = np.swapaxes(J, 1, 2)[local.reshape(-1, 3)]  # (m, 3, 3, 3): J^T at each corner
+    carried = np.linalg.solve(Jt, n[..., None])[..., 0]
+    return carried / np.maximum(np.linalg.norm(carried, axis=-1, keepdims=True), 1e-300)
 
 
 def compile_scene(space: Space, scene: Scene):
@@ -199,17 +275,19 @@ def compile_scene(space: Space, scene: Scene):
     # grows fast, so more rings would cost much more per shaded point).
     elements = space.light_elements()
     verts, tris, owner = [], [], []
+    surfaces = _Surfaces(scene.objects)
     offset = 0
     for index, obj in enumerate(scene.objects):
         if not np.all(g.in_chart(obj.vertices)):
             raise SceneError(f"object {obj.name!r} has vertices outside the chart of {g.name} (the Klein chart is the open unit ball)")
         copies, covered = _object_copies(space, obj, C)
-        for Y, T in copies:
-            used, local = np.unique(T, return_inverse=True)
+        for Y, kept, M in copies:
+            used, local = np.unique(obj.triangles[kept], return_inverse=True)
             verts.append(g.to_chart(Y[used]))
             tris.append(local.reshape(-1, 3) + offset)
-            owner.append(np.full(len(T), index, np.int32))
+            owner.append(np.full(len(kept), index, np.int32))
             offset += len(used)
+            surfaces.add_copy(space, index, Y, kept, M)
         if not copies:
             warnings.warn(f"object {obj.name!r} lies outside the domain and its neighbouring copies: not shown", stacklevel=2)
         elif not covered.all():
@@ -240,6 +318,7 @@ def compile_scene(space: Space, scene: Scene):
         face_maps=np.ascontiguousarray(np.array([f.pairing for f in space.domain.faces])),
         vertices=np.ascontiguousarray(V, np.float64), triangles=np.ascontiguousarray(T),
         triangle_object=np.ascontiguousarray(O), object_color=colors, object_emission=emission,
+        **surfaces.arrays(len(T)),
         light_lifts=np.array(lifts, np.float64).reshape(-1, 4), light_of_lift=np.array(of_lift, np.int32),
         light_radiance=np.array(radiance, np.float32).reshape(-1, 3),
     )
@@ -453,6 +532,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     pixels = w * h
     total = len(jobs) * pixels
     color_sum = None
+    hit_sum = np.zeros(w * h)
     first = None
     chords = light_failures = 0
     for k, (jitter, shaded, colour) in enumerate(jobs):
@@ -472,6 +552,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
             probe = (origins[sample], directions[sample])
         del origins, directions
         if colour:
+            hit_sum += out["stop"] == 0
             color = _colorize(out, settings, space)
             if color_sum is None:
                 color_sum = color
@@ -482,6 +563,8 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     seconds = time.perf_counter() - t0
     passes = {
         "color": (color_sum / len(offsets)).reshape(h, w, 3).astype(np.float32),
+        # the colour of a miss is 0, so the colour is premultiplied by this alpha
+        "alpha": (hit_sum / len(offsets) if settings.transparent else np.ones(w * h)).reshape(h, w).astype(np.float32),
         "depth": (first["depth"] + clip_range(camera, settings, CENTRE, reach)[0]).reshape(h, w),
         "normal": first["normal"].reshape(h, w, 3),
         "position": first["position"].reshape(h, w, 3),

@@ -1,5 +1,6 @@
-"""Scene description, independent of Blender: meshes with a base colour and an emission, point
-lights and a camera, all in chart coordinates of the space's fundamental domain.
+"""Scene description, independent of Blender: meshes with materials (a base colour and an
+emission, each optionally an image texture through the mesh's UVs) and optional corner normals,
+point lights and a camera, all in chart coordinates of the space's fundamental domain.
 
 Filled from mesh files (OBJ, PLY, STL, GLB/glTF via trimesh), from a scene file (TOML: objects,
 lights, camera), from Blender's depsgraph (the add-on), or built as the default scene of a space.
@@ -23,6 +24,44 @@ class SceneError(ValueError):
     """A scene file or scene object that cannot be used."""
 
 
+def _texture(value, what: str):
+    """A texture given as an image file (read as Blender reads a colour image) or an array."""
+    if value is None:
+        return None
+    if isinstance(value, (str, Path)):
+        from .images import read_texture
+
+        if not Path(value).is_file():
+            raise SceneError(f"{what}: texture file {str(value)!r} does not exist")
+        try:
+            return read_texture(value)
+        except ValueError as exc:
+            raise SceneError(f"{what}: {exc}") from None
+    a = np.asarray(value, dtype=np.float32)
+    if a.ndim != 3 or a.shape[2] not in (3, 4) or 0 in a.shape:
+        raise SceneError(f"{what}: a texture must be an (H, W, 3) or (H, W, 4) image, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise SceneError(f"{what}: the texture has NaN or infinite pixels")
+    return a
+
+
+@dataclass
+class Material:
+    """Base colour and emission (linear RGB); a texture (an image file or a linear float image,
+    rows top-down, v = 0 the bottom row) multiplies its colour at the surface's UV."""
+    color: np.ndarray = field(default_factory=lambda: np.array(DEFAULT_COLOR))
+    emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    color_texture: np.ndarray | str | Path | None = None
+    emission_texture: np.ndarray | str | Path | None = None
+    name: str = ""
+
+    def __post_init__(self):
+        self.color = np.asarray(self.color, dtype=np.float64).reshape(3)
+        self.emission = np.asarray(self.emission, dtype=np.float64).reshape(3)
+        self.color_texture = _texture(self.color_texture, f"material {self.name!r}: base colour")
+        self.emission_texture = _texture(self.emission_texture, f"material {self.name!r}: emission")
+
+
 @dataclass
 class SceneObject:
     name: str
@@ -31,12 +70,44 @@ class SceneObject:
     color: np.ndarray = field(default_factory=lambda: np.array(DEFAULT_COLOR))
     emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
     pass_index: int = 0  # a user's index for the object (Blender's pass_index), kept for compositing
+    # Optional surfaces: the normal at each triangle corner (the chart normal of the surface
+    # there; None: flat shading), UVs at each corner, and each triangle's material (an index into
+    # `materials`; with no materials, one made of `color` and `emission`).
+    corner_normals: np.ndarray | None = None  # (m, 3, 3)
+    corner_uvs: np.ndarray | None = None  # (m, 3, 2)
+    triangle_material: np.ndarray | None = None  # (m,) int32
+    materials: list[Material] = field(default_factory=list)
 
     def __post_init__(self):
         self.vertices = np.asarray(self.vertices, dtype=np.float64).reshape(-1, 3)
         self.triangles = np.asarray(self.triangles, dtype=np.int32).reshape(-1, 3)
         self.color = np.asarray(self.color, dtype=np.float64).reshape(3)
         self.emission = np.asarray(self.emission, dtype=np.float64).reshape(3)
+        m = len(self.triangles)
+        self.corner_normals = self._per_triangle("corner_normals", self.corner_normals, (m, 3, 3), np.float64)
+        self.corner_uvs = self._per_triangle("corner_uvs", self.corner_uvs, (m, 3, 2), np.float64)
+        self.triangle_material = self._per_triangle("triangle_material", self.triangle_material, (m,), np.int32)
+        if self.triangle_material is not None and m and not (
+                0 <= self.triangle_material.min() and self.triangle_material.max() < max(len(self.materials), 1)):
+            raise SceneError(f"object {self.name!r}: triangle_material refers to a material it does not have "
+                             f"(it has {len(self.materials)})")
+
+    def _per_triangle(self, what, value, shape, dtype):
+        if value is None:
+            return None
+        a = np.asarray(value, dtype=dtype)
+        if a.shape != shape:
+            raise SceneError(f"object {self.name!r}: {what} must have shape {shape} (one row per triangle), "
+                             f"got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise SceneError(f"object {self.name!r}: {what} has NaN or infinite values")
+        return a
+
+    def surface_materials(self) -> tuple[list[Material], np.ndarray]:
+        """The materials and each triangle's index into them (one material where none are given)."""
+        materials = self.materials or [Material(self.color, self.emission, name=self.name)]
+        index = self.triangle_material if self.triangle_material is not None else np.zeros(len(self.triangles), np.int32)
+        return materials, index
 
 
 @dataclass
@@ -84,21 +155,30 @@ def clean(obj: SceneObject, where: str) -> SceneObject:
         if not keep.all():
             warnings.warn(f"{where}: object {obj.name!r}: skipped {int((~keep).sum())} degenerate triangle(s)", stacklevel=2)
             obj.triangles = T[keep]
+            for name in ("corner_normals", "corner_uvs", "triangle_material"):
+                if getattr(obj, name) is not None:
+                    setattr(obj, name, getattr(obj, name)[keep])
     return obj
 
 
 # --- mesh files ------------------------------------------------------------------------------------
 def _read_obj(path: Path) -> list[SceneObject]:
     """OBJ objects in file order (trimesh regroups OBJ objects by material and loses their order).
-    Reads v, f (polygons fanned, negative indices), o/g, usemtl and mtllib (Kd, Ke)."""
-    verts: list[list[float]] = []
-    objects: list[tuple[str, list[list[int]], str | None]] = []
-    materials: dict[str, dict[str, np.ndarray]] = {}
-    name, faces, mtl = path.stem, [], None
+    Reads v, vt, vn, f (v, v/vt, v//vn, v/vt/vn; polygons fanned; negative indices), o/g, usemtl
+    (a material per face) and mtllib (Kd, Ke, map_Kd). Corners without vn get their face's normal,
+    corners without vt UV (0, 0)."""
+    lists: dict[str, list[list[float]]] = {"v": [], "vt": [], "vn": []}
+    objects: list[tuple[str, list, list[str | None]]] = []
+    materials: dict[str, Material] = {}
+    name, corners, face_mtl, mtl = path.stem, [], [], None  # corners: per triangle 3 (v, vt, vn)
 
     def flush():
-        if faces:
-            objects.append((name, faces, mtl))
+        if corners:
+            objects.append((name, corners, face_mtl))
+
+    def index(text, tag):
+        i = int(text)
+        return i - 1 if i > 0 else len(lists[tag]) + i
 
     for lineno, raw in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
         parts = raw.split("#", 1)[0].split()
@@ -106,82 +186,173 @@ def _read_obj(path: Path) -> list[SceneObject]:
             continue
         tag, args = parts[0], parts[1:]
         try:
-            if tag == "v":
-                verts.append([float(a) for a in args[:3]])
+            if tag in lists:
+                lists[tag].append([float(a) for a in args[:2 if tag == "vt" else 3]])
             elif tag == "f":
-                idx = [int(a.split("/")[0]) for a in args]
-                idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
-                faces += [[idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1)]
+                refs = []
+                for a in args:
+                    fields = (a.split("/") + ["", ""])[:3]
+                    refs.append(tuple(index(f, t) if f else -1 for f, t in zip(fields, ("v", "vt", "vn"))))
+                corners += [(refs[0], refs[k], refs[k + 1]) for k in range(1, len(refs) - 1)]
+                face_mtl += [mtl] * (len(refs) - 2)
             elif tag in ("o", "g") and args:
                 flush()
-                name, faces = " ".join(args), []
+                name, corners, face_mtl = " ".join(args), [], []
             elif tag == "usemtl" and args:
-                if faces:
-                    flush()
-                    faces = []
                 mtl = args[0]
             elif tag == "mtllib" and args:
                 materials.update(_read_mtl(path.parent / " ".join(args)))
+        except SceneError:
+            raise
         except ValueError:
             raise SceneError(f"{path}:{lineno}: cannot parse {raw.strip()!r}") from None
     flush()
-    V = np.array(verts, dtype=np.float64).reshape(-1, 3)
+    V, VT, VN = (np.array(lists[t], dtype=np.float64).reshape(-1, 2 if t == "vt" else 3) for t in ("v", "vt", "vn"))
     out = []
-    for name, faces, mtl in objects:
-        T = np.array(faces, dtype=np.int64)
-        used, T = np.unique(T, return_inverse=True)
-        if used.min() < 0 or used.max() >= len(V):
-            raise SceneError(f"{path}: object {name!r} refers to a vertex that does not exist")
-        m = materials.get(mtl, {})
-        out.append(SceneObject(name, V[used], T.reshape(-1, 3), m.get("Kd", DEFAULT_COLOR), m.get("Ke", np.zeros(3))))
+    for name, corners, face_mtl in objects:
+        C = np.array(corners, dtype=np.int64)  # (m, 3, 3): corner, (v, vt, vn)
+        for k, (tag, table) in enumerate((("vertex", V), ("texture coordinate", VT), ("normal", VN))):
+            if k and len(table) == 0:  # references to a table the file does not have: none
+                C[..., k] = -1
+            given = C[..., k][C[..., k] >= 0] if k else C[..., k]
+            if len(given) and (given.min() < 0 or given.max() >= len(table)):
+                raise SceneError(f"{path}: object {name!r} refers to a {tag} that does not exist")
+        used, T = np.unique(C[..., 0], return_inverse=True)
+        T = T.reshape(-1, 3)
+        normals = uvs = None
+        if (C[..., 2] >= 0).any():
+            P = V[C[..., 0]]
+            face = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+            face /= np.maximum(np.linalg.norm(face, axis=1, keepdims=True), 1e-300)
+            normals = np.where((C[..., 2] >= 0)[..., None], VN[np.maximum(C[..., 2], 0)], face[:, None, :])
+        if (C[..., 1] >= 0).any():
+            uvs = np.where((C[..., 1] >= 0)[..., None], VT[np.maximum(C[..., 1], 0)], 0.0)
+        names = list(dict.fromkeys(face_mtl))
+        mats = [materials.get(m) or Material(name=m or "") for m in names]
+        out.append(SceneObject(name, V[used], T, mats[0].color, mats[0].emission, corner_normals=normals,
+                               corner_uvs=uvs, triangle_material=[names.index(m) for m in face_mtl],
+                               materials=mats))
     return out
 
 
-def _read_mtl(path: Path) -> dict[str, dict[str, np.ndarray]]:
+def _read_mtl(path: Path) -> dict[str, Material]:
+    """Kd, Ke and map_Kd (a path relative to the library; as Blender imports it, the texture
+    replaces Kd) of each material."""
     if not path.is_file():
         warnings.warn(f"material library {path} not found; using default colours", stacklevel=3)
         return {}
-    mats: dict[str, dict[str, np.ndarray]] = {}
+    specs: dict[str, dict] = {}
     current = None
-    for raw in path.read_text(encoding="utf-8", errors="replace").splitlines():
+    for lineno, raw in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
         parts = raw.split("#", 1)[0].split()
         if len(parts) >= 2 and parts[0] == "newmtl":
-            current = mats.setdefault(parts[1], {})
+            current = specs.setdefault(parts[1], {})
         elif current is not None and len(parts) >= 4 and parts[0] in ("Kd", "Ke"):
-            current[parts[0]] = np.array([float(p) for p in parts[1:4]])
-    return mats
+            try:
+                current[parts[0]] = np.array([float(p) for p in parts[1:4]])
+            except ValueError:
+                raise SceneError(f"{path}:{lineno}: cannot parse {raw.strip()!r}") from None
+        elif current is not None and len(parts) >= 2 and parts[0] == "map_Kd":
+            # options (-s 1 1 1, ...) come before the file name
+            current["map_Kd"] = path.parent / (parts[-1] if parts[1].startswith("-") else " ".join(parts[1:]))
+    out = {}
+    for name, spec in specs.items():
+        texture = spec.get("map_Kd")
+        color = np.ones(3) if texture is not None else spec.get("Kd", DEFAULT_COLOR)
+        try:
+            out[name] = Material(color, spec.get("Ke", np.zeros(3)), texture, name=name)
+        except SceneError as exc:
+            raise SceneError(f"{path}: {exc}") from None
+    return out
 
 
 def _trimesh_objects(path: Path) -> list[SceneObject]:
+    """Meshes of PLY, STL and glTF/GLB files with their vertex normals where the file has them
+    (else flat shading), glTF's TEXCOORD_0 and base colour textures."""
     import trimesh
 
     loaded = trimesh.load(str(path), force="scene", process=False)
+    header, binary = _gltf_parts(path)
+    order = {str(n.get("name", i)): i for i, n in enumerate(header.get("nodes", []))}
+    textures = _gltf_base_textures(path, header, binary)
     out = []
-    order = _gltf_node_order(path)
     for node in sorted(loaded.graph.nodes_geometry, key=lambda n: order.get(n, len(order))):
         transform, geom_name = loaded.graph[node]
         mesh = loaded.geometry[geom_name]
         if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
             continue
+        F = np.asarray(mesh.faces)
         V = trimesh.transform_points(np.asarray(mesh.vertices, dtype=np.float64), transform)
+        normals = uvs = None
+        if "vertex_normals" in mesh._cache:  # given by the file; trimesh would make up smooth ones
+            # normals are covectors: they move by the inverse transpose of the linear part
+            N = np.asarray(mesh.vertex_normals, np.float64) @ np.linalg.inv(np.asarray(transform)[:3, :3])
+            normals = N[F]
+        uv = getattr(mesh.visual, "uv", None)
+        if uv is not None and len(uv) == len(mesh.vertices):
+            uvs = np.asarray(uv, np.float64)[F]
         color, emission = _trimesh_material(mesh)
-        out.append(SceneObject(str(node), V, np.asarray(mesh.faces), color, emission))
+        material = getattr(mesh.visual, "material", None)
+        texture = textures.get(getattr(material, "name", None))
+        out.append(SceneObject(str(node), V, F, color, emission, corner_normals=normals, corner_uvs=uvs,
+                               materials=[Material(color, emission, texture, name=str(getattr(material, "name", "")))]))
     return out
 
 
-def _gltf_node_order(path: Path) -> dict[str, int]:
-    """Node name -> index in a glTF/GLB file's node list (trimesh's scene graph loses that order)."""
+def _gltf_parts(path: Path) -> tuple[dict, bytes]:
+    """A glTF/GLB file's JSON and its binary chunk (b"" for .gltf); ({}, b"") for other files."""
     import json
     import struct
 
     if path.suffix.lower() not in (".glb", ".gltf"):
-        return {}
+        return {}, b""
     data = path.read_bytes()
-    if data[:4] == b"glTF":  # binary: 12-byte header, then the JSON chunk (length, type, data)
+    binary = b""
+    if data[:4] == b"glTF":  # binary: 12-byte header, the JSON chunk (length, type, data), the BIN chunk
         length = struct.unpack_from("<I", data, 12)[0]
+        binary = data[28 + length:]
         data = data[20:20 + length]
-    nodes = json.loads(data.decode("utf-8")).get("nodes", [])
-    return {str(n.get("name", i)): i for i, n in enumerate(nodes)}
+    return json.loads(data.decode("utf-8")), binary
+
+
+def _gltf_base_textures(path: Path, header: dict, binary: bytes) -> dict[str, np.ndarray]:
+    """Material name -> its base colour texture (linear), read here since trimesh needs Pillow
+    for images. Materials are matched to trimesh's by name, so unnamed ones get no texture."""
+    import base64
+    import tempfile
+
+    from .images import read_texture
+
+    out = {}
+    for material in header.get("materials", []):
+        info = material.get("pbrMetallicRoughness", {}).get("baseColorTexture")
+        if info is None or "name" not in material:
+            continue
+        image = header["images"][header["textures"][info["index"]]["source"]]
+        uri = image.get("uri", "")
+        where = f"{path}: material {material['name']!r}"
+        if uri and not uri.startswith("data:"):
+            out[material["name"]] = _texture(path.parent / uri, where)
+            continue
+        if uri:
+            blob = base64.b64decode(uri.split(",", 1)[1])
+        else:
+            view = header["bufferViews"][image["bufferView"]]
+            buffer = header["buffers"][view["buffer"]]
+            data = binary if "uri" not in buffer else (
+                base64.b64decode(buffer["uri"].split(",", 1)[1]) if buffer["uri"].startswith("data:")
+                else (path.parent / buffer["uri"]).read_bytes())
+            start = view.get("byteOffset", 0)
+            blob = data[start:start + view["byteLength"]]
+        suffix = {"image/png": ".png", "image/jpeg": ".jpg"}.get(image.get("mimeType", ""), ".png")
+        with tempfile.TemporaryDirectory() as folder:  # OpenImageIO's Python API reads files
+            file = Path(folder) / f"texture{suffix}"
+            file.write_bytes(blob)
+            try:
+                out[material["name"]] = read_texture(file)
+            except ValueError:
+                raise SceneError(f"{where}: its base colour image cannot be decoded") from None
+    return out
 
 
 def _trimesh_material(mesh):
@@ -193,8 +364,7 @@ def _trimesh_material(mesh):
         if base is None:
             base = getattr(material, "diffuse", None)
         if base is not None:
-            base = np.asarray(base, dtype=np.float64)[:3]
-            color = base / 255.0 if base.max() > 1.0 else base
+            color = np.asarray(base)[:3] / (255.0 if np.asarray(base).dtype.kind in "ui" else 1.0)
         emissive = getattr(material, "emissiveFactor", None)
         if emissive is not None:
             emission = np.asarray(emissive, dtype=np.float64)[:3]
@@ -244,7 +414,7 @@ def load_scene_file(path: str | Path) -> Scene:
 
         [[object]]            # file = "mesh.obj" (relative to the scene file) or primitive = "sphere"
         file = "knot.glb"     # every object of the file, in its order
-        color = [0.9, 0.3, 0.2]      # optional: overrides the file's material
+        color = [0.9, 0.3, 0.2]      # optional: overrides the file's materials and textures
         emission = [0, 0, 0]
         [[object]]
         primitive = "sphere"  # sphere (radius), box (size), torus (radius, tube)
@@ -287,11 +457,15 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
             objs = [primitive(spec, where)]
         else:
             raise SceneError(f"{where}: needs 'file' or 'primitive'")
-        for o in objs:
+        for o in objs:  # overrides apply to every material of the file (textures included)
             if "color" in spec:
                 o.color = _vec(spec["color"], f"{where}: color")
+                for m in o.materials:
+                    m.color, m.color_texture = o.color, None
             if "emission" in spec:
                 o.emission = _vec(spec["emission"], f"{where}: emission")
+                for m in o.materials:
+                    m.emission, m.emission_texture = o.emission, None
         scene.objects += objs
     for i, spec in enumerate(data.get("light", [])):
         where = f"{path}: light {i}"

@@ -1,6 +1,7 @@
 // Python bindings: argument validation, numpy outputs, and the GIL around traces.
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
+#include <nanobind/stl/optional.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 
@@ -41,6 +42,8 @@ template <class T> const char* type_name();
 template <> const char* type_name<double>() { return "float64"; }
 template <> const char* type_name<float>() { return "float32"; }
 template <> const char* type_name<std::int32_t>() { return "int32"; }
+
+using OptionalArray = std::optional<Array>;
 
 std::string shape_text(const Array& a) {
   std::string s = "(";
@@ -103,11 +106,109 @@ void require_finite(const std::vector<std::array<T, C>>& rows, const char* name)
                                std::to_string(i)).c_str());
 }
 
+// The optional surface arguments of the constructor, as given.
+struct SurfaceArrays {
+  OptionalArray corner_normals, corner_uvs, triangle_material, material_color, material_emission,
+      material_color_texture, material_emission_texture;
+  std::vector<Array> textures;
+};
+
+// Per-corner float32 (NT,3,C) rows, finite; empty where not given.
+template <std::size_t C>
+std::vector<std::array<std::array<float, C>, 3>> corner_rows(const OptionalArray& given,
+                                                             std::int64_t NT, const char* name) {
+  std::vector<std::array<std::array<float, C>, 3>> out;
+  if (!given) return out;
+  const Array& a = *given;
+  const std::string shape = "(NT,3," + std::to_string(C) + ") with NT = len(triangles)";
+  check<float>(a, name, {NT, 3, std::int64_t(C)}, shape.c_str());
+  const auto* p = static_cast<const float*>(a.data());
+  out.resize(NT);
+  for (std::int64_t t = 0; t < NT; ++t)
+    for (std::int64_t k = 0; k < 3; ++k)
+      for (std::size_t c = 0; c < C; ++c) {
+        const float x = p[t * a.stride(0) + k * a.stride(1) + std::int64_t(c) * a.stride(2)];
+        if (!std::isfinite(x))
+          throw nb::value_error((std::string(name) + " contain NaN or inf at triangle " +
+                                 std::to_string(t)).c_str());
+        out[t][k][c] = x;
+      }
+  return out;
+}
+
+Texture make_texture(const Array& a, std::size_t index) {
+  const std::string name = "textures[" + std::to_string(index) + "]";
+  const std::int64_t channels = a.ndim() == 3 ? std::int64_t(a.shape(2)) : -1;
+  check<float>(a, name.c_str(), {-1, -1, channels == 4 ? 4 : 3}, "(H,W,3) or (H,W,4)");
+  if (a.shape(0) == 0 || a.shape(1) == 0 || a.shape(0) > (1 << 20) || a.shape(1) > (1 << 20))
+    throw nb::value_error((name + " must have between 1 and 2^20 rows and columns, got " +
+                           shape_text(a)).c_str());
+  Texture t{int(a.shape(1)), int(a.shape(0)), int(channels), {}};
+  t.texels.resize(std::size_t(t.width) * t.height * t.channels);
+  const auto* p = static_cast<const float*>(a.data());
+  std::size_t k = 0;
+  for (std::int64_t r = 0; r < t.height; ++r)
+    for (std::int64_t c = 0; c < t.width; ++c)
+      for (std::int64_t ch = 0; ch < channels; ++ch) {
+        const float x = p[r * a.stride(0) + c * a.stride(1) + ch * a.stride(2)];
+        if (!std::isfinite(x))
+          throw nb::value_error((name + " contains NaN or inf at row " + std::to_string(r) +
+                                 ", column " + std::to_string(c)).c_str());
+        t.texels[k++] = x;
+      }
+  return t;
+}
+
+// Materials by triangle (triangle_material given), their textures and the corner attributes.
+Surfaces make_surfaces(const SurfaceArrays& given, std::int64_t NT) {
+  Surfaces s;
+  const Array& triangle_material = *given.triangle_material;
+  check<std::int32_t>(triangle_material, "triangle_material", {NT}, "(NT,) with NT = len(triangles)");
+  if (!given.material_color || !given.material_emission)
+    throw nb::value_error("triangle_material needs material_color and material_emission");
+  check<float>(*given.material_color, "material_color", {-1, 3}, "(NM,3)");
+  const std::int64_t NM = given.material_color->shape(0);
+  check<float>(*given.material_emission, "material_emission", {NM, 3}, "(NM,3) with NM = len(material_color)");
+  s.triangle_material = indices(triangle_material, NM, "triangle_material", "NM");
+  const auto colors = rows<float, 3>(*given.material_color);
+  const auto emissions = rows<float, 3>(*given.material_emission);
+  require_finite(colors, "material_color");
+  require_finite(emissions, "material_emission");
+  for (std::size_t i = 0; i < given.textures.size(); ++i) s.textures.push_back(make_texture(given.textures[i], i));
+  // -1 (no texture) or an index into textures
+  const auto texture_of = [&](const OptionalArray& a, const char* name) {
+    std::vector<std::int32_t> out(NM, -1);
+    if (!a) return out;
+    check<std::int32_t>(*a, name, {NM}, "(NM,) with NM = len(material_color)");
+    const Strided2<std::int32_t> v = view2<std::int32_t>(*a);
+    for (std::int64_t m = 0; m < NM; ++m) {
+      out[m] = v(m, 0);
+      if (out[m] < -1 || out[m] >= std::int64_t(s.textures.size()))
+        throw nb::value_error((std::string(name) + " has " + std::to_string(out[m]) + " at row " +
+                               std::to_string(m) + ", neither -1 (none) nor an index of the " +
+                               std::to_string(s.textures.size()) + " textures").c_str());
+    }
+    return out;
+  };
+  const auto color_texture = texture_of(given.material_color_texture, "material_color_texture");
+  const auto emission_texture = texture_of(given.material_emission_texture, "material_emission_texture");
+  for (std::int64_t m = 0; m < NM; ++m)
+    s.materials.push_back({colors[m], emissions[m], color_texture[m], emission_texture[m]});
+  s.corner_normals = corner_rows<3>(given.corner_normals, NT, "corner_normals");
+  s.corner_uvs = corner_rows<2>(given.corner_uvs, NT, "corner_uvs");
+  if (s.corner_uvs.empty())
+    for (std::int64_t m = 0; m < NM; ++m)
+      if (s.materials[m].color_texture >= 0 || s.materials[m].emission_texture >= 0)
+        throw nb::value_error(("material " + std::to_string(m) +
+                               " has a texture, which needs corner_uvs").c_str());
+  return s;
+}
+
 SceneData make_scene(const std::string& geometry, const Array& face_covectors, const Array& face_maps,
                      const Array& vertices, const Array& triangles, const Array& triangle_object,
                      const Array& object_color, const Array& object_emission,
                      const Array& light_lifts, const Array& light_of_lift,
-                     const Array& light_radiance) {
+                     const Array& light_radiance, const SurfaceArrays& surfaces) {
   if (!has_geometry(geometry)) {
     std::string known;
     for (const std::string& name : geometry_names()) known += (known.empty() ? "" : ", ") + name;
@@ -157,10 +258,20 @@ SceneData make_scene(const std::string& geometry, const Array& face_covectors, c
     scene.triangles.push_back({std::uint32_t(tri[0]), std::uint32_t(tri[1]), std::uint32_t(tri[2])});
   }
   scene.triangle_object = indices(triangle_object, NO, "triangle_object", "NO");
-  scene.object_color = rows<float, 3>(object_color);
-  scene.object_emission = rows<float, 3>(object_emission);
-  require_finite(scene.object_color, "object_color");
-  require_finite(scene.object_emission, "object_emission");
+  const auto colors = rows<float, 3>(object_color), emissions = rows<float, 3>(object_emission);
+  require_finite(colors, "object_color");
+  require_finite(emissions, "object_emission");
+  if (surfaces.triangle_material) {
+    scene.surfaces = make_surfaces(surfaces, NT);
+  } else {  // one material per object
+    for (std::int64_t o = 0; o < NO; ++o) scene.surfaces.materials.push_back({colors[o], emissions[o]});
+    scene.surfaces.triangle_material = scene.triangle_object;
+    scene.surfaces.corner_normals = corner_rows<3>(surfaces.corner_normals, NT, "corner_normals");
+    scene.surfaces.corner_uvs = corner_rows<2>(surfaces.corner_uvs, NT, "corner_uvs");
+    if (surfaces.material_color || surfaces.material_emission || surfaces.material_color_texture ||
+        surfaces.material_emission_texture || !surfaces.textures.empty())
+      throw nb::value_error("material arrays and textures need triangle_material (the material of each triangle)");
+  }
 
   check<double>(light_lifts, "light_lifts", {-1, 4}, "(K,4)");
   const std::int64_t K = light_lifts.shape(0);
@@ -300,7 +411,10 @@ nb::tuple query_segments(TracerHandle& handle, const Array& starts, const Array&
 const char* const kTracerDoc = R"(Ray tracer for inside views of quotient manifolds of Thurston's geometries.
 
 Tracer(geometry, face_covectors, face_maps, vertices, triangles, triangle_object,
-       object_color, object_emission, light_lifts, light_of_lift, light_radiance, threads=0)
+       object_color, object_emission, light_lifts, light_of_lift, light_radiance, threads=0,
+       corner_normals=None, corner_uvs=None, triangle_material=None, material_color=None,
+       material_emission=None, material_color_texture=None, material_emission_texture=None,
+       textures=[])
 
 geometry: "E3", "S3" (gnomonic chart), "H3" (Klein chart): points are model 4-vectors X whose
 chart point is X[:3] / X[3] and geodesics are exact chart lines; "Nil", "Sol": points are (x, 1)
@@ -310,10 +424,21 @@ face_covectors: float64 (F,4); the fundamental domain is {X : c_f . X <= 0 for a
 face_maps: float64 (F,4,4); a ray leaving through face f continues from M_f X (then, for Nil and
 Sol, reduced into the domain by the maps of the faces it lies outside of).
 vertices: float64 (NV,3) chart coordinates; triangles: int32 (NT,3); triangle_object: int32 (NT,).
-object_color, object_emission: float32 (NO,3). Emissive objects cast no shadows.
+object_color, object_emission: float32 (NO,3), each object's one material where triangle_material
+is not given. Triangles of emissive materials cast no shadows.
 light_lifts: float64 (K,4) points (copies of the point lights near the domain);
 light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3).
 threads: worker threads, 0 for one per hardware thread.
+Optional surfaces (keywords):
+corner_normals: float32 (NT,3,3) per triangle corner, the chart covector of the surface's normal
+(the chart plane's normal for a flat triangle); the shading normal at a hit is the metric normal
+of the chart plane through it whose covector interpolates the corners' (barycentric), on the side
+of the geometric normal facing the ray. Without it: the geometric normal.
+corner_uvs: float32 (NT,3,2) texture coordinates per corner, interpolated likewise.
+triangle_material: int32 (NT,) index into material_color, material_emission: float32 (NM,3);
+material_color_texture, material_emission_texture: int32 (NM,), -1 or an index into textures, a
+list of float32 (H,W,3) or (H,W,4) linear images (rows top-down, v = 0 the bottom row, bilinear,
+repeating) that multiply the material's colour or emission at the hit's UV.
 All arrays are taken as they are (no conversion); wrong dtypes or shapes raise ValueError.)";
 
 const char* const kTraceDoc = R"(Traces rays through the domain and its face pairings.
@@ -382,11 +507,17 @@ NB_MODULE(thurston_core, m) {
              const Array& face_maps, const Array& vertices, const Array& triangles,
              const Array& triangle_object, const Array& object_color, const Array& object_emission,
              const Array& light_lifts, const Array& light_of_lift, const Array& light_radiance,
-             int threads) {
+             int threads, OptionalArray corner_normals, OptionalArray corner_uvs,
+             OptionalArray triangle_material, OptionalArray material_color,
+             OptionalArray material_emission, OptionalArray material_color_texture,
+             OptionalArray material_emission_texture, std::vector<Array> textures) {
             if (threads < 0) throw nb::value_error("threads must be >= 0 (0: all hardware threads)");
+            const SurfaceArrays surfaces{corner_normals, corner_uvs, triangle_material,
+                                         material_color, material_emission, material_color_texture,
+                                         material_emission_texture, std::move(textures)};
             SceneData scene = make_scene(geometry, face_covectors, face_maps, vertices, triangles,
                                          triangle_object, object_color, object_emission,
-                                         light_lifts, light_of_lift, light_radiance);
+                                         light_lifts, light_of_lift, light_radiance, surfaces);
             new (self) TracerHandle{make_tracer(geometry, std::move(scene), unsigned(threads)), geometry};
           },
           nb::sig("def __init__(self, geometry: str, face_covectors: numpy.ndarray, "
@@ -394,13 +525,28 @@ NB_MODULE(thurston_core, m) {
                   "triangle_object: numpy.ndarray, object_color: numpy.ndarray, "
                   "object_emission: numpy.ndarray, light_lifts: numpy.ndarray, "
                   "light_of_lift: numpy.ndarray, light_radiance: numpy.ndarray, "
-                  "threads: int = 0) -> None"),
+                  "threads: int = 0, corner_normals: numpy.ndarray | None = None, "
+                  "corner_uvs: numpy.ndarray | None = None, "
+                  "triangle_material: numpy.ndarray | None = None, "
+                  "material_color: numpy.ndarray | None = None, "
+                  "material_emission: numpy.ndarray | None = None, "
+                  "material_color_texture: numpy.ndarray | None = None, "
+                  "material_emission_texture: numpy.ndarray | None = None, "
+                  "textures: list[numpy.ndarray] = []) -> None"),
           nb::arg("geometry"), nb::arg("face_covectors").noconvert(),
           nb::arg("face_maps").noconvert(), nb::arg("vertices").noconvert(),
           nb::arg("triangles").noconvert(), nb::arg("triangle_object").noconvert(),
           nb::arg("object_color").noconvert(), nb::arg("object_emission").noconvert(),
           nb::arg("light_lifts").noconvert(), nb::arg("light_of_lift").noconvert(),
-          nb::arg("light_radiance").noconvert(), nb::arg("threads") = 0)
+          nb::arg("light_radiance").noconvert(), nb::arg("threads") = 0,
+          nb::arg("corner_normals").noconvert().none() = nb::none(),
+          nb::arg("corner_uvs").noconvert().none() = nb::none(),
+          nb::arg("triangle_material").noconvert().none() = nb::none(),
+          nb::arg("material_color").noconvert().none() = nb::none(),
+          nb::arg("material_emission").noconvert().none() = nb::none(),
+          nb::arg("material_color_texture").noconvert().none() = nb::none(),
+          nb::arg("material_emission_texture").noconvert().none() = nb::none(),
+          nb::arg("textures") = std::vector<Array>())
       .def("trace", &trace,
            nb::sig("def trace(self, origins: numpy.ndarray, directions: numpy.ndarray, "
                    "max_distance: float, max_crossings: int, shade: bool = True, "

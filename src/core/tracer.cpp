@@ -137,8 +137,7 @@ Tracer::Tracer(SceneData& scene, unsigned threads, bool occupancy)
     : vertices_(std::move(scene.vertices)),
       triangles_(std::move(scene.triangles)),
       triangle_object_(std::move(scene.triangle_object)),
-      object_color_(std::move(scene.object_color)),
-      object_emission_(std::move(scene.object_emission)),
+      surfaces_(std::move(scene.surfaces)),
       light_radiance_(std::move(scene.light_radiance)),
       pool_(threads) {
   domain_.faces = scene.face_covectors.size();
@@ -183,8 +182,7 @@ Tracer::Tracer(SceneData& scene, unsigned threads, bool occupancy)
   std::vector<std::uint32_t> all(triangles_.size()), casting;
   for (std::uint32_t t = 0; t < all.size(); ++t) {
     all[t] = t;
-    const Rgb& e = object_emission_[triangle_object_[t]];
-    if (e[0] <= 0.0f && e[1] <= 0.0f && e[2] <= 0.0f) casting.push_back(t);
+    if (!surfaces_.materials[surfaces_.triangle_material[t]].emits()) casting.push_back(t);
   }
   scene_ = build_scene(all);
   if (casting.size() == all.size()) {
@@ -385,18 +383,23 @@ class KernelTracer final : public Tracer {
     // A path within `error` of the true geodesic meets the surface within error / cos of it.
     const double path_error = end.error + kRoundingPerCrossing * (1 + end.crossings);
     out.error[i] = path_error / std::max(std::abs(incidence), 1e-3);
-    const Vec3 chart_normal = Kernel::chart_vector(h.X, N);
+
+    const auto& tri = triangles_[prim];
+    const Vec3 weights =
+        Surfaces::barycentric(vertices_[tri[0]], vertices_[tri[1]], vertices_[tri[2]], h.x);
+    const Vec4 S = shading_normal(prim, weights, h, N);
+    const Vec3 chart_normal = Kernel::chart_vector(h.X, S);
 
     const std::int32_t object = triangle_object_[prim];
-    const Rgb& base = object_color_[object];
-    const Rgb& emission = object_emission_[object];
+    Rgb base, emission;
+    surfaces_.look_up(prim, weights, base, emission);
     Rgb light{1.0f, 1.0f, 1.0f};
     if (options.shade) {
       // Shadow rays need the accuracy of the point they shade, which the pixel sees at its depth.
       WalkContext shadows = context;
       shadows.tolerance = context.tolerance_at(out.depth[i]);
       shadows.tolerance_per_distance = 0.0;
-      light = illumination(shadows, h.X, N, options.max_crossings, stats, hints);
+      light = illumination(shadows, h.X, S, options.max_crossings, stats, hints);
     }
     for (int a = 0; a < 3; ++a) {
       out.position[3 * i + a] = out.end[3 * i + a] = h.x[a];
@@ -404,6 +407,17 @@ class KernelTracer final : public Tracer {
       out.color[3 * i + a] = (options.shade ? emission[a] : 0.0f) + base[a] * light[a];
     }
     out.object[i] = object;
+  }
+
+  // The unit shading normal at the hit: the metric normal of the chart plane through the hit
+  // whose covector interpolates the corner normals, on the side of the geometric normal N (which
+  // faces the ray); N itself where the triangle has no corner normals.
+  Vec4 shading_normal(int prim, const Vec3& weights, const Hit& h, const Vec4& N) const {
+    Vec3 n;
+    if (!surfaces_.normal_covector(prim, weights, n)) return N;
+    Vec4 S = kernel_.plane_normal(h.X, {n[0], n[1], n[2], -dot3(n, h.x)});
+    if (!kernel_.normalise(h.X, S)) return N;
+    return kernel_.dot(h.X, S, N) < 0.0 ? scaled(-1.0, S) : S;
   }
 
   // Sum over lights of radiance * cos * falloff * visibility at the surface point H with normal N,

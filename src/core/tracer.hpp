@@ -15,11 +15,10 @@
 
 #include "embree.hpp"
 #include "kernel.hpp"
+#include "surface.hpp"
 #include "thread_pool.hpp"
 
 namespace thurston {
-
-using Rgb = std::array<float, 3>;
 
 // Validated scene description; see the Python docstring of Tracer for the meaning of each field.
 struct SceneData {
@@ -28,8 +27,7 @@ struct SceneData {
   std::vector<Vec3> vertices;  // chart coordinates
   std::vector<std::array<std::uint32_t, 3>> triangles;
   std::vector<std::int32_t> triangle_object;
-  std::vector<Rgb> object_color;
-  std::vector<Rgb> object_emission;
+  Surfaces surfaces;  // materials, textures, corner normals and UVs of the triangles
   std::vector<Vec4> light_lifts;  // points of the geometry (normalised by the kernel)
   std::vector<std::int32_t> light_of_lift;
   std::vector<Rgb> light_radiance;
@@ -118,8 +116,7 @@ class Tracer {
   std::vector<std::array<std::uint32_t, 3>> triangles_;
   std::vector<Vec4> triangle_planes_;  // chart plane covectors (n, -n . p0)
   std::vector<std::int32_t> triangle_object_;
-  std::vector<Rgb> object_color_;
-  std::vector<Rgb> object_emission_;
+  Surfaces surfaces_;
   std::vector<std::vector<Vec4>> light_lifts_;  // per light
   std::vector<Rgb> light_radiance_;
   double scale_ = 0.0;              // largest extent or coordinate magnitude of the scene

@@ -11,6 +11,7 @@ import bpy
 import numpy as np
 
 from .. import checks, properties, render, scene as scenes, spaces
+from . import surfaces
 
 GUIDE_TAG = "thurston_guide"
 _space_cache: dict = {}
@@ -44,42 +45,16 @@ def load_space(settings) -> spaces.Space:
     return _space_cache[key]
 
 
-def render_settings(settings, width: int, height: int, projection: str = "perspective", region=None) -> render.Settings:
+def render_settings(settings, width: int, height: int, projection: str = "perspective", region=None,
+                    transparent=False) -> render.Settings:
     return render.Settings(
         width=width, height=height, projection=projection, quality=settings.quality, shading=settings.shading,
-        samples=settings.samples or None, region=region,
+        samples=settings.samples or None, region=region, transparent=transparent,
         # the panel's distances are in Blender units; the tracer's in chart units
         max_distance=settings.max_distance / settings.scale or None,
         max_crossings=None if settings.max_crossings < 0 else settings.max_crossings,
         fog=settings.fog / settings.scale or None, threads=settings.threads,
         tolerance=settings.tolerance / settings.scale or None)
-
-
-def _material_colors(obj):
-    """Base colour and emission from the first material: Principled BSDF or Emission node inputs
-    (constant values; linked inputs fall back to the material's viewport colour)."""
-    mat = obj.active_material
-    if mat is None:
-        return np.array(scenes.DEFAULT_COLOR), np.zeros(3)
-    color, emission = np.array(mat.diffuse_color[:3], float), np.zeros(3)
-    # Blender 5 always uses material nodes (use_nodes is deprecated there)
-    if mat.node_tree and (bpy.app.version >= (5, 0, 0) or mat.use_nodes):
-        for node in mat.node_tree.nodes:
-            if node.type == "BSDF_PRINCIPLED":
-                base = node.inputs["Base Color"]
-                if not base.is_linked:
-                    color = np.array(base.default_value[:3], float)
-                em = node.inputs.get("Emission Color") or node.inputs.get("Emission")
-                strength = node.inputs.get("Emission Strength")
-                if em is not None and not em.is_linked:
-                    emission = np.array(em.default_value[:3], float) * (strength.default_value if strength else 1.0)
-                break
-            if node.type == "EMISSION":
-                em, strength = node.inputs["Color"], node.inputs["Strength"]
-                color = np.zeros(3)
-                emission = np.array(em.default_value[:3], float) * strength.default_value
-                break
-    return color, emission
 
 
 def _is_guide(obj) -> bool:
@@ -125,25 +100,14 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note]) -> scenes.Sc
         if inst.is_instance and inst.parent.original.type not in ("MESH", "EMPTY"):
             continue  # geometry of a curve, text, ... object: skipped (and noted) as that object
         if obj.type == "MESH":
-            mesh = obj.data  # evaluated: modifiers applied
-            mesh.calc_loop_triangles()
-            nv, nt = len(mesh.vertices), len(mesh.loop_triangles)
-            if nt == 0:
-                skipped.setdefault("no faces", []).append(original.name)
-                continue
-            co = np.empty(nv * 3, np.float64)
-            mesh.vertices.foreach_get("co", co)
-            tri = np.empty(nt * 3, np.int32)
-            mesh.loop_triangles.foreach_get("vertices", tri)
-            M = np.array(inst.matrix_world, float)
-            V = co.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
-            color, emission = _material_colors(obj)
-            name = original.name if not inst.is_instance else f"{original.name} ({inst.parent.original.name})"
             try:
-                scene.objects.append(scenes.clean(scenes.SceneObject(
-                    name, V / scale, tri.reshape(-1, 3), color, emission, pass_index=original.pass_index), "Blender"))
+                mesh = surfaces.mesh_object(inst, obj, scale)
             except scenes.SceneError as exc:
                 raise ExportError(str(exc)) from None
+            if mesh is None:
+                skipped.setdefault("no faces", []).append(original.name)
+                continue
+            scene.objects.append(mesh)
         elif obj.type == "LIGHT":
             light = obj.data
             if light.type != "POINT":
@@ -235,7 +199,7 @@ class RenderJob:
             if not self.scene.objects:
                 raise ExportError("nothing to render: the scene has no visible mesh objects (the domain guide does not count)")
             self.camera = export_camera(bscene, depsgraph, settings.scale, w, h, camera_object)
-            self.settings = render_settings(settings, w, h, projection, region)
+            self.settings = render_settings(settings, w, h, projection, region, bscene.render.film_transparent)
             lambert = self.settings.shading == "lambert"
             self.notes += checks.before_render(self.space, self.scene, self.camera, lambert)
             try:

@@ -14,9 +14,10 @@ IMAGE_TAG = "thurston_image"
 
 
 # --- results into Blender ----------------------------------------------------------------------------
-def store_image(name: str, color: np.ndarray):
-    """Write a linear float image datablock. Only an image this add-on created is reused; a user's
-    image with the same name is left alone (a new name is taken)."""
+def store_image(name: str, passes: dict):
+    """Write a render's colour and alpha into a linear float image datablock. Only an image this
+    add-on created is reused; a user's image with the same name is left alone (a new name is taken)."""
+    color = passes["color"]
     h, w = color.shape[:2]
     image = next((im for im in bpy.data.images if im.get(IMAGE_TAG) == name), None)
     if image is None:
@@ -25,8 +26,7 @@ def store_image(name: str, color: np.ndarray):
     elif tuple(image.size) != (w, h):
         image.scale(w, h)
     image.colorspace_settings.name = "Linear Rec.709" if "Linear Rec.709" in _colorspaces(image) else "Linear"
-    rgba = np.ones((h, w, 4), np.float32)
-    rgba[..., :3] = np.nan_to_num(color)
+    rgba = np.concatenate([np.nan_to_num(color), passes["alpha"][..., None]], axis=-1).astype(np.float32)
     image.pixels.foreach_set(rgba[::-1].ravel())  # Blender's rows are bottom-up
     image.update()
     return image
@@ -99,7 +99,7 @@ class _ThurstonRenderOperator(bpy.types.Operator):
         raise NotImplementedError
 
     def finish(self, context, job: export.RenderJob):
-        image = store_image(self.image_name, job.result.passes["color"])
+        image = store_image(self.image_name, job.result.passes)
         show_image(context, image)
 
     def execute(self, context):
@@ -199,7 +199,7 @@ class THURSTON_OT_bake_panorama(_ThurstonRenderOperator):
         return job
 
     def finish(self, context, job):
-        image = store_image(self.image_name, job.result.passes["color"])
+        image = store_image(self.image_name, job.result.passes)
         set_world_panorama(context.scene, image)
 
 

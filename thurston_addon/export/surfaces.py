@@ -1,0 +1,108 @@
+"""Blender meshes and materials -> scene objects: vertices in chart coordinates, Blender's corner
+normals (shade smooth/flat, sharp edges, custom normals), the active render UV map, and one
+material per material slot (Principled BSDF or Emission node; an Image Texture node feeding the
+base or emission colour gives a texture)."""
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from .. import scene as scenes
+from ..images import srgb_to_linear
+
+
+def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
+    """The evaluated mesh object of a depsgraph instance in chart coordinates (world / scale);
+    None where it has no faces. Raises SceneError for what cannot be used (named)."""
+    original = obj.original
+    mesh = obj.data  # evaluated: modifiers applied
+    mesh.calc_loop_triangles()
+    nv, nt = len(mesh.vertices), len(mesh.loop_triangles)
+    if nt == 0:
+        return None
+    co = _get(mesh.vertices, "co", nv * 3, np.float64).reshape(-1, 3)
+    tri = _get(mesh.loop_triangles, "vertices", nt * 3, np.int32).reshape(-1, 3)
+    loops = _get(mesh.loop_triangles, "loops", nt * 3, np.int32).reshape(-1, 3)
+    M = np.array(inst.matrix_world, float)
+    V = co @ M[:3, :3].T + M[:3, 3]
+    normals = None
+    if mesh.normals_domain != "FACE":  # all faces flat: the triangles' own normals, as Cycles uses
+        corner = _get(mesh.corner_normals, "vector", len(mesh.corner_normals) * 3, np.float64).reshape(-1, 3)
+        # normals are covectors: they move by the inverse transpose of the world matrix
+        normals = corner[loops] @ np.linalg.inv(M[:3, :3])
+    uvs = None
+    layer = next((layer for layer in mesh.uv_layers if layer.active_render), None)
+    if layer is not None:
+        uvs = _get(layer.data, "uv", len(layer.data) * 2, np.float64).reshape(-1, 2)[loops]
+    slots = [slot.material for slot in obj.material_slots]
+    materials = [material(m, original.name) for m in slots] or [material(None, original.name)]
+    index = np.clip(_get(mesh.loop_triangles, "material_index", nt, np.int32), 0, len(materials) - 1)
+    name = original.name if not inst.is_instance else f"{original.name} ({inst.parent.original.name})"
+    first = materials[index[0]]
+    return scenes.clean(scenes.SceneObject(
+        name, V / scale, tri, first.color, first.emission, pass_index=original.pass_index,
+        corner_normals=normals, corner_uvs=uvs, triangle_material=index, materials=materials), "Blender")
+
+
+def _get(collection, attribute, count, dtype):
+    """collection.foreach_get into a new array (attribute None: a property array such as pixels)."""
+    values = np.empty(count, dtype)
+    if attribute is None:
+        collection.foreach_get(values)
+    else:
+        collection.foreach_get(attribute, values)
+    return values
+
+
+def material(mat, object_name: str) -> scenes.Material:
+    """Base colour and emission of a material: Principled BSDF or Emission node inputs; an Image
+    Texture node linked to a colour gives its image (times the strength for emission); other links
+    fall back to the material's viewport colour."""
+    if mat is None:
+        return scenes.Material(name="")
+    where = f"object {object_name!r}, material {mat.name!r}"
+    color, emission = np.array(mat.diffuse_color[:3], float), np.zeros(3)
+    color_texture = emission_texture = None
+    # Blender 5 always uses material nodes (use_nodes is deprecated there)
+    if mat.node_tree and (bpy.app.version >= (5, 0, 0) or mat.use_nodes):
+        for node in mat.node_tree.nodes:
+            if node.type == "BSDF_PRINCIPLED":
+                color, color_texture = _input(node.inputs["Base Color"], color, where)
+                em = node.inputs.get("Emission Color") or node.inputs.get("Emission")
+                strength = node.inputs.get("Emission Strength")
+                if em is not None:
+                    value, emission_texture = _input(em, np.zeros(3), where)
+                    emission = value * (strength.default_value if strength else 1.0)
+                break
+            if node.type == "EMISSION":
+                color = np.zeros(3)
+                value, emission_texture = _input(node.inputs["Color"], np.zeros(3), where)
+                emission = value * node.inputs["Strength"].default_value
+                break
+    return scenes.Material(color, emission, color_texture, emission_texture, name=mat.name)
+
+
+def _input(socket, fallback, where):
+    """(constant, texture) of a colour input: its value; white times the image of a linked Image
+    Texture node; else the fallback."""
+    if not socket.is_linked:
+        return np.array(socket.default_value[:3], float), None
+    node = socket.links[0].from_node
+    if node.type == "TEX_IMAGE" and node.image is not None:
+        return np.ones(3), image_texture(node.image, where)
+    return np.asarray(fallback, float), None
+
+
+def image_texture(image, where: str) -> np.ndarray:
+    """An image's pixels as a linear float RGB texture, rows top-down. Float images hold linear
+    values; byte images hold their colour space's values, decoded here for sRGB."""
+    w, h = image.size
+    count = len(image.pixels)  # reading the pixels loads the image's file
+    if w * h == 0 or count != w * h * image.channels:
+        raise scenes.SceneError(f"{where}: image {image.name!r} has no pixels (is its file {image.filepath!r} missing?)")
+    pixels = _get(image.pixels, None, count, np.float32)
+    pixels = pixels.reshape(h, w, image.channels)[::-1]  # Blender's rows are bottom-up
+    rgb = pixels[..., :3] if image.channels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
+    if not image.is_float and image.colorspace_settings.name == "sRGB":
+        rgb = srgb_to_linear(rgb)
+    return np.ascontiguousarray(rgb, np.float32)
