@@ -249,21 +249,8 @@ def test_lens_shift_sensor_fit_and_clipping_match_cycles(tmp_path):
     sc.thurston.shading = "lambert"
     thurston = bh.rgb(bh.f12(sc, tmp_path / "thurston.exr"), "ViewLayer.Combined.")
 
-    for b in boxes:  # the 26 neighbouring copies
-        for offset in np.ndindex(3, 3, 3):
-            if offset != (1, 1, 1):
-                copy = b.copy()
-                copy.location = np.array(b.location) + np.array(offset) - 1
-                sc.collection.objects.link(copy)
-    sc.render.engine = "CYCLES"
-    sc.cycles.device = "CPU"
-    sc.cycles.samples = 16
-    sc.cycles.max_bounces = 0
-    sc.cycles.use_denoising = False
-    sc.render.filter_size = 0.01  # a box filter of no width: pixel centres, as Thurston's draft quality
-    sc.render.filepath = str(tmp_path / "cycles.exr")
-    bpy.ops.render.render(write_still=True)
-    cycles = bh.rgb(bh.read_exr(tmp_path / "cycles.exr"), "ViewLayer.Combined.")
+    bh.tile_torus_for_cycles(sc)
+    cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=16), "ViewLayer.Combined.")
     def seen(image):  # which box each pixel mostly shows: 0 red, 1 green, 2 blue, 3 none
         return np.where(image.max(axis=-1) > 0.5, np.argmax(image, axis=-1), 3)
 
@@ -299,3 +286,40 @@ def test_the_settings_panel_only_under_thurston_and_the_tools_always():
     assert bpy.types.THURSTON_PT_layer_passes.bl_parent_id == "VIEWLAYER_PT_layer_passes"
     tools = bpy.types.THURSTON_PT_tools
     assert tools.bl_space_type == "VIEW_3D" and tools.bl_category == "Thurston"
+
+
+def test_film_transparent_alpha_matches_cycles(tmp_path):
+    """Film > Transparent: alpha is the share of a pixel that shows an object, 0 where a ray meets
+    nothing before the clip end, as in Cycles' render of the tiled scene."""
+    sc = bh.fresh_scene("torus", size=(32, 24))
+    sc.render.film_transparent = True
+    sc.thurston.quality = "standard"  # 4 samples: partly covered pixels get partial alpha
+    boxes = [bh.box("A", 0.2, (0.15, 0.35, 0.05), color=(0, 0, 0), emission=(1, 1, 1)),
+             bh.box("B", (0.1, 0.3, 0.1), (-0.2, 0.3, -0.1), color=(0, 0, 0), emission=(1, 1, 1))]
+    cam = bh.camera((0, 0, 0), lens=24.0)
+    cam.data.clip_end = 0.8
+    alpha = bh.f12(sc, tmp_path / "thurston.exr")["ViewLayer.Combined.A"]
+    bh.tile_torus_for_cycles(sc)
+    cycles = bh.cycles_render(sc, tmp_path / "cycles.exr", samples=16)["ViewLayer.Combined.A"]
+    assert 0.1 < (cycles > 0.5).mean() < 0.9
+    assert np.mean((alpha > 0.5) != (cycles > 0.5)) < 0.02
+    assert np.all(alpha[cycles == 0] == 0) and np.all(alpha[cycles == 1] == 1)
+
+
+def test_view_and_panorama_survive_saving(tmp_path):
+    """The View image and the baked panorama are packed into the .blend when it is saved: the
+    reopened file holds the same pixels, and its World's Environment Texture still shows them."""
+    sc = scene_with_boxes()
+    sc.thurston.panorama_width = 32
+    assert bpy.ops.thurston.render_view() == {"FINISHED"}
+    assert bpy.ops.thurston.bake_panorama() == {"FINISHED"}
+    before = {name: bh.image_pixels(bpy.data.images[name]) for name in ("Thurston View", "Thurston Panorama")}
+    assert all(p[..., :3].max() > 0.05 for p in before.values())
+    blend = tmp_path / "saved.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    for name, pixels in before.items():
+        np.testing.assert_array_equal(bh.image_pixels(bpy.data.images[name]), pixels)
+    env = bpy.context.scene.world.node_tree.nodes["Thurston Panorama"]
+    assert env.image.name == "Thurston Panorama" and env.image.has_data

@@ -2,7 +2,7 @@
 
 Importable without Blender: the geometry kernels, the spaces, the scene description and the tracer
 work in plain Python. Blender calls `register()` / `unregister()`, which load the Blender layer
-(`engine`, `properties`, `export`, `guide`, `batch`, `operators/`, `panels/`) only then.
+(`engine`, `properties`, `export`, `results`, `guide`, `batch`, `operators/`, `panels/`) only then.
 """
 __version__ = "0.1.0"
 
@@ -10,20 +10,22 @@ __version__ = "0.1.0"
 def register():
     import bpy
 
-    from . import engine, properties
+    from . import engine, properties, results
 
     for cls in _classes():
         bpy.utils.register_class(cls)
     properties.register()
+    results.register()
     engine.register()
 
 
 def unregister():
     import bpy
 
-    from . import engine, properties
+    from . import engine, properties, results
 
     engine.unregister()
+    results.unregister()
     properties.unregister()
     for cls in reversed(_classes()):
         bpy.utils.unregister_class(cls)
