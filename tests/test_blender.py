@@ -338,9 +338,17 @@ def test_render_view_image_reuse_and_save(tmp_path):
     assert "Z" in chans and np.isfinite(chans["Z"]).mean() > 0.5
 
     before = out.read_bytes()
-    with pytest.raises(RuntimeError, match="exists"):
+    with pytest.raises(RuntimeError, match="exists; tick Overwrite in the Thurston panel") as info:
         bpy.ops.thurston.render_view()
+    assert "--overwrite" not in str(info.value)
     assert out.read_bytes() == before
+    # Blender's relative paths: // is the .blend's folder
+    blend = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=False)
+    sc.thurston.save_path, sc.thurston.overwrite = "//relative.png", False
+    assert bpy.ops.thurston.render_view() == {"FINISHED"}
+    assert (tmp_path / "relative.png").is_file()
+    sc.thurston.save_path = str(out)
     sc.thurston.overwrite = True
     bpy.data.objects["Red"].location.x -= 0.1
     assert bpy.ops.thurston.render_view() == {"FINISHED"}

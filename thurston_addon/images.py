@@ -23,10 +23,12 @@ class OutputError(ValueError):
     pass
 
 
-def check_output(path: str | Path, overwrite: bool) -> Path:
+def check_output(path: str | Path, overwrite: bool, to_replace: str = "pass --overwrite") -> Path:
+    """The output path, if it can be written; `to_replace`: how the user allows replacing a file,
+    in the front end's words."""
     path = Path(path)
     if path.exists() and not overwrite:
-        raise OutputError(f"output {str(path)!r} exists; pass --overwrite to replace it")
+        raise OutputError(f"output {str(path)!r} exists; {to_replace} to replace it")
     if path.is_dir():
         raise OutputError(f"output {str(path)!r} is a directory")
     if not path.parent.exists():
@@ -98,17 +100,21 @@ def write(path: str | Path, passes: dict, names=None, metadata: dict | None = No
     for k, v in (metadata or {}).items():
         spec.attribute(f"thurston:{k}", str(v))
     tmp = path.with_name(f".{path.name}.partial{path.suffix}")
+
+    def failed(reason: str) -> OutputError:  # the user's file name, not the temporary one
+        return OutputError(f"cannot write {str(path)!r}: {reason.replace(str(tmp), str(path))}")
+
     try:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None:
-            raise OutputError(f"cannot write {str(path)!r}: {oiio.geterror()}")
+            raise failed(oiio.geterror())
         try:
             if not out.open(str(tmp), spec) or not out.write_image(pixels):
-                raise OutputError(f"cannot write {str(path)!r}: {out.geterror()}")
+                raise failed(out.geterror())
         finally:
             closed = out.close()
         if not closed:
-            raise OutputError(f"cannot write {str(path)!r}: {out.geterror() or 'closing the file failed'}")
+            raise failed(out.geterror() or "closing the file failed")
         os.replace(tmp, path)
     except BaseException:
         _remove_partial(tmp)

@@ -11,7 +11,10 @@ import numpy as np
 from .. import export, images, render, results
 
 def check_save_path(settings):
-    return images.check_output(bpy.path.abspath(settings.save_path), settings.overwrite) if settings.save_path else None
+    if not settings.save_path:
+        return None
+    return images.check_output(bpy.path.abspath(settings.save_path), settings.overwrite,
+                               to_replace="tick Overwrite in the Thurston panel")
 
 
 def save_if_asked(settings, result: render.Result, report):
