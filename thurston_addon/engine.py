@@ -3,10 +3,12 @@ and the passes its view layer enables (export.BLENDER_PASSES); the viewport in r
 progressively refined frames."""
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 import bpy
 
-from . import export, render
+from . import export, progressive, render, scene as scenes
 
 # Callables (done, total) told of the progress of final renders; batch renders show it on the terminal.
 progress_listeners: list = []
@@ -25,8 +27,10 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self._viewport = None  # (key, level, pixels) of the progressive viewport render
+        self._view = progressive.ProgressiveView()
         self._viewport_world = None  # (space, tracer) of the scene as last exported, or the error
+        self._scene_version = 0  # counts the exports of the viewport's scene
+        self._redraw = _redraw_timer(self)
 
     def update_render_passes(self, scene=None, renderlayer=None):
         self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", "COLOR")
@@ -80,10 +84,12 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
                 rp.rect.foreach_set(_flip_rows(a).ravel())
         self.end_result(out)
 
-    # --- viewport: progressive refinement, coarse first ---------------------------------------------
+    # --- viewport: traced off the UI thread, coarse to fine, cancelled by any change ---------------
     def view_update(self, context, depsgraph):
-        """The scene changed: export it and build the tracer once, for all refinement levels."""
-        self._viewport = None
+        """The depsgraph changed: re-export the scene and build a new tracer, unless only what the
+        tracer does not see changed (the camera, the domain guide: the view comes from the region)."""
+        if self._viewport_world is not None and not _changes_scene(depsgraph):
+            return
         bscene = depsgraph.scene
         try:
             space = export.load_space(bscene.thurston)
@@ -91,26 +97,31 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
             self._viewport_world = (space, render.make_tracer(space, scene, bscene.thurston.threads))
         except (export.ExportError, render.RenderError) as exc:
             self._viewport_world = exc
+        self._scene_version += 1
         self.tag_redraw()
 
     def view_draw(self, context, depsgraph):
         import gpu  # unavailable in background mode, needed only here
         from gpu_extras.presets import draw_texture_2d
 
-        region = context.region
+        region, view = context.region, context.region_data
         w, h = region.width, region.height
-        key = (w, h, tuple(map(tuple, context.region_data.view_matrix)))
-        level = 8 if self._viewport is None or self._viewport[0] != key else self._viewport[1]
-        if self._viewport is None or self._viewport[0] != key or self._viewport[1] > 1:
-            try:
-                pixels = self._viewport_frame(context, depsgraph, max(1, w // level), max(1, h // level))
-            except (export.ExportError, render.RenderError) as exc:
-                self.update_stats("Thurston", str(exc))
-                return
-            self._viewport = (key, max(1, level // 2), pixels)
-            if level > 1:
-                self.tag_redraw()
-        pixels = self._viewport[2]
+        try:
+            job = self._viewport_job(depsgraph.scene, view, w, h)
+        except (export.ExportError, render.RenderError) as exc:
+            self.update_stats("Thurston", str(exc))
+            return
+        key = (w, h, tuple(map(tuple, view.view_matrix)), tuple(map(tuple, view.window_matrix)), self._scene_version)
+        self._view.request(key, job)
+        if self._view.error is not None:
+            self.update_stats("Thurston", f"viewport render failed: {self._view.error}")
+        if self._view.busy and not bpy.app.timers.is_registered(self._redraw):
+            bpy.app.timers.register(self._redraw, first_interval=0.1)
+        frame = self._view.frame
+        if frame is None:
+            return
+        _, level, pixels = frame
+        self.update_stats("Thurston", f"viewport: 1/{level} resolution" if level > 1 else "viewport: done")
         ph, pw = pixels.shape[:2]
         buffer = gpu.types.Buffer("FLOAT", pw * ph * 4, pixels.ravel())
         texture = gpu.types.GPUTexture((pw, ph), format="RGBA16F", data=buffer)
@@ -120,27 +131,66 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         self.unbind_display_space_shader()
         gpu.state.blend_set("NONE")
 
-    def _viewport_frame(self, context, depsgraph, w, h):
-        from . import scene as scenes
-
-        bscene = depsgraph.scene
+    def _viewport_job(self, bscene, view, w, h):
+        """render(level, cancelled) for the progressive view: everything it needs is read from
+        Blender here, on the UI thread; the worker only traces."""
         if isinstance(self._viewport_world, Exception):
             raise self._viewport_world
         space, tracer = self._viewport_world
-        region = context.region_data
-        if not region.is_perspective:
+        if not view.is_perspective:
             raise render.RenderError("the viewport is orthographic; Thurston shows perspective views only")
-        view = np.array(region.view_matrix.inverted(), float)
+        inverse = np.array(view.view_matrix.inverted(), float)
         scale = bscene.thurston.scale
         # the field of view the viewport itself shows (its lens, sensor and camera zoom)
-        fov = 2 * np.degrees(np.arctan(1.0 / region.window_matrix[0][0]))
-        camera = scenes.Camera(view[:3, 3] / scale, -view[:3, 2], view[:3, 1], float(fov))
-        settings = export.render_settings(bscene.thurston, w, h)
+        fov = 2 * np.degrees(np.arctan(1.0 / view.window_matrix[0][0]))
+        camera = scenes.Camera(inverse[:3, 3] / scale, -inverse[:3, 2], inverse[:3, 1], float(fov))
+        settings = export.render_settings(bscene.thurston, w, h, transparent=bscene.render.film_transparent)
         settings.quality = "draft"
-        result = render.render(space, None, settings, camera=camera, tracer=tracer)
-        rgba = np.ones((h, w, 4), np.float32)
-        rgba[..., :3] = np.nan_to_num(result.passes["color"])
-        return _flip_rows(rgba)
+
+        def frame(level, cancelled):
+            settings.width, settings.height = max(1, w // level), max(1, h // level)
+            result = render.render(space, None, settings, camera=camera, tracer=tracer,
+                                   progress=lambda done, total: not cancelled())
+            rgba = np.concatenate([np.nan_to_num(result.passes["color"]), result.passes["alpha"][..., None]], axis=-1)
+            return _flip_rows(rgba.astype(np.float32))
+
+        return frame
+
+    def __del__(self):
+        view = getattr(self, "_view", None)
+        if view is not None:
+            view.cancel()
+
+
+def _changes_scene(depsgraph) -> bool:
+    """Whether the depsgraph's updates touch what the tracer sees: objects other than cameras and
+    the domain guide, their data, materials, images, the world, the scene's settings."""
+    for update in depsgraph.updates:
+        data = update.id
+        if isinstance(data, bpy.types.Object):
+            if data.type == "CAMERA" or data.original.get(export.GUIDE_TAG):
+                continue
+            return True
+        if not isinstance(data, bpy.types.Camera):
+            return True
+    return False
+
+
+def _redraw_timer(engine):
+    """A timer function that redraws the viewport while its frame is being refined (the worker
+    thread must not call into Blender); it holds the engine weakly."""
+    ref = weakref.ref(engine)
+
+    def tick():
+        alive = ref()
+        if alive is not None:
+            try:
+                alive.tag_redraw()
+            except ReferenceError:  # Blender freed the engine
+                pass
+        return None
+
+    return tick
 
 
 # Blender's panels that are not generic (Blender's generic panels list BLENDER_RENDER) but that a user of
