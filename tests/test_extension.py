@@ -74,6 +74,26 @@ report["core_file"] = thurston_core.__file__
 pkg = sys.modules[NAME]
 report["pkg_file"] = pkg.__file__
 
+# first use: Blender's startup scene (cube, light, camera), engine switched to Thurston, F12; then the
+# fix the report names, and F12 again
+sc = bpy.context.scene
+report["first_use_objects"] = sorted(o.name for o in sc.objects)
+sc.render.engine = "THURSTON"
+sc.render.resolution_percentage = 5
+if hasattr(sc.render.image_settings, "media_type"):
+    sc.render.image_settings.media_type = "IMAGE"
+sc.render.image_settings.file_format = "OPEN_EXR"
+sc.render.filepath = os.path.join(out_dir, "first.exr")
+bpy.ops.render.render(write_still=True)
+report["first_use_notes"] = [[n.kind, n.message] for n in sc.thurston.stats.notes]
+report["fit_scale"] = sorted(bpy.ops.thurston.fit_scale())
+sc.render.filepath = os.path.join(out_dir, "fitted.exr")
+bpy.ops.render.render(write_still=True)
+report["fitted_notes"] = [n.kind for n in sc.thurston.stats.notes]
+import OpenImageIO
+fitted = OpenImageIO.ImageBuf(sc.render.filepath).get_pixels(OpenImageIO.FLOAT)
+report["fitted_lit"] = float((fitted[..., :3].max(axis=-1) > 0.05).mean())
+
 report["operator"] = hasattr(bpy.ops.thurston, "render_view")
 exr = os.path.join(out_dir, "view.exr")
 if report["operator"]:
@@ -247,6 +267,18 @@ def test_render_through_addon(installed):
     assert r["size"] == [32, 18]
     assert r["color_std"] > 0.01, r["summary"]  # an image, not a constant
     assert r["exr_size"] > 0  # OpenImageIO from the extension wrote it
+
+
+def test_first_use_of_the_startup_scene(installed):
+    """F12 on Blender's startup scene says what to change and names the fix; after Fit Scale the
+    image shows lit surfaces."""
+    r = installed
+    assert r["first_use_objects"] == ["Camera", "Cube", "Light"]
+    kinds = {kind for kind, _ in r["first_use_notes"]}
+    assert {"scene_too_large", "camera_outside"} <= kinds, r["first_use_notes"]
+    assert any("Fit Scale" in message for _, message in r["first_use_notes"])
+    assert r["fit_scale"] == ["FINISHED"] and "scene_too_large" not in r["fitted_notes"]
+    assert 0.1 < r["fitted_lit"] < 0.9
 
 
 def test_disable_leaves_nothing_registered(installed):
