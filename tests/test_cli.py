@@ -494,3 +494,17 @@ def test_failed_image_write_leaves_no_partial_file(tmp_path):
     # and a write that works leaves only its output
     images.write(tmp_path / "y.png", {"color": np.zeros((4, 4, 3), np.float32)})
     assert sorted(p.name for p in tmp_path.iterdir()) == [".x.png.partial.png", "y.png"]
+
+
+def test_render_warns_what_makes_the_image_dark(tmp_path, capsys):
+    """A scene without lights, and one whose light is shut in a box: the render says so."""
+    box = tmp_path / "scene.toml"
+    box.write_text('[[object]]\nprimitive = "box"\ncenter = [0, 0.3, 0]\nsize = [0.2, 0.2, 0.2]\n')
+    code, _, err = run(["render", "--space", "torus", "--scene", str(box), "--size", "16x9", "--quality", "draft",
+                        "--out", str(tmp_path / "a.png")], capsys)
+    assert code == 0 and "warning: the scene has no lights" in err
+    box.write_text(box.read_text() + '[[object]]\nprimitive = "box"\ncenter = [0.3, -0.3, 0.3]\nsize = [0.1, 0.1, 0.1]\n'
+                                      '[[light]]\nposition = [0.3, -0.3, 0.3]\n')
+    code, _, err = run(["render", "--space", "torus", "--scene", str(box), "--size", "16x9", "--quality", "draft",
+                        "--out", str(tmp_path / "b.png")], capsys)
+    assert code == 0 and "warning: no light reaches any surface the camera sees" in err

@@ -19,9 +19,10 @@ SCENE_TOO_LARGE = "scene_too_large"
 SCENE_TOO_SMALL = "scene_too_small"
 DROPPED = "dropped"  # objects or parts of them not rendered (the message names them)
 
-# An object whose chart size exceeds the domain's extent this many times fills the domain with its
-# overlapping copies; a scene smaller than 1/TOO_SMALL of the extent shows as specks.
-TOO_LARGE = 1.5
+# An object whose chart diagonal exceeds the domain's this many times fills the domain with its
+# overlapping copies (one the domain's size, as its edges, does not); a scene smaller than
+# 1/TOO_SMALL of the domain shows as specks.
+TOO_LARGE = 2.0
 TOO_SMALL = 200.0
 # The scene's size after Fit Scale: this fraction of the domain's inscribed ball's diameter.
 FIT_FRACTION = 0.6
@@ -111,18 +112,18 @@ def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> 
         notes.append(Note(NO_LIGHTS, "the scene has no lights: "
                           + ("only emissive objects show" if emissive else "everything renders black")
                           + "; add a point light inside the domain"))
-    extent = space.extent
-    large = [o for o in scene.objects if _diagonal(o.vertices) > TOO_LARGE * extent]
+    size = _diagonal(space.domain.vertices)
+    large = [o for o in scene.objects if _diagonal(o.vertices) > TOO_LARGE * size]
     if large:
         one = len(large) == 1
         notes.append(Note(SCENE_TOO_LARGE, f"{_names(large)} {'is' if one else 'are'} larger than the domain "
-                                           f"({_diagonal(large[0].vertices):.3g} against {extent:.3g} chart units): "
+                                           f"({_diagonal(large[0].vertices):.3g} against {size:.3g} chart units across): "
                                            f"{'its' if one else 'their'} copies overlap and fill it; scale the scene "
                                            f"to fit the domain"))
-    elif scene.objects and max(_diagonal(o.vertices) for o in scene.objects) < extent / TOO_SMALL:
+    elif scene.objects and max(_diagonal(o.vertices) for o in scene.objects) < size / TOO_SMALL:
         notes.append(Note(SCENE_TOO_SMALL, f"the scene is over {TOO_SMALL:g} times smaller than the domain "
-                                           f"({extent:.3g} chart units): its copies show as specks; scale the scene "
-                                           f"to fit the domain"))
+                                           f"({size:.3g} chart units across): its copies show as specks; scale the "
+                                           f"scene to fit the domain"))
     return notes
 
 

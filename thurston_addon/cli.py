@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import images, render, scene as scenes, spaces
+from . import checks, images, render, scene as scenes, spaces
 
 
 class CommandError(Exception):
@@ -94,7 +94,12 @@ def cmd_render(args):
                                shading=args.shading, max_distance=args.max_distance,
                                max_crossings=args.max_crossings, fog=args.fog, threads=args.threads,
                                tolerance=args.tolerance)
+    lambert = settings.shading == "lambert"
+    for note in checks.before_render(space, scene, camera, lambert):
+        warnings.warn(note.message)
     result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
+    for note in checks.after_render(scene, result.passes, lambert):
+        warnings.warn(note.message)
     images.write(out, result.passes, names=args.passes, metadata={
         "space": space.id, "quality": args.quality, "summary": result.summary()})
     print(f"{out}: {w}x{h} {space.id}; {result.summary()}")

@@ -157,9 +157,10 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         return frame
 
     def __del__(self):
-        view = getattr(self, "_view", None)
-        if view is not None:
-            view.cancel()
+        try:  # a frame still being traced for a viewport that is gone
+            self._view.cancel()
+        except (AttributeError, ReferenceError):  # never set up, or Blender freed the engine first
+            pass
 
 
 def _changes_scene(depsgraph) -> bool:
