@@ -5,6 +5,8 @@ from . import render, spaces
 
 DEFAULT_SPACE = "poincare"
 PRESET_SUBDIR = "thurston"  # the settings presets' folder under Blender's presets
+# Path settings accept Blender's // (relative to the .blend); Blender before 4.5 has no such flag.
+_BLEND_RELATIVE = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
 FILE = "FILE"  # space_id of a user's space file (space_file)
 # The space enum's items before the setting stored the id: .blend files saved then hold an index into
 # this list under the key "space".
@@ -86,7 +88,7 @@ class ThurstonSettings(bpy.types.PropertyGroup):
     space: bpy.props.EnumProperty(name="Space", items=_space_items, get=_get_space, set=_set_space,
                                   description="The 3-manifold the scene lives in")
     space_file: bpy.props.StringProperty(name="Space File", subtype="FILE_PATH", update=_space_changed,
-                                         description="A space file (.toml): geometry, generators, defaults")
+                                         options=_BLEND_RELATIVE, description="A space file (.toml): geometry, generators, defaults")
     scale: bpy.props.FloatProperty(name="Scale", default=1.0, min=1e-6, soft_max=100.0, update=_space_changed,
                                    description="Blender units per chart unit")
     quality: bpy.props.EnumProperty(name="Quality", items=[(k, k.title(), f"{v.samples} sample(s) per pixel; curved geodesics: hit positions within {v.footprint_fraction:g} of a pixel") for k, v in render.QUALITY.items()],
@@ -106,7 +108,7 @@ class ThurstonSettings(bpy.types.PropertyGroup):
         items=[(p.upper(), p.title(), f"Write the {p} pass") for p in render.PASSES],
         default={p.upper() for p in render.PASSES})
     panorama_width: bpy.props.IntProperty(name="Panorama Width", default=2048, min=16, max=16384)
-    save_path: bpy.props.StringProperty(name="Save To", subtype="FILE_PATH",
+    save_path: bpy.props.StringProperty(name="Save To", subtype="FILE_PATH", options=_BLEND_RELATIVE,
                                         description="Also save renders here (.exr: all passes, .png: colour); empty: don't save")
     overwrite: bpy.props.BoolProperty(name="Overwrite", default=False, description="Replace the file at Save To if it exists")
     threads: bpy.props.IntProperty(name="Threads", default=0, min=0, description="0: all cores")
