@@ -190,15 +190,21 @@ def test_render_blend_prints_notes_and_fails_on_a_failed_frame(tmp_path):
 
 
 # --- view layers and instances -------------------------------------------------------------------------------
+def box_in_collection(sc, name, location):
+    """A 0.1 box in a new collection of that name, under the scene's collection."""
+    coll = bpy.data.collections.new(name)
+    sc.collection.children.link(coll)
+    box = bh.box("Box", 0.1, location)
+    sc.collection.objects.unlink(box)
+    coll.objects.link(box)
+    return coll
+
+
 def test_each_view_layer_renders_with_its_own_visibility(tmp_path):
     """Two view layers; a collection excluded from the second: F12 renders both layers, the box in
     that collection is straight ahead at distance 0.25 in the first and absent in the second."""
     sc = bh.fresh_scene("torus", size=(9, 9))
-    coll = bpy.data.collections.new("OnlyFirst")
-    sc.collection.children.link(coll)
-    box = bh.box("Box", 0.1, (0, 0.3, 0))
-    sc.collection.objects.unlink(box)
-    coll.objects.link(box)
+    box_in_collection(sc, "OnlyFirst", (0, 0.3, 0))
     bh.box("Far", (0.9, 0.02, 0.9), (0, 0.45, 0))
     bh.point_light((0, 0, 0.1))
     bh.camera((0, 0, 0))
@@ -215,11 +221,7 @@ def test_each_view_layer_renders_with_its_own_visibility(tmp_path):
 def test_instances_of_an_excluded_collection_render(tmp_path):
     """As in Cycles: a collection excluded from the view layer still renders through an instancer."""
     sc = bh.fresh_scene("torus", size=(9, 9))
-    source = bpy.data.collections.new("Source")
-    sc.collection.children.link(source)
-    box = bh.box("Box", 0.1, (0, 0, 0))
-    sc.collection.objects.unlink(box)
-    source.objects.link(box)
+    source = box_in_collection(sc, "Source", (0, 0, 0))
     sc.view_layers[0].layer_collection.children["Source"].exclude = True
     empty = bpy.data.objects.new("Instancer", None)
     empty.instance_type = "COLLECTION"
