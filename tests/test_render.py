@@ -843,3 +843,16 @@ def test_geodesic_error_sees_a_perturbed_pairing(space_cache):
     assert errors[0.0] < 1e-12
     assert 1e-6 <= errors[1e-6] <= crossings * 1e-6 * 1.01, errors
     assert 5 < errors[1e-5] / errors[1e-6] < 20, errors
+
+
+def test_winding_numbers_tell_inside_from_outside():
+    """The solid-angle sum of a closed mesh about a point: 1 inside (either orientation's sign),
+    0 outside, for a sphere mesh; the chunking does not change it."""
+    from thurston_addon import checks
+
+    ico = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    V, F = np.asarray(ico.vertices), np.asarray(ico.faces)
+    points = np.array([[0, 0, 0], [0.1, -0.1, 0.2], [0.5, 0, 0], [0, 0.31, 0.0], [2, 2, 2]])
+    w = checks.winding_numbers(points, V, F)
+    np.testing.assert_allclose(w, [1, 1, 0, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(checks.winding_numbers(points, V, F[:, ::-1], block=7), -w, atol=1e-9)

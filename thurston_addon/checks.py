@@ -56,12 +56,14 @@ def _names(objects) -> str:
     return ", ".join(repr(n) for n in names[:5]) + (" ..." if len(names) > 5 else "")
 
 
-def winding_numbers(points, vertices, triangles, chunk=100_000) -> np.ndarray:
+def winding_numbers(points, vertices, triangles, block=1_000_000) -> np.ndarray:
     """The winding number of a triangle mesh about each point: the solid angles of its triangles
     (Van Oosterom and Strackee) over 4 pi; 1 inside a closed outward mesh, 0 outside. Chart
-    triangles: the number is topological, so any chart gives the manifold's answer."""
+    triangles: the number is topological, so any chart gives the manifold's answer. Triangles are
+    taken in chunks of about `block` (point, triangle) pairs, to bound the memory."""
     P = np.asarray(points, float)
     out = np.zeros(len(P))
+    chunk = max(1, block // max(len(P), 1))
     for start in range(0, len(triangles), chunk):
         T = triangles[start:start + chunk]
         a, b, c = (vertices[T[:, k]][None, :, :] - P[:, None, :] for k in range(3))
