@@ -15,7 +15,7 @@ class THURSTON_OT_add_preset(AddPresetBase, bpy.types.Operator):
     preset_defines = ["settings = bpy.context.scene.thurston"]
     preset_values = [f"settings.{name}" for name in (
         "space_id", "space_file", "scale", "quality", "tolerance", "shading", "max_distance", "max_crossings",
-        "fog", "passes", "panorama_width")]
+        "fog", "passes", "panorama_width", "samples", "threads")]
 
 
 CLASSES = (THURSTON_OT_add_preset,)
