@@ -36,8 +36,18 @@ class Note:
 def home_element(space: Space, vertices) -> np.ndarray:
     """The isometry that brings an object (chart vertices) home: its centre, the chart mean of its
     vertices, into the domain. Raises SpaceError if the centre cannot be brought in."""
+    return home_elements(space, np.asarray(vertices, float).mean(axis=0)[None])[0]
+
+
+def home_elements(space: Space, centres) -> np.ndarray:
+    """The home elements (k, 4, 4) of objects with these chart centres, all at once; objects with
+    the same home share one exact isometry."""
     g = space.geometry
-    return space.bring_inside(g.to_model(np.asarray(vertices, float).mean(axis=0)))[2]
+    M = space.move_inside(g.to_model(np.asarray(centres, float)))[2]
+    keys, inverse = np.unique(np.round(M.reshape(len(M), 16), 9), axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    first = np.unique(inverse, return_index=True)[1]
+    return np.array([g.reorthonormalize(M[i]) for i in first])[inverse]
 
 
 def fit_scale(space: Space, scene_size: float) -> float:
