@@ -91,7 +91,7 @@ class SceneObject:
         self.corner_normals = self._per_triangle("corner_normals", self.corner_normals, (m, 3, 3), np.float64)
         self.corner_uvs = self._per_triangle("corner_uvs", self.corner_uvs, (m, 3, 2), np.float64)
         self.triangle_material = self._per_triangle("triangle_material", self.triangle_material, (m,), np.int32)
-        self.instances = None if self.instances is None else _instances(self.instances, self.name)
+        self.instances = None if self.instances is None else checked_instances(self.instances, self.name)
         if self.triangle_material is not None and m and not (
                 0 <= self.triangle_material.min() and self.triangle_material.max() < max(len(self.materials), 1)):
             raise SceneError(f"object {self.name!r}: triangle_material refers to a material it does not have "
@@ -132,7 +132,7 @@ class SceneObject:
         return materials, index
 
 
-def _instances(value, name: str) -> np.ndarray:
+def checked_instances(value, name: str) -> np.ndarray:
     """Instance transforms as (k, 4, 4) float64: finite, affine and invertible."""
     try:
         A = np.array(value, dtype=np.float64)
@@ -512,7 +512,7 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
         if "transforms" in spec:
             for o in objs:
                 try:
-                    o.instances = _instances(spec["transforms"], o.name)
+                    o.instances = checked_instances(spec["transforms"], o.name)
                 except SceneError as exc:
                     raise SceneError(f"{where}: {exc}") from None
         scene.objects += objs
