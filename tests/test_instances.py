@@ -212,3 +212,16 @@ def test_scene_file_transforms(tmp_path):
                     '[0, 0, 1, 0], [0, 0, 0, 1]]]\n')
     with pytest.raises(SceneError, match="object 0: object 'sphere': instance 0 has a singular transform"):
         scenes.load_scene_file(path)
+
+
+def test_camera_inside_an_instance_is_noted_in_its_placement():
+    """The check looks for the camera in every placement of the mesh, not in the mesh where its
+    own coordinates would put it."""
+    from thurston_addon import checks
+
+    sp = space("torus")
+    ball = SceneObject("ball", BALL.vertices, BALL.faces, instances=translations([[0.2, 0, 0], [0, 0.3, 0]]))
+    notes = lambda position: {n.kind for n in checks.before_render(sp, Scene([ball]), Camera(
+        np.asarray(position, float), np.array([0, 1.0, 0]), np.array([0, 0, 1.0])), lambert=False)}
+    assert checks.CAMERA_IN_OBJECT in notes([0.0, 0.3, 0.0])
+    assert checks.CAMERA_IN_OBJECT not in notes([0.0, 0.0, 0.0])  # where the mesh itself lies
