@@ -356,7 +356,7 @@ def test_recorded_segments_replay_on_query_segments():
     r = tracer.trace(o, d, 5.0, 1000, shade=False, record_segments=True)
     starts, ends = r["segment_starts"], r["segment_ends"]
     assert starts.shape == ends.shape == (int(r["chords"]), 3)
-    t, prim = tracer.query_segments(starts, ends)
+    t, prim, _ = tracer.query_segments(starts, ends)
     assert t.dtype == np.float32 and prim.dtype == np.int32
     # Every ray stops at its first hit chord, so hit chords and hit rays correspond one to one.
     assert (prim >= 0).sum() == (r["stop"] == 0).sum()
@@ -367,7 +367,7 @@ def test_query_segments_against_a_box():
     tracer = make_tracer(0, [], [], [box_mesh([0, 0, 0], [1, 1, 1])])
     starts = np.array([[-1, 0.5, 0.5], [-1, 0.5, 0.5], [0.5, 0.5, -3.0], [2, 2, 2]])
     ends = np.array([[1, 0.5, 0.5], [-0.5, 0.5, 0.5], [0.5, 0.5, 1.0], [3, 3, 3]])
-    t, prim = tracer.query_segments(starts, ends)
+    t, prim, _ = tracer.query_segments(starts, ends)
     np.testing.assert_allclose(t, [0.5, np.inf, 0.75, np.inf])
     assert prim[0] >= 0 and prim[1] == -1 and prim[2] >= 0 and prim[3] == -1
 

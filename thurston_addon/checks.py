@@ -37,8 +37,18 @@ class Note:
 def home_element(space: Space, vertices) -> np.ndarray:
     """The isometry that brings an object (chart vertices) home: its centre, the chart mean of its
     vertices, into the domain. Raises SpaceError if the centre cannot be brought in."""
+    return home_elements(space, np.asarray(vertices, float).mean(axis=0)[None])[0]
+
+
+def home_elements(space: Space, centres) -> np.ndarray:
+    """The home elements (k, 4, 4) of objects with these chart centres, all at once; objects with
+    the same home share one exact isometry."""
     g = space.geometry
-    return space.bring_inside(g.to_model(np.asarray(vertices, float).mean(axis=0)))[2]
+    M = space.move_inside(g.to_model(np.asarray(centres, float)))[2]
+    keys, inverse = np.unique(np.round(M.reshape(len(M), 16), 9), axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    first = np.unique(inverse, return_index=True)[1]
+    return np.array([g.reorthonormalize(M[i]) for i in first])[inverse]
 
 
 def fit_scale(space: Space, scene_size: float) -> float:
@@ -75,20 +85,18 @@ def winding_numbers(points, vertices, triangles, block=1_000_000) -> np.ndarray:
     return out
 
 
-def _copies_near(space: Space, point_model, obj, M_home) -> np.ndarray:
-    """Chart positions of the copies of a point around an object where it lies in the cover: the
-    point's images around the domain, taken back by the object's home element."""
+def _encloses(space: Space, obj, point_model) -> bool:
+    """Whether the object (any of its placements) encloses a copy of the point: the point's images
+    around the domain, taken back by each placement's home element and into its mesh's
+    coordinates, then the mesh's winding number about those in its box."""
     g = space.geometry
-    back = np.linalg.inv(M_home)
-    P = np.array([back @ E @ point_model for E in space.neighbourhood(1)])
-    P = np.asarray(g.to_chart(P), float)
+    A = obj.instances if obj.instances is not None else np.eye(4)[None]
+    homes = home_elements(space, A[:, :3, :3] @ obj.vertices.mean(axis=0) + A[:, :3, 3])
+    images = np.array([E @ point_model for E in space.neighbourhood(1)])
+    P = np.asarray(g.to_chart(np.einsum("kij,nj->kni", np.linalg.inv(homes), images)), float)
+    P = np.einsum("kij,knj->kni", np.linalg.inv(A[:, :3, :3]), P - A[:, None, :3, 3]).reshape(-1, 3)
     lo, hi = obj.vertices.min(axis=0), obj.vertices.max(axis=0)
-    inside_box = np.all((P >= lo) & (P <= hi), axis=1)
-    return P[inside_box]
-
-
-def _encloses(space, obj, M_home, point_model) -> bool:
-    P = _copies_near(space, point_model, obj, M_home)
+    P = P[np.all((P >= lo) & (P <= hi), axis=1)]
     return bool(len(P)) and bool(np.any(np.abs(winding_numbers(P, obj.vertices, obj.triangles)) > 0.5))
 
 
@@ -101,12 +109,11 @@ def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> 
     if not space.domain.contains(X):
         notes.append(Note(CAMERA_OUTSIDE, "the camera lies outside the fundamental domain: the face pairings "
                                           "move it in, to the same point of the space (the view is the same)"))
-    homes = [home_element(space, o.vertices) for o in scene.objects]
     lights = [g.to_model(np.asarray(light.position, float)) for light in scene.lights]
-    for obj, M in zip(scene.objects, homes):
-        if np.any(obj.emission > 0) or not _encloses(space, obj, M, X):
+    for obj in scene.objects:
+        if np.any(obj.emission > 0) or not _encloses(space, obj, X):
             continue
-        if not any(_encloses(space, obj, M, L) for L in lights):
+        if not any(_encloses(space, obj, L) for L in lights):
             notes.append(Note(CAMERA_IN_OBJECT, f"the camera is inside object {obj.name!r} and no light is: "
                                                 f"it sees the object's unlit inside; move the camera out of it"))
     emissive = [o for o in scene.objects if np.any(o.emission > 0)]

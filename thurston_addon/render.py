@@ -207,14 +207,23 @@ class _Surfaces:
         self.with_uvs = any(o.corner_uvs is not None for o in objects)
         self.material, self.normals, self.uvs = [], [], []
 
-    def add_copy(self, space: Space, index: int, Y, kept, M):
-        """The copy Y = M X (model vertices) of object `index`, with its triangles `kept`."""
+    def add_copy(self, space: Space, index: int, obj, Y, kept, M):
+        """The copy Y = M X (model vertices) of `obj` (object `index`, or one of its placements),
+        with its triangles `kept`."""
+        self._add(index, obj, kept, lambda: _copy_normals(space, obj, Y, kept, M))
+
+    def add_mesh(self, index: int):
+        """Object `index`'s mesh as it is, for its instances (which carry its normals themselves)."""
         obj = self.objects[index]
+        kept = np.arange(len(obj.triangles))
+        self._add(index, obj, kept, lambda: _unit(_own_normals(obj, kept)))
+
+    def _add(self, index, obj, kept, normals):
         self.material.append(obj.surface_materials()[1][kept] + self.material_offset[index])
         if self.with_uvs:
             self.uvs.append(obj.corner_uvs[kept] if obj.corner_uvs is not None else np.zeros((len(kept), 3, 2)))
         if self.with_normals:
-            self.normals.append(_copy_normals(space, obj, Y, kept, M))
+            self.normals.append(normals())
 
     def arrays(self, triangles: int) -> dict:
         textures = {key: i for i, key in enumerate(self.textures)}
@@ -248,18 +257,72 @@ def _copy_normals(space: Space, obj, Y, kept, M):
     g = space.geometry
     x = obj.vertices
     T = obj.triangles[kept]
-    P = x[T]
-    if obj.corner_normals is None:  # flat shading: the face's chart normal at every corner
-        n = np.repeat(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])[:, None, :], 3, axis=1)
-    else:
-        n = obj.corner_normals[kept]
+    n = _own_normals(obj, kept)
     used, local = np.unique(T, return_inverse=True)
     # the differential's columns: the images of the chart's unit vectors at each used vertex
     J = np.stack([g.tangent_to_chart(Y[used], g.tangent_to_model(x[used], np.broadcast_to(e, (len(used), 3))) @ M.T)
                   for e in np.eye(3)], axis=-1)
     Jt = np.swapaxes(J, 1, 2)[local.reshape(-1, 3)]  # (m, 3, 3, 3): J^T at each corner
-    carried = np.linalg.solve(Jt, n[..., None])[..., 0]
-    return carried / np.maximum(np.linalg.norm(carried, axis=-1, keepdims=True), 1e-300)
+    return _unit(np.linalg.solve(Jt, n[..., None])[..., 0])
+
+
+def _own_normals(obj, kept):
+    """The corner normals of the kept triangles, or for flat shading each face's chart normal at
+    its corners."""
+    if obj.corner_normals is not None:
+        return obj.corner_normals[kept]
+    P = obj.vertices[obj.triangles[kept]]
+    return np.repeat(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])[:, None, :], 3, axis=1)
+
+
+def _unit(n):
+    return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
+
+
+def _instance_copies(space: Space, obj, C):
+    """The copies g(placement) of an instanced object's placements that can reach the domain:
+    (chart maps of the copies that stay instances, (placed object, Y, kept, M) of the copies that
+    are flattened, how many placements are not shown, how many reach beyond the copies searched).
+    E3, Nil and Sol: isometries are affine in the chart, so every copy is an instance, its map
+    g A. A placement is tested by its mesh's bounding box (its 8 corners: a copy whose corners
+    all lie beyond one face cannot meet the domain, and a box inside one copy of the domain is
+    covered); a placement whose box no copy holds is tested by its vertices, as flat objects are.
+    S3, H3: their isometries are projective in the chart, so only a placement's identity copy
+    stays an instance; its other copies reaching the domain are flattened (transformed triangles)."""
+    g = space.geometry
+    A = obj.instances
+    affine = not g.projective or g.curvature == 0
+    exact = np.ones(len(A), bool)  # placements tested by their vertices
+    instances, flat = [], []
+    if affine:
+        homes = checks.home_elements(space, A[:, :3, :3] @ obj.vertices.mean(axis=0) + A[:, :3, 3])
+        lo, hi = obj.vertices.min(axis=0), obj.vertices.max(axis=0)
+        corners = g.to_model(np.array([[(hi if (i >> a) & 1 else lo)[a] for a in range(3)] for i in range(8)]))
+        placed = np.einsum("kij,kjl,cl->kci", homes, A, corners)
+        covered = np.zeros(len(A), bool)
+        reaching = []
+        for M in space.neighbourhood(1):
+            Y = placed @ M.T
+            outside = (Y / np.linalg.norm(Y, axis=-1, keepdims=True)) @ C.T > 1e-9  # (k, 8, faces)
+            reaching.append((M, ~outside.all(axis=1).any(axis=1)))
+            covered |= ~outside.any(axis=(1, 2))
+        instances = [(M @ homes @ A)[reach & covered] for M, reach in reaching]
+        exact = ~covered
+    missing = beyond = 0
+    for j in np.flatnonzero(exact):
+        one = obj.placed(A[j:j + 1])
+        if not np.all(g.in_chart(one.vertices)):
+            raise SceneError(f"object {obj.name!r}: instance {j} has vertices outside the chart of {g.name} "
+                             f"(the Klein chart is the open unit ball)")
+        copies, covered = _object_copies(space, one, C)
+        missing += not copies
+        beyond += bool(copies) and not covered.all()
+        for Y, kept, M in copies:
+            if affine or np.allclose(M, np.eye(4), rtol=0, atol=1e-12):
+                instances.append((M @ A[j])[None])
+            else:
+                flat.append((one, Y, kept, M))
+    return np.concatenate(instances) if instances else np.zeros((0, 4, 4)), flat, missing, beyond
 
 
 def compile_scene(space: Space, scene: Scene):
@@ -274,25 +337,60 @@ def compile_scene(space: Space, scene: Scene):
     # of copies, an approximation: for points near vertices a copy beyond it can be nearer (the ring
     # grows fast, so more rings would cost much more per shaded point).
     elements = space.light_elements()
-    verts, tris, owner = [], [], []
-    surfaces = _Surfaces(scene.objects)
-    offset = 0
+    flat, meshes = [], []  # flat: (object index, source object, Y, kept, M); meshes: (index, chart maps)
     for index, obj in enumerate(scene.objects):
+        if obj.instances is not None:
+            try:
+                maps, flattened, missing, beyond = _instance_copies(space, obj, C)
+            except SpaceError as exc:
+                raise SceneError(f"object {obj.name!r}: {exc}") from None
+            meshes += [(index, maps)] if len(maps) else []
+            flat += [(index, *copy) for copy in flattened]
+            if missing:
+                warnings.warn(f"object {obj.name!r}: {missing} of its {len(obj.instances)} instances lie outside the "
+                              f"domain and its neighbouring copies: not shown", stacklevel=2)
+            if beyond:
+                warnings.warn(f"object {obj.name!r}: {beyond} of its {len(obj.instances)} instances reach beyond the "
+                              f"copies of the domain around them: parts of them are missing", stacklevel=2)
+            continue
         if not np.all(g.in_chart(obj.vertices)):
             raise SceneError(f"object {obj.name!r} has vertices outside the chart of {g.name} (the Klein chart is the open unit ball)")
         copies, covered = _object_copies(space, obj, C)
-        for Y, kept, M in copies:
-            used, local = np.unique(obj.triangles[kept], return_inverse=True)
-            verts.append(g.to_chart(Y[used]))
-            tris.append(local.reshape(-1, 3) + offset)
-            owner.append(np.full(len(kept), index, np.int32))
-            offset += len(used)
-            surfaces.add_copy(space, index, Y, kept, M)
+        flat += [(index, obj, *copy) for copy in copies]
         if not copies:
             warnings.warn(f"object {obj.name!r} lies outside the domain and its neighbouring copies: not shown", stacklevel=2)
         elif not covered.all():
             warnings.warn(f"object {obj.name!r} reaches beyond the copies of the domain around it: "
                           f"{int((~covered).sum())} of its vertices are farther out and parts of it are missing", stacklevel=2)
+    # The triangles: the flat copies (mesh 0, placed by the identity), then each instanced mesh.
+    verts, tris, owner = [], [], []
+    surfaces = _Surfaces(scene.objects)
+    offset = 0
+    for index, source, Y, kept, M in flat:
+        used, local = np.unique(source.triangles[kept], return_inverse=True)
+        verts.append(g.to_chart(Y[used]))
+        tris.append(local.reshape(-1, 3) + offset)
+        owner.append(np.full(len(kept), index, np.int32))
+        offset += len(used)
+        surfaces.add_copy(space, index, source, Y, kept, M)
+    instancing = {}
+    if meshes:
+        first, mesh_of, maps_of, object_of = [0], [0], [np.eye(4)], [0]
+        for index, maps in meshes:
+            obj = scene.objects[index]
+            first.append(sum(len(t) for t in tris))
+            verts.append(obj.vertices)
+            tris.append(obj.triangles + offset)
+            owner.append(np.zeros(len(obj.triangles), np.int32))  # the instances give the object
+            offset += len(obj.vertices)
+            surfaces.add_mesh(index)
+            mesh_of += [len(first) - 1] * len(maps)
+            maps_of.append(maps)
+            object_of += [index] * len(maps)
+        instancing = dict(
+            mesh_first_triangle=np.array(first, np.int32), instance_mesh=np.array(mesh_of, np.int32),
+            instance_transform=np.ascontiguousarray(np.vstack([np.reshape(m, (-1, 4, 4)) for m in maps_of])[:, :3]),
+            instance_object=np.array(object_of, np.int32))
     V = np.vstack(verts) if verts else np.zeros((0, 3))
     T = np.vstack(tris).astype(np.int32) if tris else np.zeros((0, 3), np.int32)
     O = np.concatenate(owner) if owner else np.zeros(0, np.int32)
@@ -318,7 +416,7 @@ def compile_scene(space: Space, scene: Scene):
         face_maps=np.ascontiguousarray(np.array([f.pairing for f in space.domain.faces])),
         vertices=np.ascontiguousarray(V, np.float64), triangles=np.ascontiguousarray(T),
         triangle_object=np.ascontiguousarray(O), object_color=colors, object_emission=emission,
-        **surfaces.arrays(len(T)),
+        **surfaces.arrays(len(T)), **instancing,
         light_lifts=np.array(lifts, np.float64).reshape(-1, 4), light_of_lift=np.array(of_lift, np.int32),
         light_radiance=np.array(radiance, np.float32).reshape(-1, 3),
     )
@@ -582,6 +680,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "chords_per_ray": chords / total, "threads": tracer.num_threads,
         "crossings_per_ray": float(first["crossings"].mean()), "hit_fraction": float(hits.mean()),
         "samples_per_pixel": len(offsets), "triangles": tracer.num_triangles,
+        "instances": tracer.num_instances, "instanced_triangles": tracer.num_instanced_triangles,
         # angular size of a pixel over sqrt(samples), at the median hit depth, in chart-scale units
         "footprint": pixel_angle / math.sqrt(len(offsets)) * median_depth,
         "tolerance": tolerances[0], "tolerance_per_distance": tolerances[1],

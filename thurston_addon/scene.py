@@ -77,6 +77,10 @@ class SceneObject:
     corner_uvs: np.ndarray | None = None  # (m, 3, 2)
     triangle_material: np.ndarray | None = None  # (m,) int32
     materials: list[Material] = field(default_factory=list)
+    # Optional instancing: the mesh (vertices in its own coordinates) placed by each of these
+    # chart-affine maps (k, 4, 4), last row (0, 0, 0, 1); the tracer stores it once. It stays one
+    # object (one index and pass_index for all its placements).
+    instances: np.ndarray | None = None
 
     def __post_init__(self):
         self.vertices = np.asarray(self.vertices, dtype=np.float64).reshape(-1, 3)
@@ -87,6 +91,7 @@ class SceneObject:
         self.corner_normals = self._per_triangle("corner_normals", self.corner_normals, (m, 3, 3), np.float64)
         self.corner_uvs = self._per_triangle("corner_uvs", self.corner_uvs, (m, 3, 2), np.float64)
         self.triangle_material = self._per_triangle("triangle_material", self.triangle_material, (m,), np.int32)
+        self.instances = None if self.instances is None else checked_instances(self.instances, self.name)
         if self.triangle_material is not None and m and not (
                 0 <= self.triangle_material.min() and self.triangle_material.max() < max(len(self.materials), 1)):
             raise SceneError(f"object {self.name!r}: triangle_material refers to a material it does not have "
@@ -103,11 +108,47 @@ class SceneObject:
             raise SceneError(f"object {self.name!r}: {what} has NaN or infinite values")
         return a
 
+    def placed(self, transforms=None) -> "SceneObject":
+        """The object with the copies of its mesh by `transforms` (default: its instances) as its
+        own triangles, in one object without instances: what the instances show, flattened. Corner
+        normals are covectors: they move by the inverse of each map's linear part."""
+        A = self.instances if transforms is None else np.asarray(transforms, float).reshape(-1, 4, 4)
+        if A is None:
+            return self
+        k, n = len(A), len(self.vertices)
+        L, t = A[:, :3, :3], A[:, :3, 3]
+        tiled = lambda a: None if a is None else np.concatenate([a] * k)
+        normals = None if self.corner_normals is None else np.einsum(
+            "mcj,kji->kmci", self.corner_normals, np.linalg.inv(L)).reshape(-1, 3, 3)
+        return SceneObject(
+            self.name, (np.einsum("kij,nj->kni", L, self.vertices) + t[:, None]).reshape(-1, 3),
+            (self.triangles[None] + (n * np.arange(k))[:, None, None]).reshape(-1, 3), self.color, self.emission,
+            self.pass_index, normals, tiled(self.corner_uvs), tiled(self.triangle_material), self.materials)
+
     def surface_materials(self) -> tuple[list[Material], np.ndarray]:
         """The materials and each triangle's index into them (one material where none are given)."""
         materials = self.materials or [Material(self.color, self.emission, name=self.name)]
         index = self.triangle_material if self.triangle_material is not None else np.zeros(len(self.triangles), np.int32)
         return materials, index
+
+
+def checked_instances(value, name: str) -> np.ndarray:
+    """Instance transforms as (k, 4, 4) float64: finite, affine and invertible."""
+    try:
+        A = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SceneError(f"object {name!r}: instance transforms must be 4x4 matrices of numbers") from None
+    if A.ndim != 3 or A.shape[1:] != (4, 4) or len(A) == 0:
+        raise SceneError(f"object {name!r}: instance transforms must have shape (k, 4, 4) with k >= 1, got {A.shape}")
+    for j, M in enumerate(A):
+        if not np.all(np.isfinite(M)):
+            raise SceneError(f"object {name!r}: instance {j} has a NaN or infinite transform")
+        if not np.array_equal(M[3], [0.0, 0.0, 0.0, 1.0]):
+            raise SceneError(f"object {name!r}: instance {j} is not affine (its last row must be 0 0 0 1, got {M[3].tolist()})")
+        L = M[:3, :3]
+        if not abs(np.linalg.det(L)) > 1e-12 * np.prod(np.linalg.norm(L, axis=1)):
+            raise SceneError(f"object {name!r}: instance {j} has a singular transform (it flattens the mesh)")
+    return A
 
 
 @dataclass
@@ -420,6 +461,8 @@ def load_scene_file(path: str | Path) -> Scene:
         primitive = "sphere"  # sphere (radius), box (size), torus (radius, tube)
         center = [0.2, 0, 0]
         radius = 0.1
+        transforms = [[[1, 0, 0, 0.3], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], ...]
+                              # optional: the object instanced by these 4x4 chart-affine maps
         [[light]]
         position = [0, 0, 0.3]
         color = [1, 1, 1]
@@ -466,6 +509,12 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
                 o.emission = _vec(spec["emission"], f"{where}: emission")
                 for m in o.materials:
                     m.emission, m.emission_texture = o.emission, None
+        if "transforms" in spec:
+            for o in objs:
+                try:
+                    o.instances = checked_instances(spec["transforms"], o.name)
+                except SceneError as exc:
+                    raise SceneError(f"{where}: {exc}") from None
         scene.objects += objs
     for i, spec in enumerate(data.get("light", [])):
         where = f"{path}: light {i}"

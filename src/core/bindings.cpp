@@ -204,11 +204,90 @@ Surfaces make_surfaces(const SurfaceArrays& given, std::int64_t NT) {
   return s;
 }
 
+// The optional mesh and instance arguments of the constructor, as given.
+struct InstanceArrays {
+  OptionalArray mesh_first_triangle, instance_mesh, instance_transform, instance_object;
+};
+
+// The meshes (ranges of triangles) and their instances; without them one mesh of all triangles
+// placed once by the identity.
+void make_instances(const InstanceArrays& given, const std::string& geometry, std::int64_t NO,
+                    SceneData& scene) {
+  const std::int64_t NT = scene.triangles.size();
+  scene.mesh_first = {0};
+  if (given.mesh_first_triangle) {
+    check<std::int32_t>(*given.mesh_first_triangle, "mesh_first_triangle", {-1}, "(NMESH,)");
+    const Strided2<std::int32_t> v = view2<std::int32_t>(*given.mesh_first_triangle);
+    scene.mesh_first.clear();
+    for (std::size_t m = 0; m < given.mesh_first_triangle->shape(0); ++m) {
+      const std::int32_t first = v(m, 0);
+      if ((m == 0 && first != 0) || (m > 0 && first < std::int32_t(scene.mesh_first.back())) || first > NT)
+        throw nb::value_error(("mesh_first_triangle must start at 0 and ascend to at most NT = " +
+                               std::to_string(NT) + "; row " + std::to_string(m) + " is " +
+                               std::to_string(first)).c_str());
+      scene.mesh_first.push_back(std::uint32_t(first));
+    }
+    if (scene.mesh_first.empty()) throw nb::value_error("mesh_first_triangle must name at least one mesh");
+  }
+  const std::int64_t NMESH = scene.mesh_first.size();
+  const bool any = given.instance_mesh || given.instance_transform || given.instance_object;
+  if (!any) {
+    if (NMESH != 1) throw nb::value_error("meshes besides the first need instances (instance_mesh, instance_transform, instance_object)");
+    scene.instances = {{0, 0, Affine{}}};
+  } else {
+    if (!given.instance_mesh || !given.instance_transform || !given.instance_object)
+      throw nb::value_error("instance_mesh, instance_transform and instance_object go together");
+    check<std::int32_t>(*given.instance_mesh, "instance_mesh", {-1}, "(NI,)");
+    const std::int64_t NI = given.instance_mesh->shape(0);
+    check<double>(*given.instance_transform, "instance_transform", {NI, 3, 4}, "(NI,3,4) with NI = len(instance_mesh)");
+    check<std::int32_t>(*given.instance_object, "instance_object", {NI}, "(NI,) with NI = len(instance_mesh)");
+    const std::vector<std::int32_t> mesh = indices(*given.instance_mesh, NMESH, "instance_mesh", "NMESH");
+    const Strided2<std::int32_t> object = view2<std::int32_t>(*given.instance_object);
+    const Array& t = *given.instance_transform;
+    const auto* p = static_cast<const double*>(t.data());
+    // the largest triangle object of each mesh, which the instance's object offset must keep below NO
+    std::vector<std::int32_t> top(NMESH, -1);
+    for (std::int64_t m = 0; m < NMESH; ++m)
+      for (std::int64_t k = scene.mesh_first[m]; k < (m + 1 < NMESH ? scene.mesh_first[m + 1] : NT); ++k)
+        top[m] = std::max(top[m], scene.triangle_object[k]);
+    for (std::int64_t i = 0; i < NI; ++i) {
+      Instance instance{std::uint32_t(mesh[i]), object(i, 0), {}};
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 4; ++c)
+          instance.to_chart.m[4 * r + c] = p[i * t.stride(0) + r * t.stride(1) + c * t.stride(2)];
+      const std::string row = "instance_transform row " + std::to_string(i);
+      Affine inverse;
+      for (double x : instance.to_chart.m)
+        if (!std::isfinite(x)) throw nb::value_error((row + " contains NaN or inf").c_str());
+      if (!instance.to_chart.inverse(inverse))
+        throw nb::value_error((row + " is singular (its 3x3 part has no inverse)").c_str());
+      if (instance.object < 0 || instance.object + std::max(top[mesh[i]], 0) >= NO)
+        throw nb::value_error(("instance_object row " + std::to_string(i) + " is " +
+                               std::to_string(instance.object) + ": with its mesh's triangle_object it must stay in [0, NO = " +
+                               std::to_string(NO) + ")").c_str());
+      scene.instances.push_back(instance);
+    }
+  }
+  if (geometry != "H3") return;
+  for (std::size_t i = 0; i < scene.instances.size(); ++i) {
+    const Instance& instance = scene.instances[i];
+    const std::uint32_t m = instance.mesh;
+    for (std::int64_t k = scene.mesh_first[m]; k < (m + 1 < NMESH ? scene.mesh_first[m + 1] : NT); ++k)
+      for (std::uint32_t v : scene.triangles[k]) {
+        const Vec3 x = instance.to_chart.point(scene.vertices[v]);
+        if (dot3(x, x) >= 1.0)
+          throw nb::value_error(("vertices must lie inside the unit ball (the Klein model) for H3; vertex " +
+                                 std::to_string(v) + " placed by instance " + std::to_string(i) + " does not").c_str());
+      }
+  }
+}
+
 SceneData make_scene(const std::string& geometry, const Array& face_covectors, const Array& face_maps,
                      const Array& vertices, const Array& triangles, const Array& triangle_object,
                      const Array& object_color, const Array& object_emission,
                      const Array& light_lifts, const Array& light_of_lift,
-                     const Array& light_radiance, const SurfaceArrays& surfaces) {
+                     const Array& light_radiance, const SurfaceArrays& surfaces,
+                     const InstanceArrays& instances) {
   if (!has_geometry(geometry)) {
     std::string known;
     for (const std::string& name : geometry_names()) known += (known.empty() ? "" : ", ") + name;
@@ -235,12 +314,7 @@ SceneData make_scene(const std::string& geometry, const Array& face_covectors, c
   check<double>(vertices, "vertices", {-1, 3}, "(NV,3)");
   const auto vertex_rows = rows<double, 3>(vertices);
   require_finite(vertex_rows, "vertices");
-  for (std::size_t i = 0; i < vertex_rows.size(); ++i) {
-    if (geometry == "H3" && dot3(vertex_rows[i], vertex_rows[i]) >= 1.0)
-      throw nb::value_error(("vertices must lie inside the unit ball (the Klein model) for "
-                             "H3; row " + std::to_string(i) + " does not").c_str());
-    scene.vertices.push_back(vertex_rows[i]);
-  }
+  scene.vertices = vertex_rows;
 
   check<std::int32_t>(triangles, "triangles", {-1, 3}, "(NT,3)");
   const std::int64_t NT = triangles.shape(0);
@@ -258,6 +332,7 @@ SceneData make_scene(const std::string& geometry, const Array& face_covectors, c
     scene.triangles.push_back({std::uint32_t(tri[0]), std::uint32_t(tri[1]), std::uint32_t(tri[2])});
   }
   scene.triangle_object = indices(triangle_object, NO, "triangle_object", "NO");
+  make_instances(instances, geometry, NO, scene);
   const auto colors = rows<float, 3>(object_color), emissions = rows<float, 3>(object_emission);
   require_finite(colors, "object_color");
   require_finite(emissions, "object_emission");
@@ -400,12 +475,14 @@ nb::tuple query_segments(TracerHandle& handle, const Array& starts, const Array&
   check_rays(starts, ends, "starts", "ends", 3, "segment");
   const std::size_t n = starts.shape(0);
   std::unique_ptr<float[]> t(new float[n]);
-  std::unique_ptr<std::int32_t[]> prim(new std::int32_t[n]);
+  std::unique_ptr<std::int32_t[]> prim(new std::int32_t[n]), instance(new std::int32_t[n]);
   {
     nb::gil_scoped_release release;
-    handle.tracer->query_segments(n, view2<double>(starts), view2<double>(ends), t.get(), prim.get());
+    handle.tracer->query_segments(n, view2<double>(starts), view2<double>(ends), t.get(), prim.get(),
+                                  instance.get());
   }
-  return nb::make_tuple(to_numpy(std::move(t), {n}), to_numpy(std::move(prim), {n}));
+  return nb::make_tuple(to_numpy(std::move(t), {n}), to_numpy(std::move(prim), {n}),
+                        to_numpy(std::move(instance), {n}));
 }
 
 const char* const kTracerDoc = R"(Ray tracer for inside views of quotient manifolds of Thurston's geometries.
@@ -414,7 +491,8 @@ Tracer(geometry, face_covectors, face_maps, vertices, triangles, triangle_object
        object_color, object_emission, light_lifts, light_of_lift, light_radiance, threads=0,
        corner_normals=None, corner_uvs=None, triangle_material=None, material_color=None,
        material_emission=None, material_color_texture=None, material_emission_texture=None,
-       textures=[])
+       textures=[], mesh_first_triangle=None, instance_mesh=None, instance_transform=None,
+       instance_object=None)
 
 geometry: "E3", "S3" (gnomonic chart), "H3" (Klein chart): points are model 4-vectors X whose
 chart point is X[:3] / X[3] and geodesics are exact chart lines; "Nil", "Sol": points are (x, 1)
@@ -423,7 +501,8 @@ tolerance.
 face_covectors: float64 (F,4); the fundamental domain is {X : c_f . X <= 0 for all f}.
 face_maps: float64 (F,4,4); a ray leaving through face f continues from M_f X (then, for Nil and
 Sol, reduced into the domain by the maps of the faces it lies outside of).
-vertices: float64 (NV,3) chart coordinates; triangles: int32 (NT,3); triangle_object: int32 (NT,).
+vertices: float64 (NV,3) chart coordinates (with instances: the meshes' coordinates);
+triangles: int32 (NT,3); triangle_object: int32 (NT,).
 object_color, object_emission: float32 (NO,3), each object's one material where triangle_material
 is not given. Triangles of emissive materials cast no shadows.
 light_lifts: float64 (K,4) points (copies of the point lights near the domain);
@@ -439,6 +518,16 @@ triangle_material: int32 (NT,) index into material_color, material_emission: flo
 material_color_texture, material_emission_texture: int32 (NM,), -1 or an index into textures, a
 list of float32 (H,W,3) or (H,W,4) linear images (rows top-down, v = 0 the bottom row, bilinear,
 repeating) that multiply the material's colour or emission at the hit's UV.
+Optional instancing (keywords): the triangles are meshes one after the other, each stored and
+built once (Embree instancing), and what is seen are their instances.
+mesh_first_triangle: int32 (NMESH,), the first triangle of each mesh (from 0, ascending; mesh m
+runs to the next one's first); instance_mesh: int32 (NI,) the mesh each instance places;
+instance_transform: float64 (NI,3,4) the affine chart map [L | t] of each (x -> L x + t, L
+invertible: vertices, and with them triangle planes and corner normals, are in the mesh's own
+coordinates; Embree traverses the map in float32, hits are refined in float64 from it);
+instance_object: int32 (NI,) added to the triangle_object of the instance's triangles for the
+object of a hit. Without them: one mesh of all triangles, placed once by the identity (an
+identity map is traversed without an instance level).
 All arrays are taken as they are (no conversion); wrong dtypes or shapes raise ValueError.)";
 
 const char* const kTraceDoc = R"(Traces rays through the domain and its face pairings.
@@ -510,14 +599,19 @@ NB_MODULE(thurston_core, m) {
              int threads, OptionalArray corner_normals, OptionalArray corner_uvs,
              OptionalArray triangle_material, OptionalArray material_color,
              OptionalArray material_emission, OptionalArray material_color_texture,
-             OptionalArray material_emission_texture, std::vector<Array> textures) {
+             OptionalArray material_emission_texture, std::vector<Array> textures,
+             OptionalArray mesh_first_triangle, OptionalArray instance_mesh,
+             OptionalArray instance_transform, OptionalArray instance_object) {
             if (threads < 0) throw nb::value_error("threads must be >= 0 (0: all hardware threads)");
             const SurfaceArrays surfaces{corner_normals, corner_uvs, triangle_material,
                                          material_color, material_emission, material_color_texture,
                                          material_emission_texture, std::move(textures)};
+            const InstanceArrays instances{mesh_first_triangle, instance_mesh, instance_transform,
+                                           instance_object};
             SceneData scene = make_scene(geometry, face_covectors, face_maps, vertices, triangles,
                                          triangle_object, object_color, object_emission,
-                                         light_lifts, light_of_lift, light_radiance, surfaces);
+                                         light_lifts, light_of_lift, light_radiance, surfaces,
+                                         instances);
             new (self) TracerHandle{make_tracer(geometry, std::move(scene), unsigned(threads)), geometry};
           },
           nb::sig("def __init__(self, geometry: str, face_covectors: numpy.ndarray, "
@@ -532,7 +626,11 @@ NB_MODULE(thurston_core, m) {
                   "material_emission: numpy.ndarray | None = None, "
                   "material_color_texture: numpy.ndarray | None = None, "
                   "material_emission_texture: numpy.ndarray | None = None, "
-                  "textures: list[numpy.ndarray] = []) -> None"),
+                  "textures: list[numpy.ndarray] = [], "
+                  "mesh_first_triangle: numpy.ndarray | None = None, "
+                  "instance_mesh: numpy.ndarray | None = None, "
+                  "instance_transform: numpy.ndarray | None = None, "
+                  "instance_object: numpy.ndarray | None = None) -> None"),
           nb::arg("geometry"), nb::arg("face_covectors").noconvert(),
           nb::arg("face_maps").noconvert(), nb::arg("vertices").noconvert(),
           nb::arg("triangles").noconvert(), nb::arg("triangle_object").noconvert(),
@@ -546,7 +644,11 @@ NB_MODULE(thurston_core, m) {
           nb::arg("material_emission").noconvert().none() = nb::none(),
           nb::arg("material_color_texture").noconvert().none() = nb::none(),
           nb::arg("material_emission_texture").noconvert().none() = nb::none(),
-          nb::arg("textures") = std::vector<Array>())
+          nb::arg("textures") = std::vector<Array>(),
+          nb::arg("mesh_first_triangle").noconvert().none() = nb::none(),
+          nb::arg("instance_mesh").noconvert().none() = nb::none(),
+          nb::arg("instance_transform").noconvert().none() = nb::none(),
+          nb::arg("instance_object").noconvert().none() = nb::none())
       .def("trace", &trace,
            nb::sig("def trace(self, origins: numpy.ndarray, directions: numpy.ndarray, "
                    "max_distance: float, max_crossings: int, shade: bool = True, "
@@ -563,13 +665,19 @@ NB_MODULE(thurston_core, m) {
            "Stops a running trace(); callable from any Python thread.")
       .def("query_segments", &query_segments,
            nb::sig("def query_segments(self, starts: numpy.ndarray, ends: numpy.ndarray) -> "
-                   "tuple[numpy.ndarray, numpy.ndarray]"),
+                   "tuple[numpy.ndarray, numpy.ndarray, numpy.ndarray]"),
            nb::arg("starts").noconvert(),
            nb::arg("ends").noconvert(),
            "Bare Embree first hit of the chart "
            "segments (float64 (N,3) each) on the same BVH and threads: chord parameter t float32 "
-           "(N,) in [0, 1] (inf: none) and triangle prim int32 (N,) (-1: none).")
+           "(N,) in [0, 1] (inf: none), the mesh triangle prim int32 (N,) and its instance int32 "
+           "(N,) (-1: none).")
       .def_prop_ro("geometry", [](const TracerHandle& t) { return t.geometry; })
       .def_prop_ro("num_threads", [](const TracerHandle& t) { return t.tracer->num_threads(); })
-      .def_prop_ro("num_triangles", [](const TracerHandle& t) { return t.tracer->num_triangles(); });
+      .def_prop_ro("num_triangles", [](const TracerHandle& t) { return t.tracer->num_triangles(); },
+                   "The meshes' own triangles (each stored once).")
+      .def_prop_ro("num_instances", [](const TracerHandle& t) { return t.tracer->num_instances(); })
+      .def_prop_ro("num_instanced_triangles",
+                   [](const TracerHandle& t) { return t.tracer->num_instanced_triangles(); },
+                   "The triangles the instances place, each instance counting its mesh's.");
 }

@@ -28,8 +28,16 @@ inline RTCRay make_ray(const float org[3], const float dir[3], float tnear, floa
   return ray;
 }
 
-// First hit on the chord: returns the primitive index (or -1) and its chord parameter in `u`.
-inline int intersect(RTCScene scene, const RTCRay& ray, float& u) {
+// The first hit on a chord of a two-level scene whose top-level geometry IDs number the
+// instances: the instance (the instance geometry hit, or the geometry hit where it is attached
+// directly), the primitive in its geometry and the chord parameter.
+struct FirstHit {
+  int prim = -1;  // -1: no hit
+  unsigned instance = 0;
+  float u = 0.0f;
+};
+
+inline FirstHit intersect(RTCScene scene, const RTCRay& ray) {
   RTCRayHit rayhit{};
   rayhit.ray = ray;
   rayhit.hit.geomID = RTC_INVALID_GEOMETRY_ID;
@@ -43,9 +51,12 @@ inline int intersect(RTCScene scene, const RTCRay& ray, float& u) {
   rtcInitIntersectContext(&context);
   rtcIntersect1(scene, &context, &rayhit);
 #endif
-  if (rayhit.hit.geomID == RTC_INVALID_GEOMETRY_ID) return -1;
-  u = rayhit.ray.tfar;
-  return static_cast<int>(rayhit.hit.primID);
+  FirstHit hit;
+  if (rayhit.hit.geomID == RTC_INVALID_GEOMETRY_ID) return hit;
+  hit.prim = static_cast<int>(rayhit.hit.primID);
+  hit.instance = rayhit.hit.instID[0] != RTC_INVALID_GEOMETRY_ID ? rayhit.hit.instID[0] : rayhit.hit.geomID;
+  hit.u = rayhit.ray.tfar;
+  return hit;
 }
 
 // Whether anything lies on the chord.

@@ -45,13 +45,17 @@ struct Domain {
   }
 };
 
-// Which cells of a grid over the scene's bounds hold triangles (their bounding boxes), with prefix
-// sums so that a box asks in constant time.
+// Which cells of a grid over the scene's bounds hold geometry (boxes marked by the tracer: the
+// bounding boxes of triangles or of whole instances), with prefix sums so that a box asks in
+// constant time.
 class Occupancy {
  public:
-  void build(const std::vector<Vec3>& vertices,
-             const std::vector<std::array<std::uint32_t, 3>>& triangles, const Vec3& lo,
-             const Vec3& hi, int cells);
+  // An empty grid of cells^3 over [lo, hi]; mark() boxes, then finish() before asking.
+  void start(const Vec3& lo, const Vec3& hi, int cells);
+  void mark(const Vec3& lo, const Vec3& hi);
+  void finish();
+  // How many cells the box [lo, hi] spans.
+  std::size_t cells_spanned(const Vec3& lo, const Vec3& hi) const;
   bool empty() const { return cells_ == 0; }
   // Whether any marked cell meets the box [lo, hi] (which must meet the grid's bounds).
   bool touches(const Vec3& lo, const Vec3& hi) const;
@@ -63,6 +67,7 @@ class Occupancy {
   int cell(double x, int axis) const;
   int cells_ = 0;
   Vec3 lo_{}, size_{};
+  std::vector<std::uint8_t> marked_;   // cells^3, until finish()
   std::vector<std::uint32_t> prefix_;  // (cells + 1)^3: marked cells below each corner
 };
 

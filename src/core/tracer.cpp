@@ -84,36 +84,38 @@ void check_device(RTCDevice device, const char* what) {
 
 // --- occupancy ---------------------------------------------------------------------------------
 
-void Occupancy::build(const std::vector<Vec3>& vertices,
-                      const std::vector<std::array<std::uint32_t, 3>>& triangles, const Vec3& lo,
-                      const Vec3& hi, int cells) {
-  cells_ = triangles.empty() ? 0 : cells;
-  if (cells_ == 0) return;
+void Occupancy::start(const Vec3& lo, const Vec3& hi, int cells) {
+  cells_ = cells;
   lo_ = lo;
   for (int a = 0; a < 3; ++a) size_[a] = std::max(hi[a] - lo[a], 1e-300) / cells_;
-  std::vector<std::uint8_t> marked(std::size_t(cells_) * cells_ * cells_, 0);
-  for (const auto& tri : triangles) {
-    int c0[3], c1[3];
-    for (int a = 0; a < 3; ++a) {
-      const double u = std::min({vertices[tri[0]][a], vertices[tri[1]][a], vertices[tri[2]][a]});
-      const double v = std::max({vertices[tri[0]][a], vertices[tri[1]][a], vertices[tri[2]][a]});
-      c0[a] = cell(u, a);
-      c1[a] = cell(v, a);
-    }
-    for (int i = c0[0]; i <= c1[0]; ++i)
-      for (int j = c0[1]; j <= c1[1]; ++j)
-        for (int k = c0[2]; k <= c1[2]; ++k)
-          marked[(std::size_t(i) * cells_ + j) * cells_ + k] = 1;
-  }
+  marked_.assign(std::size_t(cells_) * cells_ * cells_, 0);
+}
+
+void Occupancy::mark(const Vec3& lo, const Vec3& hi) {
+  const int i0 = cell(lo[0], 0), j0 = cell(lo[1], 1), k0 = cell(lo[2], 2);
+  const int i1 = cell(hi[0], 0), j1 = cell(hi[1], 1), k1 = cell(hi[2], 2);
+  for (int i = i0; i <= i1; ++i)
+    for (int j = j0; j <= j1; ++j)
+      for (int k = k0; k <= k1; ++k) marked_[(std::size_t(i) * cells_ + j) * cells_ + k] = 1;
+}
+
+std::size_t Occupancy::cells_spanned(const Vec3& lo, const Vec3& hi) const {
+  std::size_t n = 1;
+  for (int a = 0; a < 3; ++a) n *= std::size_t(cell(hi[a], a) - cell(lo[a], a) + 1);
+  return n;
+}
+
+void Occupancy::finish() {
   prefix_.assign(std::size_t(cells_ + 1) * (cells_ + 1) * (cells_ + 1), 0);
   for (int i = 1; i <= cells_; ++i)
     for (int j = 1; j <= cells_; ++j)
       for (int k = 1; k <= cells_; ++k)
-        prefix_[at(i, j, k)] = marked[(std::size_t(i - 1) * cells_ + (j - 1)) * cells_ + (k - 1)] +
+        prefix_[at(i, j, k)] = marked_[(std::size_t(i - 1) * cells_ + (j - 1)) * cells_ + (k - 1)] +
                                prefix_[at(i - 1, j, k)] + prefix_[at(i, j - 1, k)] +
                                prefix_[at(i, j, k - 1)] - prefix_[at(i - 1, j - 1, k)] -
                                prefix_[at(i - 1, j, k - 1)] - prefix_[at(i, j - 1, k - 1)] +
                                prefix_[at(i - 1, j - 1, k - 1)];
+  marked_ = {};
 }
 
 int Occupancy::cell(double x, int axis) const {
@@ -137,6 +139,7 @@ Tracer::Tracer(SceneData& scene, unsigned threads, bool occupancy)
     : vertices_(std::move(scene.vertices)),
       triangles_(std::move(scene.triangles)),
       triangle_object_(std::move(scene.triangle_object)),
+      mesh_first_(std::move(scene.mesh_first)),
       surfaces_(std::move(scene.surfaces)),
       light_radiance_(std::move(scene.light_radiance)),
       pool_(threads) {
@@ -151,27 +154,20 @@ Tracer::Tracer(SceneData& scene, unsigned threads, bool occupancy)
     for (int r = 0; r < 4; ++r)
       for (int c = 0; c < 4; ++c) domain_.maps_t[e][4 * c + r] = domain_.maps[e][4 * r + c];
 
-  Vec3 lo{kInf, kInf, kInf}, hi{-kInf, -kInf, -kInf};
+  mesh_first_.push_back(std::uint32_t(triangles_.size()));
+  for (const Instance& instance : scene.instances) {
+    Placement placement{instance.mesh, instance.object, instance.to_chart, {}};
+    if (!instance.to_chart.inverse(placement.from_chart))
+      throw std::invalid_argument("an instance's transform is singular");
+    instances_.push_back(placement);
+  }
   triangle_planes_.reserve(triangles_.size());
   for (const auto& tri : triangles_) {
     const Vec3& p0 = vertices_[tri[0]];
     const Vec3 n = cross3(sub3(vertices_[tri[1]], p0), sub3(vertices_[tri[2]], p0));
     triangle_planes_.push_back({n[0], n[1], n[2], -dot3(n, p0)});
-    for (std::uint32_t v : tri)
-      for (int a = 0; a < 3; ++a) {
-        lo[a] = std::min(lo[a], vertices_[v][a]);
-        hi[a] = std::max(hi[a], vertices_[v][a]);
-      }
   }
-  for (int a = 0; a < 3 && !triangles_.empty(); ++a)
-    scale_ = std::max({scale_, std::abs(lo[a]), std::abs(hi[a]), hi[a] - lo[a]});
-  const double margin = 1e-6 * scale_;
-  for (int a = 0; a < 3; ++a) {
-    // No triangles: an empty range, which no chord meets.
-    hit_lo_[a] = triangles_.empty() ? kInf : lo[a] - margin;
-    hit_hi_[a] = triangles_.empty() ? -kInf : hi[a] + margin;
-  }
-  if (occupancy) occupancy_.build(vertices_, triangles_, hit_lo_, hit_hi_, kOccupancyCells);
+  bound_instances(occupancy);
 
   light_lifts_.resize(light_radiance_.size());
   for (std::size_t k = 0; k < scene.light_lifts.size(); ++k)
@@ -179,53 +175,185 @@ Tracer::Tracer(SceneData& scene, unsigned threads, bool occupancy)
 
   device_.reset(rtcNewDevice(nullptr));
   if (!device_) throw std::runtime_error("Embree could not create a device");
-  std::vector<std::uint32_t> all(triangles_.size()), casting;
-  for (std::uint32_t t = 0; t < all.size(); ++t) {
-    all[t] = t;
-    if (!surfaces_.materials[surfaces_.triangle_material[t]].emits()) casting.push_back(t);
-  }
-  scene_ = build_scene(all);
-  if (casting.size() == all.size()) {
+  // Embree reads the last vertex with a 16-byte load: one float of padding.
+  float_vertices_.resize(3 * vertices_.size() + 1, 0.0f);
+  for (std::size_t v = 0; v < vertices_.size(); ++v)
+    for (int a = 0; a < 3; ++a) float_vertices_[3 * v + a] = float(vertices_[v][a]);
+  scene_ = build_top_scene(false);
+  bool all_cast = true;
+  for (std::int32_t m : surfaces_.triangle_material) all_cast &= !surfaces_.materials[m].emits();
+  if (all_cast) {
     occluders_ = scene_.get();
   } else {
-    occluder_scene_ = build_scene(casting);
+    occluder_scene_ = build_top_scene(true);
     occluders_ = occluder_scene_.get();
   }
 }
 
 Tracer::~Tracer() = default;
 
-// A scene of the given triangles; primitive j of its geometry is triangle_ids[j].
-Tracer::SceneHandle Tracer::build_scene(const std::vector<std::uint32_t>& triangle_ids) const {
-  RTCDevice device = device_.get();
-  SceneHandle scene(rtcNewScene(device));
-  check_device(device, "create a scene");
-  rtcSetSceneFlags(scene.get(), RTC_SCENE_FLAG_ROBUST);
-  rtcSetSceneBuildQuality(scene.get(), RTC_BUILD_QUALITY_HIGH);
-  if (!triangle_ids.empty()) {
-    RTCGeometry geometry = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
-    auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(
-        geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), vertices_.size()));
-    auto* indices = static_cast<std::uint32_t*>(
-        rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                3 * sizeof(std::uint32_t), triangle_ids.size()));
-    if (!vertices || !indices) {
-      rtcReleaseGeometry(geometry);
-      check_device(device, "allocate geometry buffers");
-      throw std::runtime_error("Embree failed to allocate geometry buffers");
-    }
-    for (std::size_t v = 0; v < vertices_.size(); ++v)
-      for (int a = 0; a < 3; ++a) vertices[3 * v + a] = float(vertices_[v][a]);
-    for (std::size_t j = 0; j < triangle_ids.size(); ++j)
-      for (int a = 0; a < 3; ++a) indices[3 * j + a] = triangles_[triangle_ids[j]][a];
-    rtcSetGeometryBuildQuality(geometry, RTC_BUILD_QUALITY_HIGH);
-    rtcCommitGeometry(geometry);
-    rtcAttachGeometry(scene.get(), geometry);
-    rtcReleaseGeometry(geometry);
+std::size_t Tracer::num_instanced_triangles() const {
+  std::size_t n = 0;
+  for (const Placement& p : instances_) n += mesh_first_[p.mesh + 1] - mesh_first_[p.mesh];
+  return n;
+}
+
+namespace {
+
+// Instances whose chart box spans at most this many occupancy cells mark the whole box; larger
+// ones mark their triangles' boxes, which keeps large objects' empty inside empty.
+constexpr std::size_t kInstanceBoxCells = 27;
+
+bool is_identity(const Affine& a) { return a.m == Affine{}.m; }
+
+// The chart bounding box of the box [lo, hi] mapped by `a`.
+void mapped_box(const Affine& a, const Vec3& lo, const Vec3& hi, Vec3& out_lo, Vec3& out_hi) {
+  const Vec3 centre = a.point(scaled3(0.5, add3(lo, hi)));
+  for (int r = 0; r < 3; ++r) {
+    double half = 0.0;
+    for (int k = 0; k < 3; ++k) half += 0.5 * std::abs(a.m[4 * r + k]) * (hi[k] - lo[k]);
+    out_lo[r] = centre[r] - half;
+    out_hi[r] = centre[r] + half;
   }
-  rtcCommitScene(scene.get());
+}
+
+}  // namespace
+
+void Tracer::bound_instances(bool occupancy) {
+  const auto triangle_box = [&](const Affine& a, std::size_t t, Vec3& lo, Vec3& hi) {
+    lo = {kInf, kInf, kInf};
+    hi = {-kInf, -kInf, -kInf};
+    for (std::uint32_t v : triangles_[t]) {
+      const Vec3 x = a.point(vertices_[v]);
+      for (int k = 0; k < 3; ++k) {
+        lo[k] = std::min(lo[k], x[k]);
+        hi[k] = std::max(hi[k], x[k]);
+      }
+    }
+  };
+  const std::size_t meshes = mesh_first_.size() - 1;
+  std::vector<Vec3> mesh_lo(meshes), mesh_hi(meshes);
+  for (std::size_t m = 0; m < meshes; ++m) {
+    mesh_lo[m] = {kInf, kInf, kInf};
+    mesh_hi[m] = {-kInf, -kInf, -kInf};
+    for (std::size_t t = mesh_first_[m]; t < mesh_first_[m + 1]; ++t) {
+      Vec3 lo, hi;
+      triangle_box(Affine{}, t, lo, hi);
+      for (int k = 0; k < 3; ++k) {
+        mesh_lo[m][k] = std::min(mesh_lo[m][k], lo[k]);
+        mesh_hi[m][k] = std::max(mesh_hi[m][k], hi[k]);
+      }
+    }
+  }
+  std::vector<std::array<Vec3, 2>> boxes(instances_.size());
+  std::vector<std::size_t> placed;  // instances with triangles
+  Vec3 lo{kInf, kInf, kInf}, hi{-kInf, -kInf, -kInf};
+  for (std::size_t i = 0; i < instances_.size(); ++i) {
+    const std::uint32_t m = instances_[i].mesh;
+    if (mesh_first_[m] == mesh_first_[m + 1]) continue;
+    placed.push_back(i);
+    mapped_box(instances_[i].to_chart, mesh_lo[m], mesh_hi[m], boxes[i][0], boxes[i][1]);
+    for (int k = 0; k < 3; ++k) {
+      lo[k] = std::min(lo[k], boxes[i][0][k]);
+      hi[k] = std::max(hi[k], boxes[i][1][k]);
+    }
+  }
+  for (int a = 0; a < 3 && !placed.empty(); ++a)
+    scale_ = std::max({scale_, std::abs(lo[a]), std::abs(hi[a]), hi[a] - lo[a]});
+  const double margin = 1e-6 * scale_;
+  for (int a = 0; a < 3; ++a) {
+    // No triangles: an empty range, which no chord meets.
+    hit_lo_[a] = placed.empty() ? kInf : lo[a] - margin;
+    hit_hi_[a] = placed.empty() ? -kInf : hi[a] + margin;
+  }
+  if (!occupancy || placed.empty()) return;
+  occupancy_.start(hit_lo_, hit_hi_, kOccupancyCells);
+  for (std::size_t i : placed) {
+    const Placement& p = instances_[i];
+    if (!is_identity(p.to_chart) && occupancy_.cells_spanned(boxes[i][0], boxes[i][1]) <= kInstanceBoxCells) {
+      occupancy_.mark(boxes[i][0], boxes[i][1]);
+      continue;
+    }
+    for (std::size_t t = mesh_first_[p.mesh]; t < mesh_first_[p.mesh + 1]; ++t) {
+      Vec3 t_lo, t_hi;
+      triangle_box(p.to_chart, t, t_lo, t_hi);
+      occupancy_.mark(t_lo, t_hi);
+    }
+  }
+  occupancy_.finish();
+}
+
+std::vector<std::uint32_t> Tracer::mesh_triangle_ids(std::size_t mesh, bool casting) const {
+  std::vector<std::uint32_t> ids;
+  for (std::uint32_t t = mesh_first_[mesh]; t < mesh_first_[mesh + 1]; ++t)
+    if (!casting || !surfaces_.materials[surfaces_.triangle_material[t]].emits()) ids.push_back(t);
+  return ids;
+}
+
+// A triangle geometry of the given triangles (primitive j is triangle_ids[j]) on the shared
+// vertex buffer; the caller attaches and releases it.
+RTCGeometry Tracer::new_triangles(const std::vector<std::uint32_t>& triangle_ids) const {
+  RTCDevice device = device_.get();
+  RTCGeometry geometry = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+  rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                             float_vertices_.data(), 0, 3 * sizeof(float), vertices_.size());
+  auto* indices = static_cast<std::uint32_t*>(
+      rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                              3 * sizeof(std::uint32_t), triangle_ids.size()));
+  if (!indices) {
+    rtcReleaseGeometry(geometry);
+    check_device(device, "allocate geometry buffers");
+    throw std::runtime_error("Embree failed to allocate geometry buffers");
+  }
+  for (std::size_t j = 0; j < triangle_ids.size(); ++j)
+    for (int a = 0; a < 3; ++a) indices[3 * j + a] = triangles_[triangle_ids[j]][a];
+  rtcSetGeometryBuildQuality(geometry, RTC_BUILD_QUALITY_HIGH);
+  rtcCommitGeometry(geometry);
+  return geometry;
+}
+
+Tracer::SceneHandle Tracer::build_top_scene(bool casting) {
+  RTCDevice device = device_.get();
+  const auto new_scene = [&] {
+    SceneHandle scene(rtcNewScene(device));
+    check_device(device, "create a scene");
+    rtcSetSceneFlags(scene.get(), RTC_SCENE_FLAG_ROBUST);
+    rtcSetSceneBuildQuality(scene.get(), RTC_BUILD_QUALITY_HIGH);
+    return scene;
+  };
+  const auto attach = [&](RTCScene scene, RTCGeometry geometry, std::size_t id) {
+    rtcAttachGeometryByID(scene, geometry, unsigned(id));
+    rtcReleaseGeometry(geometry);
+  };
+  SceneHandle top = new_scene();
+  std::vector<SceneHandle>& meshes = mesh_scenes_[casting];
+  meshes.resize(mesh_first_.size() - 1);
+  for (std::size_t i = 0; i < instances_.size(); ++i) {
+    const Placement& p = instances_[i];
+    if (mesh_first_[p.mesh] == mesh_first_[p.mesh + 1]) continue;
+    if (is_identity(p.to_chart)) {  // no instance level: the flat path is as fast as before
+      const std::vector<std::uint32_t> ids = mesh_triangle_ids(p.mesh, casting);
+      if (!ids.empty()) attach(top.get(), new_triangles(ids), i);
+      continue;
+    }
+    if (!meshes[p.mesh]) {
+      meshes[p.mesh] = new_scene();
+      const std::vector<std::uint32_t> ids = mesh_triangle_ids(p.mesh, casting);
+      if (!ids.empty()) attach(meshes[p.mesh].get(), new_triangles(ids), 0);
+      rtcCommitScene(meshes[p.mesh].get());
+      check_device(device, "build a mesh's scene");
+    }
+    RTCGeometry instance = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_INSTANCE);
+    rtcSetGeometryInstancedScene(instance, meshes[p.mesh].get());
+    float transform[12];  // Embree's: float; hits are refined in double from the exact map
+    for (int k = 0; k < 12; ++k) transform[k] = float(p.to_chart.m[k]);
+    rtcSetGeometryTransform(instance, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, transform);
+    rtcCommitGeometry(instance);
+    attach(top.get(), instance, i);
+  }
+  rtcCommitScene(top.get());
   check_device(device, "build the scene");
-  return scene;
+  return top;
 }
 
 // One run at a time on the pool; a progress callback calling back into its own tracer would
@@ -269,7 +397,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
 }
 
 void Tracer::query_segments(std::size_t count, Strided2<double> starts, Strided2<double> ends,
-                            float* t, std::int32_t* prim) {
+                            float* t, std::int32_t* prim, std::int32_t* instance) {
   const RunLock lock(*this);
   run_chunks(
       count,
@@ -277,9 +405,11 @@ void Tracer::query_segments(std::size_t count, Strided2<double> starts, Strided2
         for (std::size_t i = begin; i < end; ++i) {
           const Vec3 x0{starts(i, 0), starts(i, 1), starts(i, 2)};
           const Vec3 x1{ends(i, 0), ends(i, 1), ends(i, 2)};
-          float u = 0.0f;
-          prim[i] = embree::intersect(scene_.get(), chord_ray(x0, x1, 0.0f), u);
-          t[i] = prim[i] < 0 ? std::numeric_limits<float>::infinity() : u;
+          const embree::FirstHit hit = embree::intersect(scene_.get(), chord_ray(x0, x1, 0.0f));
+          const bool found = hit.prim >= 0;
+          prim[i] = found ? std::int32_t(triangle_of(hit)) : -1;
+          instance[i] = found ? std::int32_t(hit.instance) : -1;
+          t[i] = found ? hit.u : std::numeric_limits<float>::infinity();
         }
       },
       nullptr, false);
@@ -350,18 +480,27 @@ class KernelTracer final : public Tracer {
       write_miss(out, i, kDistanceLimit, 0, 0.0, 0);
       return;
     }
-    int prim = -1, chords = 0;
-    float hit_u = 0.0f;
+    int chords = 0;
+    embree::FirstHit first;
     Hit h{};
     const auto query = [&](const Chord& chord, float tnear) {
       ++chords;
       if (segments)
         segments->insert(segments->end(), {chord.x0[0], chord.x0[1], chord.x0[2], chord.x1[0],
                                            chord.x1[1], chord.x1[2]});
-      prim = embree::intersect(scene_.get(), chord_ray(chord.x0, chord.x1, tnear), hit_u);
-      return prim >= 0;
+      first = embree::intersect(scene_.get(), chord_ray(chord.x0, chord.x1, tnear));
+      return first.prim >= 0;
     };
-    const auto refine = [&](const auto& hit) { h = hit.refine(triangle_planes_[prim], hit_u); };
+    // The triangle's chart plane, from its plane in the mesh and the instance's exact inverse.
+    const Placement* placed = nullptr;
+    std::size_t prim = 0;
+    Vec4 plane{};
+    const auto refine = [&](const auto& hit) {
+      placed = &instances_[first.instance];
+      prim = triangle_of(first);
+      plane = placed->from_chart.pull_back(triangle_planes_[prim]);
+      h = hit.refine(plane, first.u);
+    };
     const WalkEnd end = kernel_.walk(context, P, V, options.max_distance, options.max_crossings, 0.0,
                                      query, refine);
     stats.chords += chords;
@@ -376,7 +515,7 @@ class KernelTracer final : public Tracer {
     out.distance[i] = out.depth[i];
 
     // Unit normal at the hit facing the incoming ray.
-    Vec4 N = kernel_.plane_normal(h.X, triangle_planes_[prim]);
+    Vec4 N = kernel_.plane_normal(h.X, plane);
     if (!kernel_.normalise(h.X, N)) N = scaled(-1.0, h.V);  // degenerate triangle
     const double incidence = kernel_.dot(h.X, N, h.V);
     if (incidence > 0.0) N = scaled(-1.0, N);
@@ -385,12 +524,13 @@ class KernelTracer final : public Tracer {
     out.error[i] = path_error / std::max(std::abs(incidence), 1e-3);
 
     const auto& tri = triangles_[prim];
+    const Vec3 in_mesh = placed->from_chart.point(h.x);
     const Vec3 weights =
-        Surfaces::barycentric(vertices_[tri[0]], vertices_[tri[1]], vertices_[tri[2]], h.x);
-    const Vec4 S = shading_normal(prim, weights, h, N);
+        Surfaces::barycentric(vertices_[tri[0]], vertices_[tri[1]], vertices_[tri[2]], in_mesh);
+    const Vec4 S = shading_normal(prim, weights, *placed, in_mesh, h, N);
     const Vec3 chart_normal = Kernel::chart_vector(h.X, S);
 
-    const std::int32_t object = triangle_object_[prim];
+    const std::int32_t object = placed->object + triangle_object_[prim];
     Rgb base, emission;
     surfaces_.look_up(prim, weights, base, emission);
     Rgb light{1.0f, 1.0f, 1.0f};
@@ -411,11 +551,13 @@ class KernelTracer final : public Tracer {
 
   // The unit shading normal at the hit: the metric normal of the chart plane through the hit
   // whose covector interpolates the corner normals, on the side of the geometric normal N (which
-  // faces the ray); N itself where the triangle has no corner normals.
-  Vec4 shading_normal(int prim, const Vec3& weights, const Hit& h, const Vec4& N) const {
+  // faces the ray); N itself where the triangle has no corner normals. The covectors are the
+  // mesh's, pulled back to the chart by the instance (the inverse transpose of its linear part).
+  Vec4 shading_normal(std::size_t prim, const Vec3& weights, const Placement& placed,
+                      const Vec3& in_mesh, const Hit& h, const Vec4& N) const {
     Vec3 n;
     if (!surfaces_.normal_covector(prim, weights, n)) return N;
-    Vec4 S = kernel_.plane_normal(h.X, {n[0], n[1], n[2], -dot3(n, h.x)});
+    Vec4 S = kernel_.plane_normal(h.X, placed.from_chart.pull_back({n[0], n[1], n[2], -dot3(n, in_mesh)}));
     if (!kernel_.normalise(h.X, S)) return N;
     return kernel_.dot(h.X, S, N) < 0.0 ? scaled(-1.0, S) : S;
   }

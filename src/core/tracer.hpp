@@ -20,13 +20,24 @@
 
 namespace thurston {
 
+// A placement of a mesh in the chart: its triangles mapped by `to_chart`; the object of a hit is
+// `object` plus the triangle's own object.
+struct Instance {
+  std::uint32_t mesh;
+  std::int32_t object;
+  Affine to_chart;
+};
+
 // Validated scene description; see the Python docstring of Tracer for the meaning of each field.
+// The triangles are the meshes' (prototypes), one after the other; what is seen are the instances.
 struct SceneData {
   std::vector<Vec4> face_covectors;
   std::vector<Mat4> face_maps;
-  std::vector<Vec3> vertices;  // chart coordinates
+  std::vector<Vec3> vertices;  // the meshes' own coordinates (chart coordinates where not moved)
   std::vector<std::array<std::uint32_t, 3>> triangles;
   std::vector<std::int32_t> triangle_object;
+  std::vector<std::uint32_t> mesh_first;  // first triangle of each mesh, ascending from 0
+  std::vector<Instance> instances;
   Surfaces surfaces;  // materials, textures, corner normals and UVs of the triangles
   std::vector<Vec4> light_lifts;  // points of the geometry (normalised by the kernel)
   std::vector<std::int32_t> light_of_lift;
@@ -87,15 +98,18 @@ class Tracer {
   Tracer& operator=(const Tracer&) = delete;
 
   unsigned num_threads() const { return pool_.size(); }
-  std::size_t num_triangles() const { return triangles_.size(); }
+  std::size_t num_triangles() const { return triangles_.size(); }  // the meshes' own
+  std::size_t num_instances() const { return instances_.size(); }
+  std::size_t num_instanced_triangles() const;  // what the instances place in all
 
   TraceStats trace(std::size_t count, Strided2<double> origins, Strided2<double> directions,
                    const TraceOptions& options, const TraceOutputs& out, const Poll& poll);
   void cancel() { cancel_.store(true); }
 
-  // Bare Embree first hit on chart segments: chord parameter in [0, 1] (inf if none), triangle.
+  // Bare Embree first hit on chart segments: chord parameter in [0, 1] (inf if none), the
+  // mesh triangle hit and its instance.
   void query_segments(std::size_t count, Strided2<double> starts, Strided2<double> ends, float* t,
-                      std::int32_t* prim);
+                      std::int32_t* prim, std::int32_t* instance);
 
  protected:
   Tracer(SceneData& scene, unsigned threads, bool occupancy);
@@ -111,11 +125,25 @@ class Tracer {
             options.skip_empty};
   }
 
+  // An instance as the walk uses it: besides the placement, the inverse map, which pulls chart
+  // planes and points back to the mesh's coordinates in double precision.
+  struct Placement {
+    std::uint32_t mesh;
+    std::int32_t object;
+    Affine to_chart, from_chart;
+  };
+  // The mesh triangle of an Embree hit.
+  std::size_t triangle_of(const embree::FirstHit& hit) const {
+    return mesh_first_[instances_[hit.instance].mesh] + std::size_t(hit.prim);
+  }
+
   Domain domain_;
   std::vector<Vec3> vertices_;
   std::vector<std::array<std::uint32_t, 3>> triangles_;
-  std::vector<Vec4> triangle_planes_;  // chart plane covectors (n, -n . p0)
+  std::vector<Vec4> triangle_planes_;  // plane covectors (n, -n . p0) in the mesh's coordinates
   std::vector<std::int32_t> triangle_object_;
+  std::vector<std::uint32_t> mesh_first_;  // meshes + 1 entries: mesh m is [first[m], first[m + 1])
+  std::vector<Placement> instances_;
   Surfaces surfaces_;
   std::vector<std::vector<Vec4>> light_lifts_;  // per light
   std::vector<Rgb> light_radiance_;
@@ -129,13 +157,22 @@ class Tracer {
   };
   using DeviceHandle = std::unique_ptr<RTCDeviceTy, EmbreeDeleter>;
   using SceneHandle = std::unique_ptr<RTCSceneTy, EmbreeDeleter>;
+  std::vector<float> float_vertices_;  // Embree's shared vertex buffer of every geometry (padded)
   DeviceHandle device_;
   SceneHandle scene_;
   SceneHandle occluder_scene_;  // without emissive objects, so that lamps do not shadow their light
   RTCScene occluders_ = nullptr;
 
  private:
-  SceneHandle build_scene(const std::vector<std::uint32_t>& triangle_ids) const;
+  // The chart bounds of the instances, the occupancy grid (marching kernels) and the scale.
+  void bound_instances(bool occupancy);
+  // The two-level Embree scene of the instances: top-level geometry i is instance i (the mesh's
+  // triangles attached directly where its map is the identity, else an instance of the mesh's
+  // own scene); casting: only the triangles whose material does not emit.
+  SceneHandle build_top_scene(bool casting);
+  RTCGeometry new_triangles(const std::vector<std::uint32_t>& triangle_ids) const;
+  std::vector<std::uint32_t> mesh_triangle_ids(std::size_t mesh, bool casting) const;
+  std::vector<SceneHandle> mesh_scenes_[2];  // by casting, per mesh: built where instanced
 
   // Runs fn(chunk, begin, end) over [0, count) in chunks on the pool, polling from this thread;
   // returns how many items (a prefix) were done before a stop.

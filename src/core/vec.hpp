@@ -64,4 +64,37 @@ inline bool solve3(const std::array<Vec3, 3>& A, const Vec3& b, Vec3& x) {
   return true;
 }
 
+// An affine map of the chart, x -> L x + t, as a 3x4 row-major matrix [L | t].
+struct Affine {
+  std::array<double, 12> m{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+
+  Vec3 point(const Vec3& x) const {
+    Vec3 y;
+    for (int r = 0; r < 3; ++r) y[r] = m[4 * r] * x[0] + m[4 * r + 1] * x[1] + m[4 * r + 2] * x[2] + m[4 * r + 3];
+    return y;
+  }
+  // The covector c of the image of a chart plane: c . (x, 1) = plane . (A x, 1) for the plane's
+  // covector given in the target's chart, i.e. the pull-back by this map (L^T n, n . t + d).
+  Vec4 pull_back(const Vec4& plane) const {
+    Vec4 c{0.0, 0.0, 0.0, plane[3]};
+    for (int r = 0; r < 3; ++r) {
+      for (int k = 0; k < 3; ++k) c[k] += plane[r] * m[4 * r + k];
+      c[3] += plane[r] * m[4 * r + 3];
+    }
+    return c;
+  }
+  // The inverse map; false where L is (numerically) singular.
+  bool inverse(Affine& out) const {
+    const std::array<Vec3, 3> rows{{{m[0], m[1], m[2]}, {m[4], m[5], m[6]}, {m[8], m[9], m[10]}}};
+    for (int c = 0; c < 4; ++c) {  // the columns of [L^-1 | -L^-1 t]
+      Vec3 column;
+      const Vec3 rhs = c < 3 ? Vec3{double(c == 0), double(c == 1), double(c == 2)}
+                             : Vec3{-m[3], -m[7], -m[11]};
+      if (!solve3(rows, rhs, column)) return false;
+      for (int r = 0; r < 3; ++r) out.m[4 * r + c] = column[r];
+    }
+    return true;
+  }
+};
+
 }  // namespace thurston

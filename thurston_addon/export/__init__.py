@@ -92,6 +92,9 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note]) -> scenes.Sc
     scene = scenes.Scene()
     skipped: dict[str, list[str]] = {}
     hidden_collections = _hidden_collections(depsgraph.view_layer)
+    # Instances of one mesh share one scene object (surfaces.mesh_key): the mesh, read at the first
+    # of them, and the chart maps of all.
+    placements: dict[tuple, tuple[scenes.SceneObject | None, list[np.ndarray]]] = {}
     for inst in depsgraph.object_instances:
         obj = inst.object
         original = obj.original
@@ -100,14 +103,16 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note]) -> scenes.Sc
         if inst.is_instance and inst.parent.original.type not in ("MESH", "EMPTY"):
             continue  # geometry of a curve, text, ... object: skipped (and noted) as that object
         if obj.type == "MESH":
-            try:
-                mesh = surfaces.mesh_object(inst, obj, scale)
-            except scenes.SceneError as exc:
-                raise ExportError(str(exc)) from None
-            if mesh is None:
-                skipped.setdefault("no faces", []).append(original.name)
-                continue
-            scene.objects.append(mesh)
+            key = surfaces.mesh_key(inst, obj)
+            if key not in placements:
+                try:
+                    mesh = surfaces.mesh_object(inst, obj, scale)
+                except scenes.SceneError as exc:
+                    raise ExportError(str(exc)) from None
+                placements[key] = (mesh, [])
+                if mesh is None:
+                    skipped.setdefault("no faces", []).append(original.name)
+            placements[key][1].append(surfaces.chart_map(inst, scale))
         elif obj.type == "LIGHT":
             light = obj.data
             if light.type != "POINT":
@@ -120,6 +125,16 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note]) -> scenes.Sc
             scene.lights.append(scenes.PointLight(pos, np.array(light.color[:3], float), intensity))
         elif obj.type not in ("CAMERA", "EMPTY"):
             skipped.setdefault(f"{obj.type.lower()} objects (only meshes)", []).append(original.name)
+    for mesh, maps in placements.values():
+        if mesh is None:
+            continue
+        try:
+            mesh.instances = scenes.checked_instances(np.array(maps), mesh.name)
+        except scenes.SceneError as exc:
+            raise ExportError(f"{exc}: give it a non-zero scale") from None
+        if len(maps) == 1:  # used once: its vertices in the chart, as before instancing
+            mesh = mesh.placed()
+        scene.objects.append(mesh)
     for what, names in skipped.items():
         shown = ", ".join(sorted(set(names))[:5]) + (" ..." if len(set(names)) > 5 else "")
         notes.append(checks.Note(checks.DROPPED, f"skipped {what}: {shown}"))

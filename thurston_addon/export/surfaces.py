@@ -11,9 +11,26 @@ from .. import scene as scenes
 from ..images import srgb_to_linear
 
 
+def mesh_key(inst, obj) -> tuple:
+    """What depsgraph instances must share to share one mesh: the evaluated mesh data (a
+    collection's or geometry nodes' instances of one geometry point to the same mesh; modifiers
+    give each object its own), its materials and the pass index."""
+    slots = tuple(s.material.as_pointer() if s.material else 0 for s in obj.material_slots)
+    return obj.data.as_pointer(), slots, obj.original.pass_index
+
+
+def chart_map(inst, scale: float) -> np.ndarray:
+    """The instance's world matrix as a map of chart coordinates (world / scale) of its mesh's
+    vertices (in the mesh's coordinates / scale): the translation over the scale."""
+    M = np.array(inst.matrix_world, float)
+    M[:3, 3] /= scale
+    return M
+
+
 def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
-    """The evaluated mesh object of a depsgraph instance in chart coordinates (world / scale);
-    None where it has no faces. Raises SceneError for what cannot be used (named)."""
+    """The evaluated mesh of a depsgraph instance in its own coordinates over the scale (place it
+    with chart_map); None where it has no faces. Raises SceneError for what cannot be used
+    (named)."""
     original = obj.original
     mesh = obj.data  # evaluated: modifiers applied
     mesh.calc_loop_triangles()
@@ -23,13 +40,10 @@ def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
     co = _get(mesh.vertices, "co", nv * 3, np.float64).reshape(-1, 3)
     tri = _get(mesh.loop_triangles, "vertices", nt * 3, np.int32).reshape(-1, 3)
     loops = _get(mesh.loop_triangles, "loops", nt * 3, np.int32).reshape(-1, 3)
-    M = np.array(inst.matrix_world, float)
-    V = co @ M[:3, :3].T + M[:3, 3]
     normals = None
     if mesh.normals_domain != "FACE":  # all faces flat: the triangles' own normals, as Cycles uses
         corner = _get(mesh.corner_normals, "vector", len(mesh.corner_normals) * 3, np.float64).reshape(-1, 3)
-        # normals are covectors: they move by the inverse transpose of the world matrix
-        normals = corner[loops] @ np.linalg.inv(M[:3, :3])
+        normals = corner[loops]
     uvs = None
     layer = next((layer for layer in mesh.uv_layers if layer.active_render), None)
     if layer is not None:
@@ -40,7 +54,7 @@ def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
     name = original.name if not inst.is_instance else f"{original.name} ({inst.parent.original.name})"
     first = materials[index[0]]
     return scenes.clean(scenes.SceneObject(
-        name, V / scale, tri, first.color, first.emission, pass_index=original.pass_index,
+        name, co / scale, tri, first.color, first.emission, pass_index=original.pass_index,
         corner_normals=normals, corner_uvs=uvs, triangle_material=index, materials=materials), "Blender")
 
 
