@@ -325,3 +325,48 @@ def test_view_and_panorama_survive_saving(tmp_path):
         np.testing.assert_array_equal(bh.image_pixels(bpy.data.images[name]), pixels)
     env = bpy.context.scene.world.node_tree.nodes["Thurston Panorama"]
     assert env.image.name == "Thurston Panorama" and env.image.has_data
+
+
+# --- the viewport's exports -----------------------------------------------------------------------------------
+def test_viewport_reexports_only_what_changed():
+    """What the rendered viewport's view_update sees: a moved object changes the scene but not the
+    meshes (they are reused, placed anew), an edited mesh changes the meshes, a moved camera
+    changes neither; the reused export equals a fresh one."""
+    from thurston_addon import export
+
+    sc = scene_with_boxes()
+    seen = []
+
+    def record(scene, depsgraph):
+        seen.append((engine.changes_scene(depsgraph), engine.changes_meshes(depsgraph)))
+
+    bpy.app.handlers.depsgraph_update_post.append(record)
+    try:
+        bpy.context.view_layer.update()
+        meshes = {}
+        first = export.export_scene(bpy.context.evaluated_depsgraph_get(), 1.0, [], meshes=meshes)
+        read = dict(meshes)
+        seen.clear()
+        bpy.data.objects["Red"].location.x += 0.05
+        bpy.context.view_layer.update()
+        assert seen and seen[-1] == (True, False)
+        moved = export.export_scene(bpy.context.evaluated_depsgraph_get(), 1.0, [], meshes=meshes)
+        assert all(meshes[k] is read[k] for k in read)  # nothing read again
+        fresh = export.export_scene(bpy.context.evaluated_depsgraph_get(), 1.0, [])
+        for a, b in zip(moved.objects, fresh.objects):
+            np.testing.assert_array_equal(a.vertices, b.vertices)
+        red = [o for o in moved.objects if o.name == "Red"][0]
+        before = [o for o in first.objects if o.name == "Red"][0]
+        np.testing.assert_allclose(red.vertices - before.vertices, [[0.05, 0, 0]] * len(red.vertices), atol=1e-6)
+
+        seen.clear()
+        bpy.data.objects["Red"].data.vertices[0].co.x += 0.01
+        bpy.data.objects["Red"].data.update()
+        bpy.context.view_layer.update()
+        assert seen and seen[-1][1]
+        seen.clear()
+        sc.camera.location.x += 0.01
+        bpy.context.view_layer.update()
+        assert seen and seen[-1] == (False, False)
+    finally:
+        bpy.app.handlers.depsgraph_update_post.remove(record)

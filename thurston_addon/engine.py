@@ -30,6 +30,8 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         self._view = progressive.ProgressiveView()
         self._viewport_world = None  # (space, tracer) of the scene as last exported, or the error
         self._scene_version = 0  # counts the exports of the viewport's scene
+        self._meshes: dict = {}  # the viewport's meshes as last read (export_scene's `meshes`)
+        self._meshes_scale = None
         self._redraw = _redraw_timer(self)
 
     def update_render_passes(self, scene=None, renderlayer=None):
@@ -88,12 +90,16 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
     def view_update(self, context, depsgraph):
         """The depsgraph changed: re-export the scene and build a new tracer, unless only what the
         tracer does not see changed (the camera, the domain guide: the view comes from the region)."""
-        if self._viewport_world is not None and not _changes_scene(depsgraph):
+        if self._viewport_world is not None and not changes_scene(depsgraph):
             return
         bscene = depsgraph.scene
+        scale = bscene.thurston.scale
+        if changes_meshes(depsgraph) or scale != self._meshes_scale:
+            self._meshes.clear()  # else only transforms changed: the meshes read last time serve
+        self._meshes_scale = scale
         try:
             space = export.load_space(bscene.thurston)
-            scene = export.export_scene(depsgraph, bscene.thurston.scale, [])
+            scene = export.export_scene(depsgraph, scale, [], meshes=self._meshes)
             self._viewport_world = (space, render.make_tracer(space, scene, bscene.thurston.threads))
         except (export.ExportError, render.RenderError) as exc:
             self._viewport_world = exc
@@ -163,7 +169,13 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
             pass
 
 
-def _changes_scene(depsgraph) -> bool:
+def changes_meshes(depsgraph) -> bool:
+    """Whether the depsgraph's updates may change what a mesh read holds (geometry, materials,
+    images), not only where objects are."""
+    return any(u.is_updated_geometry or u.is_updated_shading for u in depsgraph.updates)
+
+
+def changes_scene(depsgraph) -> bool:
     """Whether the depsgraph's updates touch what the tracer sees: objects other than cameras and
     the domain guide, their data, materials, images, the world, the scene's settings."""
     for update in depsgraph.updates:

@@ -86,9 +86,11 @@ def _hidden_collections(view_layer):
     return hidden
 
 
-def export_scene(depsgraph, scale: float, notes: list[checks.Note]) -> scenes.Scene:
+def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict | None = None) -> scenes.Scene:
     """Mesh objects and instances (modifiers applied, world matrices), materials and point lights,
-    in chart coordinates (world / scale). Skipped things are described in `notes`."""
+    in chart coordinates (world / scale). Skipped things are described in `notes`. `meshes`: the
+    meshes read by an earlier export at the same scale, by surfaces.mesh_key, reused where the key
+    comes again (the viewport keeps them while only transforms change); updated to this export's."""
     scene = scenes.Scene()
     skipped: dict[str, list[str]] = {}
     hidden_collections = _hidden_collections(depsgraph.view_layer)
@@ -105,10 +107,13 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note]) -> scenes.Sc
         if obj.type == "MESH":
             key = surfaces.mesh_key(inst, obj)
             if key not in placements:
-                try:
-                    mesh = surfaces.mesh_object(inst, obj, scale)
-                except scenes.SceneError as exc:
-                    raise ExportError(str(exc)) from None
+                if meshes is not None and key in meshes:
+                    mesh = meshes[key]
+                else:
+                    try:
+                        mesh = surfaces.mesh_object(inst, obj, scale)
+                    except scenes.SceneError as exc:
+                        raise ExportError(str(exc)) from None
                 placements[key] = (mesh, [])
                 if mesh is None:
                     skipped.setdefault("no faces", []).append(original.name)
@@ -125,6 +130,9 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note]) -> scenes.Sc
             scene.lights.append(scenes.PointLight(pos, np.array(light.color[:3], float), intensity))
         elif obj.type not in ("CAMERA", "EMPTY"):
             skipped.setdefault(f"{obj.type.lower()} objects (only meshes)", []).append(original.name)
+    if meshes is not None:
+        meshes.clear()
+        meshes.update((key, mesh) for key, (mesh, _) in placements.items())
     for mesh, maps in placements.values():
         if mesh is None:
             continue
