@@ -686,7 +686,7 @@ def test_camera_brought_onto_a_face_counts_as_inside():
 
 
 def test_camera_that_cannot_be_brought_in():
-    sc = bh.fresh_scene("seifert_weber")
+    bh.fresh_scene("seifert_weber")
     bh.box("B", 0.1, (0, 0.3, 0))
     cam = bh.camera((3, 0, 0))
     with pytest.raises(RuntimeError, match=r"camera position \[3\.0, 0\.0, 0\.0\] is not a point of H3"):

@@ -11,20 +11,13 @@ import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
+pytestmark = pytest.mark.usefixtures("registered_addon")
 
-import thurston_addon  # noqa: E402
 from thurston_addon import checks, engine  # noqa: E402
 
 import blender_helpers as bh  # noqa: E402
 
 THURSTON = Path(sys.executable).with_name("thurston")
-
-
-@pytest.fixture(autouse=True)
-def registered():
-    if not hasattr(bpy.types.Scene, "thurston"):
-        thurston_addon.register()
-    yield
 
 
 def note_kinds(sc):
@@ -167,7 +160,7 @@ def test_scene_far_smaller_than_the_domain_is_noted():
 
 
 def test_render_blend_prints_notes_and_fails_on_a_failed_frame(tmp_path):
-    sc = bh.fresh_scene("torus", size=(8, 6))
+    bh.fresh_scene("torus", size=(8, 6))
     bh.box("Floor", (0.8, 0.8, 0.02), (0, 0.2, -0.12))
     bh.camera((0, -0.1, 0), lens=30.0)
     blend = tmp_path / "dark.blend"
@@ -177,7 +170,7 @@ def test_render_blend_prints_notes_and_fails_on_a_failed_frame(tmp_path):
     assert run.returncode == 0, run.stderr
     assert "warning: the scene has no lights" in run.stdout + run.stderr
 
-    sc = bh.fresh_scene("seifert_weber", size=(8, 6))
+    bh.fresh_scene("seifert_weber", size=(8, 6))
     bh.box("B", 0.1, (0, 0.3, 0))
     bh.camera((3, 0, 0))  # not a point of H3's chart
     blend = tmp_path / "broken.blend"
@@ -241,9 +234,9 @@ def test_lens_shift_sensor_fit_and_clipping_match_cycles(tmp_path):
     the copies beyond the clip end are cut in both."""
     sc = bh.fresh_scene("torus", size=(40, 30))
     black = (0, 0, 0)
-    boxes = [bh.box("Red", 0.18, (0.22, 0.35, 0.1), color=black, emission=(1, 0.1, 0.1)),
-             bh.box("Green", (0.3, 0.12, 0.2), (-0.2, 0.4, -0.15), color=black, emission=(0.1, 1, 0.2)),
-             bh.box("Near", 0.08, (0.0, 0.18, 0.0), color=black, emission=(0.2, 0.2, 1))]
+    bh.box("Red", 0.18, (0.22, 0.35, 0.1), color=black, emission=(1, 0.1, 0.1))
+    bh.box("Green", (0.3, 0.12, 0.2), (-0.2, 0.4, -0.15), color=black, emission=(0.1, 1, 0.2))
+    bh.box("Near", 0.08, (0.0, 0.18, 0.0), color=black, emission=(0.2, 0.2, 1))
     cam = bh.camera((0, 0, 0), rotation=(math.pi / 2 - 0.1, 0, 0.15), lens=28.0)
     cam.data.sensor_fit = "VERTICAL"
     cam.data.shift_x, cam.data.shift_y = 0.12, -0.08
@@ -296,8 +289,8 @@ def test_film_transparent_alpha_matches_cycles(tmp_path):
     sc = bh.fresh_scene("torus", size=(32, 24))
     sc.render.film_transparent = True
     sc.thurston.quality = "standard"  # 4 samples: partly covered pixels get partial alpha
-    boxes = [bh.box("A", 0.2, (0.15, 0.35, 0.05), color=(0, 0, 0), emission=(1, 1, 1)),
-             bh.box("B", (0.1, 0.3, 0.1), (-0.2, 0.3, -0.1), color=(0, 0, 0), emission=(1, 1, 1))]
+    bh.box("A", 0.2, (0.15, 0.35, 0.05), color=(0, 0, 0), emission=(1, 1, 1))
+    bh.box("B", (0.1, 0.3, 0.1), (-0.2, 0.3, -0.1), color=(0, 0, 0), emission=(1, 1, 1))
     cam = bh.camera((0, 0, 0), lens=24.0)
     cam.data.clip_end = 0.8
     alpha = bh.f12(sc, tmp_path / "thurston.exr")["ViewLayer.Combined.A"]

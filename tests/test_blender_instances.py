@@ -6,21 +6,14 @@ import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
+pytestmark = pytest.mark.usefixtures("registered_addon")
 
-import thurston_addon  # noqa: E402
 from thurston_addon import export, render  # noqa: E402
 
 import blender_helpers as bh  # noqa: E402
 
 RADIUS = 0.02
 SIZE = (33, 33)  # odd: the centre pixel's ray is the optical axis
-
-
-@pytest.fixture(autouse=True)
-def registered():
-    if not hasattr(bpy.types.Scene, "thurston"):
-        thurston_addon.register()
-    yield
 
 
 def instanced_grid():

@@ -9,21 +9,14 @@ import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
+pytestmark = pytest.mark.usefixtures("registered_addon")
 
-import thurston_addon  # noqa: E402
 
 import blender_helpers as bh  # noqa: E402
 
 SIZE = (64, 36)
 TEXELS = np.array([[[0.9, 0.1, 0.1, 1], [0.1, 0.8, 0.2, 1]],
                    [[0.2, 0.3, 0.9, 1], [0.9, 0.9, 0.2, 1]]], np.float32)  # linear, top row first
-
-
-@pytest.fixture(autouse=True)
-def registered():
-    if not hasattr(bpy.types.Scene, "thurston"):
-        thurston_addon.register()
-    yield
 
 
 def build():

@@ -521,7 +521,6 @@ def test_projection_orientation_and_fog(space_cache):
     """Perspective and equirect: an object to the camera's right shows right of centre, one above
     shows in the top rows (rows run top-down); fog scales colour by exp(-depth / fog)."""
     space = space_cache("torus")
-    g = space.geometry
 
     def box(c, s=0.1):
         m = trimesh.creation.box(extents=[s] * 3)
