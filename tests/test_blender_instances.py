@@ -61,3 +61,32 @@ def test_thousand_collection_instances_render_through_one_mesh(tmp_path):
     depth = bh.f12(sc, tmp_path / "grid.exr")["ViewLayer.Depth.Z"]
     # straight ahead: the ball at (0.05, -0.05, 0.05), 0.05 away
     assert 0.05 - RADIUS - 1e-6 <= depth[SIZE[1] // 2, SIZE[0] // 2] <= 0.05 - RADIUS + sagitta + 1e-6
+
+
+def test_geometry_nodes_instances_share_one_mesh(tmp_path):
+    """Geometry nodes' Instance on Points: the 25 instances of one ico sphere on a grid's points are
+    one mesh in the core with 25 placements, and the depth along the optical axis to the sphere
+    at (0, 0.15, 0) lies between the inscribed and the circumscribed sphere's."""
+    sc = bh.fresh_scene("torus", size=SIZE)
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=4, y_subdivisions=4, size=0.6, location=(0, 0.45, 0))
+    grid = bpy.context.active_object
+    tree = bpy.data.node_groups.new("Scatter", "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    points, out = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
+    on_points = tree.nodes.new("GeometryNodeInstanceOnPoints")
+    ico = tree.nodes.new("GeometryNodeMeshIcoSphere")
+    ico.inputs["Radius"].default_value, ico.inputs["Subdivisions"].default_value = 0.03, 3
+    tree.links.new(points.outputs[0], on_points.inputs["Points"])
+    tree.links.new(ico.outputs["Mesh"], on_points.inputs["Instance"])
+    tree.links.new(on_points.outputs["Instances"], out.inputs[0])
+    grid.modifiers.new("Scatter", "NODES").node_group = tree
+    bh.point_light((0.1, 0, 0.1))
+    bh.camera((0, 0, 0))
+    scene = export.export_scene(bpy.context.evaluated_depsgraph_get(), 1.0, [])
+    (balls,) = scene.objects
+    assert len(balls.instances) == 25 and len(balls.triangles) == 320
+    sc.view_layers[0].use_pass_z = True
+    depth = bh.f12(sc, tmp_path / "gn.exr")["ViewLayer.Depth.Z"][SIZE[1] // 2, SIZE[0] // 2]
+    inscribed = 0.03 * 0.98  # the subdivision-3 ico sphere's faces are within 2% of its radius
+    assert 0.15 - 0.03 - 1e-6 <= depth <= 0.15 - inscribed
