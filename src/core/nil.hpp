@@ -7,11 +7,12 @@
 #include <algorithm>
 #include <cmath>
 
+#include "affine_chart.hpp"
 #include "vec.hpp"
 
 namespace thurston {
 
-struct NilFlow {
+struct NilFlow : AffineChart {
   // The segment's acceleration bound is the state's (the closed form gives no tighter one).
   static constexpr bool kSegmentBounds = false;
   // A stretch of geodesic: the closed form evaluated anywhere.
