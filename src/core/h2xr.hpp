@@ -9,27 +9,12 @@
 #include <algorithm>
 #include <cmath>
 
+#include "closed_form.hpp"
 #include "vec.hpp"
 
 namespace thurston {
 
-struct H2xRFlow {
-  // The segment's acceleration bound is the state's (one bound holds for the whole geodesic).
-  static constexpr bool kSegmentBounds = false;
-  struct Segment {
-    Vec3 p, v;
-    double length, error;
-    void at(double t, Vec3& x, Vec3& u) const { geodesic(p, v, t, x, u); }
-    double acceleration_bound(double h) const { return H2xRFlow().acceleration_bound(p, v, h); }
-  };
-  void segment(const Vec3& p, const Vec3& v, double length, double, Segment& s) const {
-    s = {p, v, length, rounding(p, length)};
-  }
-  void flow(const Vec3& p, const Vec3& v, double t, double, Vec3& xt, Vec3& vt, double& error) const {
-    geodesic(p, v, t, xt, vt);
-    error = rounding(p, t);
-  }
-
+struct H2xRFlow : ClosedForm<H2xRFlow> {
   // The geodesic from p with unit chart velocity v at arclength t, through the hyperboloid point
   // P = s (x, y, 1), s = 1 / sqrt(1 - r^2), and its velocity P' = s (u, 0) + s^3 (x . u) (x, y, 1).
   static void geodesic(const Vec3& p, const Vec3& v, double t, Vec3& xt, Vec3& vt) {
