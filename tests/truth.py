@@ -29,3 +29,10 @@ def sol_metric(x):
 
 
 CURVED_METRICS = {"Nil": nil_metric, "Sol": sol_metric}
+
+
+def h2xr_metric(x):
+    """H2xR: the Klein disk's (dx^2 + dy^2) / (1 - r^2) + (x dx + y dy)^2 / (1 - r^2)^2, plus dz^2."""
+    p = np.array([x[0], x[1], 0.0])
+    q = 1.0 - p @ p
+    return np.diag([1.0 / q, 1.0 / q, 1.0]) + np.outer(p, p) / q**2

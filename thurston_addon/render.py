@@ -177,7 +177,8 @@ def _object_copies(space: Space, obj, C):
         for M in space.neighbourhood(rings):
             Y = X @ M.T
             ok = Y[:, 3] > 1e-9 * np.linalg.norm(Y, axis=1)  # the copy stays on the chart's side
-            outside = (Y / np.linalg.norm(Y, axis=1)[:, None]) @ C.T > 1e-9
+            H = g.plane_coordinates(Y)
+            outside = (H / np.linalg.norm(H, axis=1)[:, None]) @ C.T > 1e-9
             covered |= ok & ~outside.any(axis=1)
             # drop triangles wholly outside one face plane: they cannot meet the domain
             keep = ~np.any(outside[T[:, 0]] & outside[T[:, 1]] & outside[T[:, 2]], axis=1) & ok[T].all(axis=1)

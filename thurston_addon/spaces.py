@@ -19,6 +19,7 @@ import operator
 import os
 import tomllib
 from dataclasses import dataclass, field
+from typing import Callable
 from functools import cached_property
 from pathlib import Path
 
@@ -123,6 +124,8 @@ class Face:
 class Domain:
     vertices: np.ndarray  # (V, 3) chart coordinates
     faces: list[Face]
+    # model points -> the homogeneous vectors the covectors pair with (the geometry's)
+    plane_coordinates: Callable = staticmethod(lambda X: X)
 
     @cached_property
     def edges(self) -> list[tuple[int, int, int, int]]:
@@ -140,7 +143,7 @@ class Domain:
 
     def contains(self, X, tol=1e-12):
         """Whether model points lie in the domain (with a relative tolerance)."""
-        X = np.asarray(X, float)
+        X = np.asarray(self.plane_coordinates(np.asarray(X, float)), float)
         c = self.covectors()
         scale = np.linalg.norm(c, axis=1) * np.linalg.norm(X, axis=-1)[..., None]
         return np.all(X @ c.T <= tol * scale, axis=-1)
@@ -292,9 +295,10 @@ class Space:
         maps = np.asarray([f.pairing for f in self.domain.faces], X.dtype)
         M = np.broadcast_to(np.eye(4, dtype=X.dtype), (len(X), 4, 4)).copy()
         for _ in range(max_steps):
-            s = X @ C.T
+            Y = g.plane_coordinates(X)
+            s = Y @ C.T
             worst = np.argmax(s, axis=1)
-            idx = np.flatnonzero(s[np.arange(len(X)), worst] > 1e-12 * np.sqrt(np.sum(X * X, axis=1)))
+            idx = np.flatnonzero(s[np.arange(len(X)), worst] > 1e-12 * np.sqrt(np.sum(Y * Y, axis=1)))
             if len(idx) == 0:
                 if V is not None:
                     V = g.normalize_tangent(X, np.einsum("nij,nj->ni", M, np.asarray(V, X.dtype)))
@@ -345,7 +349,7 @@ def _generator_tables(data, where, geometry):
     return out
 
 
-def _halfspace_domain(covectors, elements, source, in_chart) -> Domain:
+def _halfspace_domain(covectors, elements, source, geometry) -> Domain:
     """The convex polyhedron {c . (x, 1) <= 0 for all c} around the chart origin, with a face for
     each covector that bounds it (vertex rings counter-clockwise seen from outside)."""
     C = np.array(covectors, float)
@@ -355,7 +359,7 @@ def _halfspace_domain(covectors, elements, source, in_chart) -> Domain:
     except Exception as exc:  # qhull raises its own error types
         raise SpaceError(f"{source}: the half-spaces of the group do not bound a domain: {exc}") from None
     pts = hs.intersections
-    if not np.all(np.isfinite(pts)) or not np.all(in_chart(pts)):
+    if not np.all(np.isfinite(pts)) or not np.all(geometry.in_chart(pts)):
         raise SpaceError(f"{source}: the domain is not compact (the group has too few generators)")
     # merge vertices that several planes produce
     verts: list[np.ndarray] = []
@@ -370,7 +374,7 @@ def _halfspace_domain(covectors, elements, source, in_chart) -> Domain:
         if len(on) < 3:
             continue
         faces.append(Face(covector=c, element=M, vertices=_ring(V, on, c[:3])))
-    return Domain(vertices=V, faces=faces)
+    return Domain(vertices=V, faces=faces, plane_coordinates=geometry.plane_coordinates)
 
 
 def _ring(V, idx, normal):
@@ -457,7 +461,7 @@ class DirichletSpace(Space):
             if any(g.distance(O, M[:, 3]) < 1e-6 for M in elements):
                 raise SpaceError(f"{self.source}: a group element other than the identity fixes the domain centre; "
                                  "the group does not act freely (not a manifold) or the generators repeat")
-            self.domain = _halfspace_domain([g.bisector(M[:, 3]) for M in elements], elements, self.source, g.in_chart)
+            self.domain = _halfspace_domain([g.bisector(M[:, 3]) for M in elements], elements, self.source, g)
             self.__dict__.pop("edge_cycles", None)
             circumradius = max(g.distance(O, g.to_model(v)) for v in self.domain.vertices)
             try:
@@ -625,9 +629,9 @@ class CoordinateSpace(Space):
             if not c[3] < 0:
                 raise SpaceError(f"{where}: generator {name!r} face {c.tolist()} must have the chart origin "
                                  "strictly inside (its last entry < 0)")
-            covectors += [c, -(c @ M)]
+            covectors += [c, -self.geometry.pull_back_plane(c, M)]
             elements += [M, np.linalg.inv(M)]
-        self.domain = _halfspace_domain(covectors, elements, where, self.geometry.in_chart)
+        self.domain = _halfspace_domain(covectors, elements, where, self.geometry)
         if len(self.domain.faces) != len(covectors):
             raise SpaceError(f"{where}: {len(covectors) - len(self.domain.faces)} of the generators' faces "
                              "do not bound the domain (each face and its image must be faces of it)")
@@ -670,7 +674,7 @@ class CoordinateSpace(Space):
         origin over the face triangles, by a collapsed Gauss-Legendre rule on each (the Dirichlet
         domains' radial closed form needs a projective chart)."""
         g = self.geometry
-        u, w = np.polynomial.legendre.leggauss(16)
+        u, w = np.polynomial.legendre.leggauss(g.volume_order)
         u, w = 0.5 * (u + 1), 0.5 * w
         # (a, b, c) in the unit cube -> the tetrahedron (0, p, q, r): x = a (p + b (q - p + c (r - q)))
         A, B, Cc = np.meshgrid(u, u, u, indexing="ij")
@@ -713,7 +717,8 @@ class CoordinateSpace(Space):
             for k in rng.integers(0, len(words), 6):
                 W = W @ words[k]
             Y, _, _ = self.move_inside(points @ W.T)
-            if not np.allclose(g.to_chart(Y), g.to_chart(points), atol=1e-8):
+            # the float64 generators satisfy the group's relations to rounding of the word's size
+            if not np.allclose(g.to_chart(Y), g.to_chart(points), atol=1e-8 * max(1.0, np.abs(W).max())):
                 raise SpaceError(f"{where}: points and their images under the group reduce to different points of "
                                  "the domain: the faces do not bound a fundamental domain of the group")
         if "covolume" in data:
@@ -728,7 +733,7 @@ class CoordinateSpace(Space):
         out = np.zeros((0, 3))
         while len(out) < n:
             x = rng.uniform(lo, hi, (4 * n, 3))
-            inside = np.all(self.geometry.to_model(x) @ self.domain.covectors().T < -1e-6, axis=1)
+            inside = np.all(np.c_[x, np.ones(len(x))] @ self.domain.covectors().T < -1e-6, axis=1)
             out = np.vstack([out, x[inside]])
         return out[:n]
 

@@ -1,12 +1,15 @@
 // The marching kernel: geodesics that bend in the chart, followed in chords whose deviation from
 // the true curve is bounded by the walk's tolerance.
 //
-// MarchingKernel<Flow> turns a geometry's flow (nil.hpp, sol.hpp) into the kernel interface of
-// kernel.hpp. Points and tangent vectors are chart 4-vectors (x, 1) and (v, 0); the domain is a
-// convex chart polyhedron with affine face maps, which need not map faces onto faces: after every
+// MarchingKernel<Flow> turns a geometry's flow (nil.hpp, sol.hpp, h2xr.hpp) into the kernel
+// interface of kernel.hpp. Points and tangent vectors are chart 4-vectors (x, 1) and (v, 0); the
+// domain is a convex chart polyhedron whose face maps need not map faces onto faces: after every
 // crossing the point is reduced into the domain by the maps of the faces it lies outside of.
 //
-// A Flow provides, for a chart point x and chart velocity v of unit length in the metric:
+// A Flow provides the meeting of its model with the chart (AffineChart where they are one):
+//   static bool to_chart(Vec4& P, Vec4& V)   a ray's model point and tangent as chart 4-vectors;
+//   static void map(const Mat4& M, Vec3& x, Vec3& v)   a face map applied to a chart state;
+// and for a chart point x and chart velocity v of unit length in the metric:
 //   void flow(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt,
 //             double& error) const      the geodesic at arclength t (error: a bound of the
 //                                       position error of (xt, vt) when accuracy is asked for);
@@ -80,10 +83,7 @@ class MarchingKernel {
   static constexpr double kOnFace = 1e-13;
 
   bool start(Vec4& P, Vec4& V) const {
-    if (!(P[3] != 0.0) || !finite4(P) || !finite4(V)) return false;
-    P = scaled(1.0 / P[3], P);
-    P[3] = 1.0;
-    V[3] = 0.0;
+    if (!finite4(P) || !finite4(V) || !Flow::to_chart(P, V)) return false;
     return normalise(P, V);
   }
   double dot(const Vec4& X, const Vec4& a, const Vec4& b) const {
@@ -414,16 +414,7 @@ class MarchingKernel<Flow>::Walk {
     return safe;
   }
 
-  void apply(int face) {
-    const Mat4& M = context_.domain.maps[face];
-    Vec3 x, v;
-    for (int r = 0; r < 3; ++r) {
-      x[r] = M[4 * r] * x_[0] + M[4 * r + 1] * x_[1] + M[4 * r + 2] * x_[2] + M[4 * r + 3];
-      v[r] = M[4 * r] * v_[0] + M[4 * r + 1] * v_[1] + M[4 * r + 2] * v_[2];
-    }
-    x_ = x;
-    v_ = v;
-  }
+  void apply(int face) { Flow::map(context_.domain.maps[face], x_, v_); }
 
   // Into the domain: the maps of the faces the point lies (farthest) outside of, then off the face
   // planes it still touches while heading in, so that the next step starts strictly inside them.

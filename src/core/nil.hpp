@@ -7,28 +7,13 @@
 #include <algorithm>
 #include <cmath>
 
+#include "affine_chart.hpp"
+#include "closed_form.hpp"
 #include "vec.hpp"
 
 namespace thurston {
 
-struct NilFlow {
-  // The segment's acceleration bound is the state's (the closed form gives no tighter one).
-  static constexpr bool kSegmentBounds = false;
-  // A stretch of geodesic: the closed form evaluated anywhere.
-  struct Segment {
-    Vec3 p, v;
-    double length, error;
-    void at(double t, Vec3& x, Vec3& u) const { geodesic(p, v, t, x, u); }
-    double acceleration_bound(double h) const { return NilFlow().acceleration_bound(p, v, h); }
-  };
-  void segment(const Vec3& p, const Vec3& v, double length, double, Segment& s) const {
-    s = {p, v, length, rounding(p, length)};
-  }
-  void flow(const Vec3& p, const Vec3& v, double t, double, Vec3& xt, Vec3& vt, double& error) const {
-    geodesic(p, v, t, xt, vt);
-    error = rounding(p, t);
-  }
-
+struct NilFlow : AffineChart, ClosedForm<NilFlow> {
   // The geodesic from p with unit chart velocity v at arclength t. At the origin the velocity is
   // (c cos a, c sin a, w); the horizontal part turns at the rate w (theta = w t) and w is constant.
   static void geodesic(const Vec3& p, const Vec3& v, double t, Vec3& xt, Vec3& vt) {

@@ -11,6 +11,7 @@
 #include <array>
 #include <cmath>
 
+#include "affine_chart.hpp"
 #include "vec.hpp"
 
 namespace thurston {
@@ -22,7 +23,7 @@ inline constexpr auto kReciprocal = [] {
   return r;
 }();
 
-struct SolFlow {
+struct SolFlow : AffineChart {
   // The segment's acceleration bound, from its series, is far tighter than the state's.
   static constexpr bool kSegmentBounds = true;
   // A stretch of geodesic from p with unit chart velocity v: Taylor pieces of the reduced system in

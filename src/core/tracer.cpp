@@ -6,6 +6,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "h2xr.hpp"
 #include "march.hpp"
 #include "nil.hpp"
 #include "projective.hpp"
@@ -653,6 +654,7 @@ const Geometry kGeometries[] = {
     {"H3", -1, make_projective, normalise_projective, nullptr},
     {"Nil", 0, make_marching<NilFlow>, normalise_affine, flow_of<NilFlow>},
     {"Sol", 0, make_marching<SolFlow>, normalise_affine, flow_of<SolFlow>},
+    {"H2xR", 0, make_marching<H2xRFlow>, H2xRFlow::normalise_lift, flow_of<H2xRFlow>},
 };
 
 const Geometry& find(const std::string& name) {

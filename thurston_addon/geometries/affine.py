@@ -265,12 +265,3 @@ class AffineGeometry(Geometry):
     def element_key(self, M):
         """Identifies a group element: its image of the origin and its linear part."""
         return tuple(np.round(np.asarray(M, float)[:3].ravel(), 7))
-
-    def chord_distance(self, A, B):
-        """The distance of nearby points to first order: the metric length at A of B - A."""
-        d = _floats(B) - _floats(A)
-        return np.sqrt(np.maximum(self.dot(A, d, d), 0))
-
-    def transform_points(self, M, x):
-        """Apply isometries (affine matrices) to chart points."""
-        return self.to_chart(apply(_floats(M), self.to_model(x)))

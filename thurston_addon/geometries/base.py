@@ -7,8 +7,9 @@ and on isometries as 4x4 matrices acting linearly on them. It offers: `name`, `p
 `reference_depth`; charts (`to_chart`, `to_model`, `in_chart`, `tangent_to_model`,
 `tangent_to_chart`, `normalize_point`, `normalize_tangent`); the metric (`metric`, `christoffel`,
 `volume_density`, `dot`); geodesics (`geodesic`, `chart_geodesic`); isometries (`is_isometry`,
-`reorthonormalize`, `element_key`, `transform_points`); distances (`distance`, `chord_distance`)
-and light (`connect`, `falloff_along`). The C++ core has a kernel of the same name for each.
+`reorthonormalize`, `element_key`, `transform_points`, `pull_back_plane`); distances (`distance`,
+`chord_distance`) and light (`connect`, `falloff_along`); `plane_coordinates`, the homogeneous
+vectors a domain's face covectors pair with. The C++ core has a kernel of the same name for each.
 """
 from __future__ import annotations
 
@@ -22,6 +23,9 @@ def _floats(a):
 
 
 class Geometry:
+    # Gauss-Legendre points per axis of a coordinate domain's volume integral (spaces.py)
+    volume_order = 16
+
     def chart_geodesic(self, x, u, t):
         """Chart position and chart velocity at arclength t from chart point x, chart direction u
         (u is normalised in the metric at x)."""
@@ -29,3 +33,21 @@ class Geometry:
         V = self.normalize_tangent(X, self.tangent_to_model(x, u))
         Xt, Vt = self.geodesic(X, V, t)
         return self.to_chart(Xt), self.tangent_to_chart(Xt, Vt)
+
+    def chord_distance(self, A, B):
+        """The distance of nearby points to first order: the metric length at A of B - A."""
+        d = _floats(B) - _floats(A)
+        return np.sqrt(np.maximum(self.dot(A, d, d), 0))
+
+    def transform_points(self, M, x):
+        """Apply isometries (matrices acting linearly on model vectors) to chart points."""
+        return self.to_chart(np.einsum("...ij,...j->...i", _floats(M), self.to_model(x)))
+
+    def plane_coordinates(self, X):
+        """The homogeneous vectors of model points X that face covectors pair with: the model
+        vectors themselves where the chart is their projective image (E3, S3, H3, Nil, Sol)."""
+        return _floats(X)
+
+    def pull_back_plane(self, c, M):
+        """The covector of the plane that the isometry M maps onto the plane c."""
+        return np.asarray(c, float) @ np.asarray(M, float)
