@@ -288,11 +288,11 @@ def _instance_copies(space: Space, obj, C):
     g A. A placement is tested by its mesh's bounding box (its 8 corners: a copy whose corners
     all lie beyond one face cannot meet the domain, and a box inside one copy of the domain is
     covered); a placement whose box no copy holds is tested by its vertices, as flat objects are.
-    S3, H3: their isometries are projective in the chart, so only a placement's identity copy
+    S3, H3, H2xR: their isometries are not affine in the chart, so only a placement's identity copy
     stays an instance; its other copies reaching the domain are flattened (transformed triangles)."""
     g = space.geometry
     A = obj.instances
-    affine = not g.projective or g.curvature == 0
+    affine = g.affine_isometries
     exact = np.ones(len(A), bool)  # placements tested by their vertices
     instances, flat = [], []
     if affine:

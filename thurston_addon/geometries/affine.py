@@ -52,6 +52,7 @@ class AffineGeometry(Geometry):
     name: str
     kernel: str  # the C++ kernel's registry name
     projective = False
+    affine_isometries = True
     diameter = math.inf  # R^3: unbounded
     copy_rings = 2  # rings of neighbouring domains searched for the parts of large objects
     reference_depth = math.inf  # `geodesic` is a reference at any depth (closed form, integrator)

@@ -3,7 +3,8 @@
 A geometry (ProjectiveGeometry for E3, S3, H3; AffineGeometry for Nil, Sol) works on points and
 tangent vectors as homogeneous 4-vectors ("model" coordinates) with chart point x = X[:3] / X[3],
 and on isometries as 4x4 matrices acting linearly on them. It offers: `name`, `projective`
-(geodesics and bisectors straight in the chart: Dirichlet domains), `diameter`, `copy_rings`,
+(geodesics and bisectors straight in the chart: Dirichlet domains), `affine_isometries` (the
+isometries act on chart points as the affine maps M themselves: E3, Nil, Sol), `diameter`, `copy_rings`,
 `reference_depth`; charts (`to_chart`, `to_model`, `in_chart`, `tangent_to_model`,
 `tangent_to_chart`, `normalize_point`, `normalize_tangent`); the metric (`metric`, `christoffel`,
 `volume_density`, `dot`); geodesics (`geodesic`, `chart_geodesic`); isometries (`is_isometry`,
@@ -25,6 +26,9 @@ def _floats(a):
 class Geometry:
     # Gauss-Legendre points per axis of a coordinate domain's volume integral (spaces.py)
     volume_order = 16
+    # Whether an isometry M maps chart points affinely, as M on (x, 1): copies of an instanced mesh
+    # are then instances themselves (render.py)
+    affine_isometries = False
 
     def chart_geodesic(self, x, u, t):
         """Chart position and chart velocity at arclength t from chart point x, chart direction u

@@ -8,6 +8,7 @@ from .projective import ProjectiveGeometry
 class Euclidean(ProjectiveGeometry):
     name = "E3"
     curvature = 0
+    affine_isometries = True
     form = np.array([1.0, 1.0, 1.0, 0.0])
 
     def cos_sin(self, t):
