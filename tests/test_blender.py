@@ -22,7 +22,7 @@ import blender_helpers as bh  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 THURSTON = Path(sys.executable).with_name("thurston")
-CURVED = ("nil", "sol")  # geodesics bend in the chart: traced in chords within a tolerance
+CURVED = ("nil", "sol", "genus2xs1")  # geodesics bend in the chart: traced in chords within a tolerance
 
 
 def _registered():
@@ -105,7 +105,8 @@ def build_scene(space="torus", scale=1.0, rotation=(1.45, 0.08, 0.25)):
 
 
 # --- 2. renders through every path equal the core's render of the same scene as files ------------------
-@pytest.mark.parametrize("space,scale", [("torus", 1.0), ("poincare", 2.0), ("nil", 1.0), ("sol", 2.0)])
+@pytest.mark.parametrize("space,scale", [("torus", 1.0), ("poincare", 2.0), ("nil", 1.0), ("sol", 2.0),
+                                         ("genus2xs1", 1.0)])
 def test_operators_and_f12_match_core(tmp_path, space, scale):
     sc = build_scene(space, scale)
     toml = bh.write_scene_files(sc, tmp_path, scale)
@@ -278,6 +279,20 @@ def test_domain_guide_follows_space_and_scale():
     obj, pts = guide_points()
     assert same_points(pts, dom.vertices * 2.5)
     assert len([o for o in bpy.data.objects if o.name.startswith("Thurston Domain")]) == 1
+
+
+def test_domain_guide_of_genus2xs1():
+    """The octagonal prism: 16 vertices at Klein radius sqrt(12 sqrt2 - 16) (the regular octagon
+    with angles pi/4), at heights +-L/2, L = acosh(5 + 4 sqrt2); 8 + 8 + 8 edges; 10 faces."""
+    bh.fresh_scene("genus2xs1")
+    assert bpy.ops.thurston.domain_guide() == {"FINISHED"}
+    obj, pts = guide_points()
+    L = math.acosh(5 + 4 * math.sqrt(2))
+    np.testing.assert_allclose(np.hypot(pts[:, 0], pts[:, 1]), math.sqrt(12 * math.sqrt(2) - 16), rtol=1e-6)
+    np.testing.assert_allclose(np.abs(pts[:, 2]), L / 2, rtol=1e-6)
+    assert len(pts) == 16 and len(obj.data.edges) == 24 and len(obj.data.polygons) == 10
+    angles = np.sort(np.arctan2(pts[pts[:, 2] > 0, 1], pts[pts[:, 2] > 0, 0]))
+    np.testing.assert_allclose(np.diff(angles), math.pi / 4, atol=1e-6)
 
 
 def prism_coordinates(space, points):
