@@ -79,6 +79,8 @@ class Settings:
     max_distance: float | None = None  # None: the space's default
     max_crossings: int | None = None
     fog: float | None = None  # distance at which colour falls to 1/e; None: no fog
+    # geodesics to lights longer than this are not summed (E3, S3, H3); None: default_light_reach
+    light_reach: float | None = None
     threads: int = 0
     tolerance: float | None = None  # chord tolerance in chart units; None: the quality's bound
     transparent: bool = False  # alpha: the share of a pixel's samples that hit something (else 1)
@@ -118,6 +120,8 @@ class Settings:
             raise RenderError(f"max crossings must be a whole number >= 0, got {self.max_crossings}")
         if self.fog is not None and not (self.fog > 0 and math.isfinite(self.fog)):
             raise RenderError(f"fog distance must be a positive number (None: no fog), got {self.fog}")
+        if self.light_reach is not None and not self.light_reach >= 0:
+            raise RenderError(f"light reach must be a distance >= 0 (None: the space's default), got {self.light_reach}")
         if not (_whole(self.threads) and 0 <= self.threads <= 2**31 - 1):
             raise RenderError(f"threads must be a whole number >= 0 (0: all cores), got {self.threads}")
         if self.tolerance is not None and not (self.tolerance > 0 and math.isfinite(self.tolerance)):
@@ -326,18 +330,66 @@ def _instance_copies(space: Space, obj, C):
     return np.concatenate(instances) if instances else np.zeros((0, 4, 4)), flat, missing, beyond
 
 
-def compile_scene(space: Space, scene: Scene):
+# The default light reach: the light from every copy of a light within this many domain diameters
+# of the domain (E3, H3; bounded by twice the circumradius); S3: everything, both arcs
+# (benchmarks/bench_light.py measured the cost).
+LIGHT_REACH_DIAMETERS = 1.0
+
+
+def default_light_reach(space: Space) -> float:
+    if space.geometry.diameter < math.inf:
+        return 2 * space.geometry.diameter  # the long arcs are shorter than 2 pi
+    return LIGHT_REACH_DIAMETERS * 2 * space.circumradius
+
+
+def light_reach_for(space: Space, settings: Settings) -> float:
+    """The reach a render sums light over: the setting (or the default), within the distance limit."""
+    reach = default_light_reach(space) if settings.light_reach is None else settings.light_reach
+    return min(reach, settings.max_distance or space.max_distance)
+
+
+def sums_light_copies(space: Space) -> bool:
+    """Whether the tracer sums the light of every copy within the reach (the closed-form geodesics
+    of E3, S3, H3); elsewhere each light's nearest copy among space.light_elements() lights."""
+    return space.geometry.projective
+
+
+def light_copies(space: Space, L, reach: float) -> list[np.ndarray]:
+    """The copies g L of the light L (a model point in the domain D) that can lie within `reach` of
+    D: those in the convex set K of the points with every face plane of D within reach and within
+    reach + circumradius of the origin O (which holds the points within reach of D). The tiles gD
+    that meet K are connected through faces and hold these copies, so the search walks over the
+    tiles that can meet K: a vertex within reach of each face plane, and one within reach +
+    circumradius of O."""
+    g = space.geometry
+    if space.group_order is not None:  # finite (S3): all of it
+        return [M @ L for M in space.elements_within(g.diameter + 1e-6)]
+    C = space.domain.covectors()
+    O = g.to_model(np.zeros(3))
+    corners = g.to_model(space.domain.vertices)
+    ball = reach + space.circumradius + 1e-9
+
+    def can_meet(M):
+        X = g.normalize_point(corners @ M.T)
+        return bool(np.all(g.plane_distances(X, C).min(axis=0) <= reach + 1e-9) and np.min(g.distance(O, X)) <= ball)
+
+    tiles = space._search([np.eye(4)], [f.element for f in space.domain.faces], can_meet,
+                          f"whose tiles lie within the light reach {reach:g} of the domain")
+    copies = (g.normalize_point(M @ L) for M in tiles)
+    return [Y for Y in copies if np.max(space.face_distances(Y)) <= reach + 1e-9 and g.distance(O, Y) <= ball]
+
+
+def compile_scene(space: Space, scene: Scene, light_reach: float = math.inf):
     """Tracer arrays: triangles of every object and of its copies g(object) that can reach the domain
-    (parts sticking out re-enter through the paired faces), and the lights' copies near the domain."""
+    (parts sticking out re-enter through the paired faces), and the lights' copies: in E3, S3 and H3
+    every copy within light_reach of the domain (each lights every point within its reach: an
+    infinite reach needs a finite group), elsewhere those around the domain (the tracer takes each
+    light's nearest copy among them)."""
     g = space.geometry
     C = space.domain.covectors()
     C = C / np.linalg.norm(C, axis=1)[:, None]
-    # Light copies: the tracer lights a point by each light's nearest copy among these. S3: the
-    # group is finite, so all of it (120 elements for Poincare) and the nearest copy is exact.
-    # E3: the copies around the domain hold the nearest copy (exact). H3, Nil, Sol: the same ring
-    # of copies, an approximation: for points near vertices a copy beyond it can be nearer (the ring
-    # grows fast, so more rings would cost much more per shaded point).
-    elements = space.light_elements()
+    if sums_light_copies(space) and space.group_order is None and not math.isfinite(light_reach):
+        raise RenderError(f"{space.name}: an infinite group needs a finite light reach")
     flat, meshes = [], []  # flat: (object index, source object, Y, kept, M); meshes: (index, chart maps)
     for index, obj in enumerate(scene.objects):
         if obj.instances is not None:
@@ -407,10 +459,10 @@ def compile_scene(space: Space, scene: Scene):
             L, _, _ = space.bring_inside(g.to_model(light.position))
         except SpaceError as exc:
             raise SceneError(f"light {i}: {exc}") from None
-        for M in elements:
-            Y = M @ L
-            lifts.append(Y)
-            of_lift.append(i)
+        copies = light_copies(space, L, light_reach) if sums_light_copies(space) else \
+            [M @ L for M in space.light_elements()]
+        lifts += copies
+        of_lift += [i] * len(copies)
         radiance.append(np.asarray(light.color, float) * light.power)
     return dict(
         geometry=g.name, face_covectors=np.ascontiguousarray(space.domain.covectors()),
@@ -419,15 +471,16 @@ def compile_scene(space: Space, scene: Scene):
         triangle_object=np.ascontiguousarray(O), object_color=colors, object_emission=emission,
         **surfaces.arrays(len(T)), **instancing,
         light_lifts=np.array(lifts, np.float64).reshape(-1, 4), light_of_lift=np.array(of_lift, np.int32),
-        light_radiance=np.array(radiance, np.float32).reshape(-1, 3),
+        light_radiance=np.array(radiance, np.float32).reshape(-1, 3), light_reach=light_reach,
     )
 
 
-def make_tracer(space: Space, scene: Scene, threads: int = 0):
-    """The C++ tracer for a scene; what the core rejects (ValueError) is raised as RenderError."""
+def make_tracer(space: Space, scene: Scene, threads: int = 0, light_reach: float | None = None):
+    """The C++ tracer for a scene, summing light over light_reach (None: default_light_reach); what
+    the core rejects (ValueError) is raised as RenderError."""
     import thurston_core
 
-    data = compile_scene(space, scene)
+    data = compile_scene(space, scene, light_reach_for(space, Settings()) if light_reach is None else light_reach)
     try:
         return thurston_core.Tracer(**data, threads=threads)
     except ValueError as exc:
@@ -435,7 +488,7 @@ def make_tracer(space: Space, scene: Scene, threads: int = 0):
 
 
 def trace(tracer, origins, directions, max_distance, max_crossings, tolerance=1e-3, tolerance_per_distance=0.0,
-          shade=True, progress=None):
+          shade=True, progress=None, fog=None):
     """tracer.trace, with what the core rejects (ValueError) raised as RenderError. Exceptions
     from the progress callback pass through unchanged (they are the caller's, not the input's)."""
     raised = []
@@ -450,7 +503,7 @@ def trace(tracer, origins, directions, max_distance, max_crossings, tolerance=1e
     try:
         return tracer.trace(origins, directions, max_distance, max_crossings, shade=shade,
                             progress=None if progress is None else report, tolerance=tolerance,
-                            tolerance_per_distance=tolerance_per_distance)
+                            tolerance_per_distance=tolerance_per_distance, fog=fog or math.inf)
     except ValueError as exc:
         if raised:
             raise
@@ -614,7 +667,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     max_crossings = space.max_crossings if settings.max_crossings is None else settings.max_crossings
     t0 = time.perf_counter()
     frame = camera_frame(space, camera)  # once: bring_inside and the re-orthonormalised frame
-    tracer = tracer or make_tracer(space, scene, settings.threads)
+    tracer = tracer or make_tracer(space, scene, settings.threads, light_reach_for(space, settings))
     offsets = _sample_offsets(settings.samples or QUALITY[settings.quality].samples)
     W = settings.width
     _, _, w, h = settings.window  # the pixels rendered
@@ -633,18 +686,22 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     color_sum = None
     hit_sum = np.zeros(w * h)
     first = None
-    chords = light_failures = 0
+    chords = light_failures = light_paths = shaded_points = 0
+    light_energy = 0.0
     for k, (jitter, shaded, colour) in enumerate(jobs):
         origins, directions = camera_rays(space, camera, settings, jitter, frame=frame)
         base = k * pixels
         report = None if progress is None else (lambda done, _n, base=base: progress(base + done, total))
-        out = trace(tracer, origins, directions, *limits, shade=shaded, progress=report)
+        out = trace(tracer, origins, directions, *limits, shade=shaded, progress=report, fog=settings.fog)
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
         start, end = clip_range(camera, settings, jitter, reach)
         _miss_beyond(out, end - start)
         chords += int(out["chords"])
         light_failures += int(out["light_failures"])
+        light_paths += int(out["light_paths"])
+        light_energy += float(out["light_energy"])
+        shaded_points += int(np.sum(out["stop"] == 0)) if shaded else 0
         if jitter == CENTRE:
             first = out
             sample = _error_sample(out, space.geometry)
@@ -697,9 +754,35 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "geodesic_error": geodesic_error(space, origins, directions, first["depth"][sample],
                                          first["position"][sample]),
         "light_failures": light_failures,
+        **light_stats(space, settings, tracer, light_paths, light_energy, shaded_points),
         "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},
     }
     return Result(passes, stats)
+
+
+def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: float, shaded: int) -> dict:
+    """The light a render summed: its reach, the copies of the lights the tracer has, the light paths
+    per shaded point, and the energy left out beyond the reach (up to the distance limit D, within
+    the geometry's longest geodesic to a light: 2 pi in S3), relative to what was summed (before
+    cosines and shadows, averaged over the shaded points). The estimate takes the copies of a light
+    of power p as spread uniformly, 1/vol per volume: a shell of radius r holds area(r) / vol of
+    them and each sends p / area(r), so the part from R to D is 4 pi p (D - R) / vol in E3, H3
+    and S3 alike (with fog f: 4 pi p f (exp(-R/f) - exp(-D/f)) / vol). Without the limit it
+    diverges in E3 and H3 (Olbers). Nil, Sol, H2xR: each light's nearest copy, no estimate."""
+    stats = {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0}
+    if not sums_light_copies(space):
+        return {**stats, "light_reach": None, "light_energy_left_out": None}
+    reach = tracer.light_reach
+    longest = min(settings.max_distance or space.max_distance, 2 * space.geometry.diameter)
+    if reach >= longest:
+        left_out = 0.0
+    else:
+        f = settings.fog
+        shell = f * (math.exp(-reach / f) - math.exp(-longest / f)) if f else longest - reach
+        left_out = 4 * math.pi * tracer.light_power * shell / space.volume
+    summed = energy / shaded if shaded else 0.0
+    return {**stats, "light_reach": reach,
+            "light_energy_left_out": left_out / summed if summed > 0 else (0.0 if left_out == 0 else math.inf)}
 
 
 def accuracy_bound(space: Space, settings: Settings, tolerances) -> str:

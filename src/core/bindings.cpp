@@ -388,8 +388,9 @@ void check_rays(const Array& a, const Array& b, const char* a_name, const char* 
 
 nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directions, double max_distance,
                int max_crossings, bool shade, nb::object progress, bool record_segments,
-               double tolerance, double tolerance_per_distance, bool skip_empty) {
+               double tolerance, double tolerance_per_distance, bool skip_empty, double fog) {
   check_rays(origins, directions, "origins", "directions", 4, "ray");
+  if (!(fog > 0.0)) throw nb::value_error("fog must be a positive distance (inf: none)");
   if (std::isnan(max_distance) || max_distance < 0.0)
     throw nb::value_error("max_distance must be >= 0 (inf allowed)");
   if (max_crossings < 0) throw nb::value_error("max_crossings must be >= 0");
@@ -409,7 +410,7 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
                          object.get(), crossings.get(), stop.get(),   distance.get(),
                          chords.get(), error.get(), end.get()};
   const TraceOptions options{max_distance, max_crossings, shade, record_segments, tolerance,
-                             tolerance_per_distance, skip_empty};
+                             tolerance_per_distance, skip_empty, fog};
 
   // The callback runs on this thread with the GIL re-acquired; its exception is kept until the
   // workers have stopped.
@@ -454,6 +455,10 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
   result["chords"] = to_numpy(std::move(total), {});
   std::unique_ptr<std::int64_t[]> failures(new std::int64_t[1]{std::int64_t(stats.light_failures)});
   result["light_failures"] = to_numpy(std::move(failures), {});
+  std::unique_ptr<std::int64_t[]> paths(new std::int64_t[1]{std::int64_t(stats.light_paths)});
+  result["light_paths"] = to_numpy(std::move(paths), {});
+  std::unique_ptr<double[]> energy(new double[1]{stats.light_energy});
+  result["light_energy"] = to_numpy(std::move(energy), {});
   if (record_segments) {
     std::size_t s = 0;
     for (const auto& chunk : stats.segments) s += chunk.size() / 6;
@@ -505,8 +510,10 @@ vertices: float64 (NV,3) chart coordinates (with instances: the meshes' coordina
 triangles: int32 (NT,3); triangle_object: int32 (NT,).
 object_color, object_emission: float32 (NO,3), each object's one material where triangle_material
 is not given. Triangles of emissive materials cast no shadows.
-light_lifts: float64 (K,4) points (copies of the point lights near the domain);
-light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3).
+light_lifts: float64 (K,4) points (copies of the point lights in the universal cover);
+light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3). E3, S3, H3
+sum every geodesic from a shaded point to each lift no longer than light_reach (keyword; S3 also
+the long arc, of length 2 pi - d); Nil, Sol, H2xR the one to each light's nearest lift.
 threads: worker threads, 0 for one per hardware thread.
 Optional surfaces (keywords):
 corner_normals: float32 (NT,3,3) per triangle corner, the chart covector of the surface's normal
@@ -550,7 +557,9 @@ Embree queries of each ray, error float64 (N,) an upper estimate of the hit posi
 (chart units: the path's distance from the true geodesic over the cosine of incidence; NaN: no
 hit), end float64 (N,3) the chart point where the ray stopped (the hit, the point at the distance
 or crossing limit, inside the domain; NaN where there is none), chords int64 () Embree queries of primary rays in all, light_failures int64 () light
-paths that were not found (marching geometries), and with record_segments segment_starts /
+paths that were not found (marching geometries), light_paths int64 () geodesics to lights summed
+at the shaded points, light_energy float64 () their mean radiance times falloff (times fog: light
+falls to 1/e over `fog` of its path) summed before cosines and shadows, and with record_segments segment_starts /
 segment_ends float64 (S,3), the chart endpoints of the queries.)";
 
 nb::tuple flow_rows(const std::string& geometry, const Array& points, const Array& velocities,
@@ -601,8 +610,10 @@ NB_MODULE(thurston_core, m) {
              OptionalArray material_emission, OptionalArray material_color_texture,
              OptionalArray material_emission_texture, std::vector<Array> textures,
              OptionalArray mesh_first_triangle, OptionalArray instance_mesh,
-             OptionalArray instance_transform, OptionalArray instance_object) {
+             OptionalArray instance_transform, OptionalArray instance_object, double light_reach) {
             if (threads < 0) throw nb::value_error("threads must be >= 0 (0: all hardware threads)");
+            if (!(light_reach >= 0.0))
+              throw nb::value_error("light_reach must be a distance >= 0 (inf: every lift)");
             const SurfaceArrays surfaces{corner_normals, corner_uvs, triangle_material,
                                          material_color, material_emission, material_color_texture,
                                          material_emission_texture, std::move(textures)};
@@ -612,6 +623,7 @@ NB_MODULE(thurston_core, m) {
                                          triangle_object, object_color, object_emission,
                                          light_lifts, light_of_lift, light_radiance, surfaces,
                                          instances);
+            scene.light_reach = light_reach;
             new (self) TracerHandle{make_tracer(geometry, std::move(scene), unsigned(threads)), geometry};
           },
           nb::sig("def __init__(self, geometry: str, face_covectors: numpy.ndarray, "
@@ -630,7 +642,8 @@ NB_MODULE(thurston_core, m) {
                   "mesh_first_triangle: numpy.ndarray | None = None, "
                   "instance_mesh: numpy.ndarray | None = None, "
                   "instance_transform: numpy.ndarray | None = None, "
-                  "instance_object: numpy.ndarray | None = None) -> None"),
+                  "instance_object: numpy.ndarray | None = None, "
+                  "light_reach: float = float('inf')) -> None"),
           nb::arg("geometry"), nb::arg("face_covectors").noconvert(),
           nb::arg("face_maps").noconvert(), nb::arg("vertices").noconvert(),
           nb::arg("triangles").noconvert(), nb::arg("triangle_object").noconvert(),
@@ -648,19 +661,21 @@ NB_MODULE(thurston_core, m) {
           nb::arg("mesh_first_triangle").noconvert().none() = nb::none(),
           nb::arg("instance_mesh").noconvert().none() = nb::none(),
           nb::arg("instance_transform").noconvert().none() = nb::none(),
-          nb::arg("instance_object").noconvert().none() = nb::none())
+          nb::arg("instance_object").noconvert().none() = nb::none(),
+          nb::arg("light_reach") = kInf)
       .def("trace", &trace,
            nb::sig("def trace(self, origins: numpy.ndarray, directions: numpy.ndarray, "
                    "max_distance: float, max_crossings: int, shade: bool = True, "
                    "progress: collections.abc.Callable[[int, int], bool | None] | None = None, "
                    "record_segments: bool = False, tolerance: float = 1e-3, "
-                   "tolerance_per_distance: float = 0.0, skip_empty: bool = True) -> "
+                   "tolerance_per_distance: float = 0.0, skip_empty: bool = True, "
+                   "fog: float = float('inf')) -> "
                    "dict[str, numpy.ndarray]"),
            nb::arg("origins").noconvert(), nb::arg("directions").noconvert(),
            nb::arg("max_distance"), nb::arg("max_crossings"), nb::arg("shade") = true,
            nb::arg("progress").none() = nb::none(), nb::arg("record_segments") = false,
            nb::arg("tolerance") = 1e-3, nb::arg("tolerance_per_distance") = 0.0,
-           nb::arg("skip_empty") = true, kTraceDoc)
+           nb::arg("skip_empty") = true, nb::arg("fog") = kInf, kTraceDoc)
       .def("cancel", [](TracerHandle& t) { t.tracer->cancel(); },
            "Stops a running trace(); callable from any Python thread.")
       .def("query_segments", &query_segments,
@@ -673,6 +688,11 @@ NB_MODULE(thurston_core, m) {
            "(N,) in [0, 1] (inf: none), the mesh triangle prim int32 (N,) and its instance int32 "
            "(N,) (-1: none).")
       .def_prop_ro("geometry", [](const TracerHandle& t) { return t.geometry; })
+      .def_prop_ro("light_reach", [](const TracerHandle& t) { return t.tracer->light_reach(); },
+                   "Light paths longer than this are not summed (E3, S3, H3).")
+      .def_prop_ro("num_light_lifts", [](const TracerHandle& t) { return t.tracer->num_light_lifts(); })
+      .def_prop_ro("light_power", [](const TracerHandle& t) { return t.tracer->light_power(); },
+                   "The sum over lights of their radiance's mean over RGB.")
       .def_prop_ro("num_threads", [](const TracerHandle& t) { return t.tracer->num_threads(); })
       .def_prop_ro("num_triangles", [](const TracerHandle& t) { return t.tracer->num_triangles(); },
                    "The meshes' own triangles (each stored once).")

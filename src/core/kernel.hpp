@@ -16,9 +16,13 @@
 //   double dot(const Vec4& X, const Vec4& a, const Vec4& b) the metric at X;
 //   bool normalise(const Vec4& X, Vec4& v)                 unit length at X;
 //   Vec3 chart_vector(const Vec4& X, const Vec4& v)         its chart image, unit in the chart;
-//   K::LightHint, bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath&,
-//       LightHint&)   the geodesic from the surface point H to the light (its nearest copy among
-//       the lifts); the hint carries what one point's search leaves for the next (per thread).
+//   K::LightHint and either
+//   void light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
+//       std::vector<LightPath>&)   every geodesic from the surface point H to the lifts no longer
+//       than reach (closed forms: ProjectiveKernel), or
+//   bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath&, LightHint&)
+//       the geodesic to the light's nearest copy among the lifts (found by shooting: the marching
+//       kernels); the hint carries what one point's search leaves for the next (per thread).
 // Points and tangent vectors are 4-vectors: model vectors in the projective kernel, (x, 1) and
 // (v, 0) in chart coordinates in the others; face maps act on them linearly.
 #pragma once

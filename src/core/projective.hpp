@@ -223,25 +223,21 @@ struct ProjectiveKernel {
     static constexpr double margin = 0.0;  // the curve is the chord
   };
 
-  // The shortest geodesic from H to the light's nearest lift (all lifts are model points), in
-  // closed form: nothing to remember from one point to the next.
+  // Every geodesic from H to the lifts (model points) no longer than reach, in closed form: the
+  // segment to each lift, and in S3 also the long arc round the great circle, of length 2 pi - d,
+  // leaving in the opposite direction (the same falloff, sin^2 being symmetric). A lift on H (or
+  // antipodal to it in S3) has no direction and is skipped. Nothing to remember between points.
   struct LightHint {};
-  bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath& path, LightHint&) const {
-    const Vec4* nearest = nullptr;
-    double r = kInf;
+  void light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
+                   std::vector<LightPath>& paths) const {
     for (const Vec4& L : lifts) {
-      const double dl = distance(H, L);
-      if (dl < r) {
-        r = dl;
-        nearest = &L;
-      }
+      const double r = distance(H, L);
+      Vec4 direction = toward(H, L);
+      if (r > reach || !normalise(direction)) continue;
+      paths.push_back({direction, r, falloff(r)});
+      const double long_arc = 2.0 * kPi - r;
+      if (k > 0 && long_arc <= reach) paths.push_back({scaled(-1.0, direction), long_arc, falloff(long_arc)});
     }
-    if (!nearest) return false;
-    path.direction = toward(H, *nearest);
-    if (!normalise(path.direction)) return false;  // light on the point (or antipodal in S3)
-    path.distance = r;
-    path.falloff = falloff(r);
-    return true;
   }
 
   // The exit from the domain along the geodesic (P, V): the face through which it leaves first

@@ -14,6 +14,7 @@
 namespace thurston {
 
 using Rgb = std::array<float, 3>;
+inline double mean_rgb(const Rgb& c) { return (double(c[0]) + c[1] + c[2]) / 3.0; }
 
 // A linear RGB image, rows top-down; sampled bilinearly at texel centres with repeat wrap, v up
 // (v = 0 is the bottom row, as in Blender and OBJ).

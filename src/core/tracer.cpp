@@ -143,6 +143,7 @@ Tracer::Tracer(SceneData& scene, unsigned threads, bool occupancy)
       mesh_first_(std::move(scene.mesh_first)),
       surfaces_(std::move(scene.surfaces)),
       light_radiance_(std::move(scene.light_radiance)),
+      light_reach_(scene.light_reach),
       pool_(threads) {
   domain_.faces = scene.face_covectors.size();
   for (const Vec4& c : scene.face_covectors)
@@ -371,6 +372,18 @@ Tracer::RunLock::~RunLock() {
   tracer_.run_mutex_.unlock();
 }
 
+std::size_t Tracer::num_light_lifts() const {
+  std::size_t n = 0;
+  for (const auto& lifts : light_lifts_) n += lifts.size();
+  return n;
+}
+
+double Tracer::light_power() const {
+  double p = 0.0;
+  for (const Rgb& radiance : light_radiance_) p += mean_rgb(radiance);
+  return p;
+}
+
 TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<double> directions,
                          const TraceOptions& options, const TraceOutputs& out, const Poll& poll) {
   const RunLock lock(*this);
@@ -378,7 +391,9 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   const std::size_t chunks = (count + kChunk - 1) / kChunk;
   // Kept by chunk, so that the recording does not depend on the thread count.
   std::vector<std::vector<double>> chunk_segments(options.record_segments ? chunks : 0);
-  std::atomic<std::uint64_t> chords{0}, light_failures{0};
+  std::atomic<std::uint64_t> chords{0}, light_failures{0}, light_paths{0};
+  std::mutex energy_mutex;
+  double light_energy = 0.0;
   const std::size_t traced = run_chunks(
       count,
       [&](std::size_t chunk, std::size_t begin, std::size_t end) {
@@ -387,12 +402,17 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
         trace_range(begin, end, origins, directions, options, out, segments, local);
         chords.fetch_add(local.chords);
         light_failures.fetch_add(local.light_failures);
+        light_paths.fetch_add(local.light_paths);
+        const std::lock_guard<std::mutex> energy_lock(energy_mutex);
+        light_energy += local.light_energy;
       },
       poll, true);
   for (std::size_t i = traced; i < count; ++i) write_miss(out, i, kCancelled, 0, 0.0, 0);
   TraceStats stats;
   stats.chords = chords.load();
   stats.light_failures = light_failures.load();
+  stats.light_paths = light_paths.load();
+  stats.light_energy = light_energy;
   stats.segments = std::move(chunk_segments);
   return stats;
 }
@@ -450,6 +470,24 @@ std::size_t Tracer::run_chunks(std::size_t count,
 
 namespace {
 
+// The geodesics from H to a light that illumination() sums. Kernels with a closed form
+// (ProjectiveKernel) give every one within the reach; the marching kernels the one to the light's
+// nearest copy (false where it was not found), whatever the reach.
+template <class Kernel>
+bool light_paths(const Kernel& kernel, const Vec4& H, const std::vector<Vec4>& lifts, double,
+                 typename Kernel::LightHint& hint, std::vector<LightPath>& paths) {
+  LightPath path;
+  if (!kernel.light_path(H, lifts, path, hint)) return false;
+  paths.push_back(path);
+  return true;
+}
+
+bool light_paths(const ProjectiveKernel& kernel, const Vec4& H, const std::vector<Vec4>& lifts,
+                 double reach, ProjectiveKernel::LightHint&, std::vector<LightPath>& paths) {
+  kernel.light_paths(H, lifts, reach, paths);
+  return true;
+}
+
 template <class Kernel>
 class KernelTracer final : public Tracer {
  public:
@@ -458,14 +496,18 @@ class KernelTracer final : public Tracer {
 
  private:
   using Chord = typename Kernel::Chord;
-  using LightHints = std::vector<typename Kernel::LightHint>;
+  // Per chunk: the kernel's hint per light, and the buffer of one point's light paths.
+  struct LightHints {
+    std::vector<typename Kernel::LightHint> kernel;
+    std::vector<LightPath> paths;
+  };
 
   void trace_range(std::size_t begin, std::size_t end, Strided2<double> origins,
                    Strided2<double> directions, const TraceOptions& options,
                    const TraceOutputs& out, std::vector<double>* segments,
                    TraceStats& stats) const override {
     const WalkContext context = this->context(options);
-    LightHints hints(light_lifts_.size());  // rays of a chunk are neighbouring pixels
+    LightHints hints{std::vector<typename Kernel::LightHint>(light_lifts_.size()), {}};  // rays of a chunk are neighbouring pixels
     for (std::size_t i = begin; i < end; ++i) {
       const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
       const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
@@ -540,7 +582,7 @@ class KernelTracer final : public Tracer {
       WalkContext shadows = context;
       shadows.tolerance = context.tolerance_at(out.depth[i]);
       shadows.tolerance_per_distance = 0.0;
-      light = illumination(shadows, h.X, S, options.max_crossings, stats, hints);
+      light = illumination(shadows, h.X, S, options.max_crossings, options.light_fog, stats, hints);
     }
     for (int a = 0; a < 3; ++a) {
       out.position[3 * i + a] = out.end[3 * i + a] = h.x[a];
@@ -563,22 +605,29 @@ class KernelTracer final : public Tracer {
     return kernel_.dot(h.X, S, N) < 0.0 ? scaled(-1.0, S) : S;
   }
 
-  // Sum over lights of radiance * cos * falloff * visibility at the surface point H with normal N,
-  // each light reached along the kernel's light path (the geodesic to its nearest copy).
+  // Sum over lights and over the geodesics from the surface point H (normal N) to each of them of
+  // radiance * cos * falloff * fog * visibility, each geodesic with its own shadow ray.
   Rgb illumination(const WalkContext& context, const Vec4& H, const Vec4& N, int max_crossings,
-                   TraceStats& stats, LightHints& hints) const {
+                   double fog, TraceStats& stats, LightHints& hints) const {
     Rgb sum{0.0f, 0.0f, 0.0f};
+    std::vector<LightPath>& paths = hints.paths;
     for (std::size_t l = 0; l < light_lifts_.size(); ++l) {
-      LightPath path;
-      if (!kernel_.light_path(H, light_lifts_[l], path, hints[l])) {
+      paths.clear();
+      if (!light_paths(kernel_, H, light_lifts_[l], light_reach_, hints.kernel[l], paths)) {
         ++stats.light_failures;
         continue;
       }
-      const double cosine = kernel_.dot(H, N, path.direction);
-      if (!(cosine > 0.0) || !visible(context, H, path.direction, path.distance, max_crossings))
-        continue;
-      const double weight = cosine * path.falloff;
-      for (int a = 0; a < 3; ++a) sum[a] += float(weight * light_radiance_[l][a]);
+      const Rgb& radiance = light_radiance_[l];
+      const double mean_radiance = mean_rgb(radiance);
+      for (const LightPath& path : paths) {
+        const double weight = path.falloff * std::exp(-path.distance / fog);
+        ++stats.light_paths;
+        stats.light_energy += weight * mean_radiance;
+        const double cosine = kernel_.dot(H, N, path.direction);
+        if (!(cosine > 0.0) || !visible(context, H, path.direction, path.distance, max_crossings))
+          continue;
+        for (int a = 0; a < 3; ++a) sum[a] += float(cosine * weight * radiance[a]);
+      }
     }
     return sum;
   }

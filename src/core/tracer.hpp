@@ -42,6 +42,7 @@ struct SceneData {
   std::vector<Vec4> light_lifts;  // points of the geometry (normalised by the kernel)
   std::vector<std::int32_t> light_of_lift;
   std::vector<Rgb> light_radiance;
+  double light_reach = kInf;  // light paths longer than this are not summed (projective kernels)
 };
 
 // Read-only strided 2-D view (strides in elements), so that rays need not be copied.
@@ -62,6 +63,7 @@ struct TraceOptions {
   double tolerance;               // chord deviation at distance 0 (chart units) ...
   double tolerance_per_distance;  // ... and its growth per unit of distance
   bool skip_empty;                // empty-space steps and the occupancy grid (WalkContext)
+  double light_fog;               // distance over which light falls to 1/e along its path (inf: none)
 };
 
 // Caller-allocated per-ray outputs (N rows each).
@@ -82,6 +84,10 @@ struct TraceOutputs {
 struct TraceStats {
   std::uint64_t chords = 0;
   std::uint64_t light_failures = 0;  // light paths that were not found (marching kernels)
+  std::uint64_t light_paths = 0;     // geodesics to lights summed (a shadow ray each where facing)
+  // Sum over shaded points of the mean radiance times falloff (and fog) along the summed paths,
+  // before cosines and shadows: what the reach lets in, against which the part left out is told.
+  double light_energy = 0.0;
   // Recorded chords by chunk of rays, in ray order: 6 doubles each, start xyz and end xyz.
   std::vector<std::vector<double>> segments;
 };
@@ -101,6 +107,9 @@ class Tracer {
   std::size_t num_triangles() const { return triangles_.size(); }  // the meshes' own
   std::size_t num_instances() const { return instances_.size(); }
   std::size_t num_instanced_triangles() const;  // what the instances place in all
+  double light_reach() const { return light_reach_; }
+  std::size_t num_light_lifts() const;
+  double light_power() const;  // the sum over lights of their radiance's mean over RGB
 
   TraceStats trace(std::size_t count, Strided2<double> origins, Strided2<double> directions,
                    const TraceOptions& options, const TraceOutputs& out, const Poll& poll);
@@ -147,6 +156,7 @@ class Tracer {
   Surfaces surfaces_;
   std::vector<std::vector<Vec4>> light_lifts_;  // per light
   std::vector<Rgb> light_radiance_;
+  double light_reach_;
   double scale_ = 0.0;              // largest extent or coordinate magnitude of the scene
   Vec3 hit_lo_{}, hit_hi_{};        // the scene's bounds widened by a margin (empty: none)
   Occupancy occupancy_;
