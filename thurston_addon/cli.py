@@ -92,7 +92,8 @@ def cmd_render(args):
     w, h = args.size
     settings = render.Settings(width=w, height=h, projection=args.projection, quality=args.quality, samples=args.samples,
                                shading=args.shading, max_distance=args.max_distance,
-                               max_crossings=args.max_crossings, fog=args.fog, threads=args.threads,
+                               max_crossings=args.max_crossings, fog=args.fog, light_reach=args.light_reach,
+                               threads=args.threads,
                                tolerance=args.tolerance)
     lambert = settings.shading == "lambert"
     for note in checks.before_render(space, scene, camera, lambert):
@@ -202,6 +203,8 @@ def build_parser():
     r.add_argument("--samples", type=int, help="samples per pixel (overrides --quality)")
     r.add_argument("--shading", choices=render.SHADING, default="lambert")
     r.add_argument("--fog", type=float, help="distance at which colour falls to 1/e")
+    r.add_argument("--light-reach", type=float, help="E3, S3, H3: light along every geodesic up to this long "
+                                                     "(default: the space's, see README)")
     r.add_argument("--out", required=True, metavar="FILE")
     r.set_defaults(run=cmd_render)
 

@@ -100,7 +100,8 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         try:
             space = export.load_space(bscene.thurston)
             scene = export.export_scene(depsgraph, scale, [], meshes=self._meshes)
-            self._viewport_world = (space, render.make_tracer(space, scene, bscene.thurston.threads))
+            reach = render.light_reach_for(space, export.render_settings(bscene.thurston, 1, 1))  # the size is not used
+            self._viewport_world = (space, render.make_tracer(space, scene, bscene.thurston.threads, reach))
         except (export.ExportError, render.RenderError) as exc:
             self._viewport_world = exc
         self._scene_version += 1

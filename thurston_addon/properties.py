@@ -99,6 +99,9 @@ class ThurstonSettings(bpy.types.PropertyGroup):
     max_crossings: bpy.props.IntProperty(name="Max Crossings", default=-1, min=-1,
                                          description="Face crossings after which rays stop (-1: the space's default)")
     fog: bpy.props.FloatProperty(name="Fog", default=0.0, min=0.0, description="Distance at which colour falls to 1/e (0: none)")
+    light_reach: bpy.props.FloatProperty(name="Light Reach", default=0.0, min=0.0,
+                                         description="E3, S3, H3: each light lights along every geodesic up to this "
+                                                     "long, one per copy of the light (0: the space's default)")
     tolerance: bpy.props.FloatProperty(name="Tolerance", default=0.0, min=0.0, precision=6, step=0.001,
                                        description="Where geodesics bend (Nil, Sol): how far the traced chords may stray "
                                                    "from the true geodesic, in Blender units (0: the quality's bound, a "

@@ -156,7 +156,15 @@ class Result:
                 f"chart units at median depth; {s['bound']}; measured error {s['measured_error']:.1e} "
                 f"chart units = {s['measured_error_pixels']:.2g} pixel footprints (re-traced at 1/{RETRACE_FACTOR} "
                 f"of the tolerance; {s['retrace_changed'] * 100:.1f}% of them met another object), geodesic error "
-                f"{s['geodesic_error']:.1e} (against the reference geodesic)")
+                f"{s['geodesic_error']:.1e} (against the reference geodesic); {light_summary(s)}")
+
+
+def light_summary(s: dict) -> str:
+    if s["light_reach"] is None:
+        return f"light: each light's nearest of {s['light_copies']} copies"
+    return (f"light: {s['light_copies']} copies within reach {s['light_reach']:.3g} ({s['light_paths_per_point']:.1f} "
+            f"geodesics per shaded point), energy beyond the reach up to the distance limit about "
+            f"{s['light_energy_left_out']:.3g} x the summed (estimate)")
 
 
 # --- compiling the scene -------------------------------------------------------------------------------
@@ -330,16 +338,21 @@ def _instance_copies(space: Space, obj, C):
     return np.concatenate(instances) if instances else np.zeros((0, 4, 4)), flat, missing, beyond
 
 
-# The default light reach: the light from every copy of a light within this many domain diameters
-# of the domain (E3, H3; bounded by twice the circumradius); S3: everything, both arcs
-# (benchmarks/bench_light.py measured the cost).
-LIGHT_REACH_DIAMETERS = 1.0
+def sums_light_copies(space: Space) -> bool:
+    """Whether the tracer sums the light of every copy within the reach (the closed-form geodesics
+    of E3, S3, H3); elsewhere each light's nearest copy among space.light_elements() lights."""
+    return space.geometry.projective
 
 
 def default_light_reach(space: Space) -> float:
-    if space.geometry.diameter < math.inf:
-        return 2 * space.geometry.diameter  # the long arcs are shorter than 2 pi
-    return LIGHT_REACH_DIAMETERS * 2 * space.circumradius
+    """S3: everything, both arcs (the long arcs are shorter than 2 pi). E3: the domain's diameter
+    (bounded by twice its circumradius), so every point has its light's own copy and the ring around
+    it. H3: the circumradius (the light's nearest copy, for a light near the centre), as the copies
+    within R grow as exp(2R). The cost: benchmarks/bench_light.py."""
+    if not sums_light_copies(space):
+        return math.inf  # the nearest copy, wherever it is
+    k = space.geometry.curvature
+    return 2 * space.geometry.diameter if k > 0 else (2 if k == 0 else 1) * space.circumradius
 
 
 def light_reach_for(space: Space, settings: Settings) -> float:
@@ -348,35 +361,46 @@ def light_reach_for(space: Space, settings: Settings) -> float:
     return min(reach, settings.max_distance or space.max_distance)
 
 
-def sums_light_copies(space: Space) -> bool:
-    """Whether the tracer sums the light of every copy within the reach (the closed-form geodesics
-    of E3, S3, H3); elsewhere each light's nearest copy among space.light_elements() lights."""
-    return space.geometry.projective
-
-
 def light_copies(space: Space, L, reach: float) -> list[np.ndarray]:
     """The copies g L of the light L (a model point in the domain D) that can lie within `reach` of
-    D: those in the convex set K of the points with every face plane of D within reach and within
-    reach + circumradius of the origin O (which holds the points within reach of D). The tiles gD
-    that meet K are connected through faces and hold these copies, so the search walks over the
-    tiles that can meet K: a vertex within reach of each face plane, and one within reach +
-    circumradius of O."""
+    D: those in tiles gD within reach of D (light_tiles), with every face plane of D within reach."""
     g = space.geometry
     if space.group_order is not None:  # finite (S3): all of it
         return [M @ L for M in space.elements_within(g.diameter + 1e-6)]
+    copies = (g.normalize_point(M @ L) for M in light_tiles(space, reach))
+    return [Y for Y in copies if np.max(space.face_distances(Y)) <= reach + 1e-9]
+
+
+def light_tiles(space: Space, reach: float) -> list[np.ndarray]:
+    """The elements g whose tiles gD can lie within reach of D (an infinite group), cached per
+    reach. Such a tile has a vertex within reach of each face plane of D, and D a vertex within
+    reach of each face plane of gD (else a plane separates them by more); those tiles are connected
+    through faces, so the search walks over the tiles that pass both tests."""
+    cached = space.__dict__.setdefault("_light_tiles", {})
+    if reach in cached:
+        return cached[reach]
+    g = space.geometry
     C = space.domain.covectors()
-    O = g.to_model(np.zeros(3))
     corners = g.to_model(space.domain.vertices)
-    ball = reach + space.circumradius + 1e-9
+
+    def near(X):  # whether the points X have one within reach of each face plane of D
+        return bool(np.all(g.plane_distances(X, C).min(axis=0) <= reach + 1e-9))
 
     def can_meet(M):
-        X = g.normalize_point(corners @ M.T)
-        return bool(np.all(g.plane_distances(X, C).min(axis=0) <= reach + 1e-9) and np.min(g.distance(O, X)) <= ball)
+        X, Y = g.normalize_point(corners @ M.T), g.normalize_point(np.linalg.solve(M, corners.T).T)
+        return near(X) and near(Y)
 
-    tiles = space._search([np.eye(4)], [f.element for f in space.domain.faces], can_meet,
-                          f"whose tiles lie within the light reach {reach:g} of the domain")
-    copies = (g.normalize_point(M @ L) for M in tiles)
-    return [Y for Y in copies if np.max(space.face_distances(Y)) <= reach + 1e-9 and g.distance(O, Y) <= ball]
+    cached[reach] = space._search([np.eye(4)], [f.element for f in space.domain.faces], can_meet,
+                                  f"whose tiles lie within the light reach {reach:g} of the domain")
+    return cached[reach]
+
+
+def geodesic_loop(space: Space) -> float:
+    """The length after which every geodesic returns to its start: pi in S3 where -1 is in the group
+    (the Poincare sphere), as X and -X are one point; inf elsewhere."""
+    if space.geometry.name == "S3" and any(np.allclose(M, -np.eye(4)) for M in space.elements_within(math.pi + 1e-6)):
+        return math.pi
+    return math.inf
 
 
 def compile_scene(space: Space, scene: Scene, light_reach: float = math.inf):
@@ -472,6 +496,7 @@ def compile_scene(space: Space, scene: Scene, light_reach: float = math.inf):
         **surfaces.arrays(len(T)), **instancing,
         light_lifts=np.array(lifts, np.float64).reshape(-1, 4), light_of_lift=np.array(of_lift, np.int32),
         light_radiance=np.array(radiance, np.float32).reshape(-1, 3), light_reach=light_reach,
+        geodesic_loop=geodesic_loop(space),
     )
 
 

@@ -514,6 +514,8 @@ light_lifts: float64 (K,4) points (copies of the point lights in the universal c
 light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3). E3, S3, H3
 sum every geodesic from a shaded point to each lift no longer than light_reach (keyword; S3 also
 the long arc, of length 2 pi - d); Nil, Sol, H2xR the one to each light's nearest lift.
+geodesic_loop (keyword): the length after which every geodesic returns to its start (S3 with -1 in
+the group: pi); light paths longer than it from an opaque surface are shadowed by that surface.
 threads: worker threads, 0 for one per hardware thread.
 Optional surfaces (keywords):
 corner_normals: float32 (NT,3,3) per triangle corner, the chart covector of the surface's normal
@@ -610,10 +612,12 @@ NB_MODULE(thurston_core, m) {
              OptionalArray material_emission, OptionalArray material_color_texture,
              OptionalArray material_emission_texture, std::vector<Array> textures,
              OptionalArray mesh_first_triangle, OptionalArray instance_mesh,
-             OptionalArray instance_transform, OptionalArray instance_object, double light_reach) {
+             OptionalArray instance_transform, OptionalArray instance_object, double light_reach,
+             double geodesic_loop) {
             if (threads < 0) throw nb::value_error("threads must be >= 0 (0: all hardware threads)");
             if (!(light_reach >= 0.0))
               throw nb::value_error("light_reach must be a distance >= 0 (inf: every lift)");
+            if (!(geodesic_loop > 0.0)) throw nb::value_error("geodesic_loop must be > 0 (inf: none)");
             const SurfaceArrays surfaces{corner_normals, corner_uvs, triangle_material,
                                          material_color, material_emission, material_color_texture,
                                          material_emission_texture, std::move(textures)};
@@ -624,6 +628,7 @@ NB_MODULE(thurston_core, m) {
                                          light_lifts, light_of_lift, light_radiance, surfaces,
                                          instances);
             scene.light_reach = light_reach;
+            scene.geodesic_loop = geodesic_loop;
             new (self) TracerHandle{make_tracer(geometry, std::move(scene), unsigned(threads)), geometry};
           },
           nb::sig("def __init__(self, geometry: str, face_covectors: numpy.ndarray, "
@@ -643,7 +648,7 @@ NB_MODULE(thurston_core, m) {
                   "instance_mesh: numpy.ndarray | None = None, "
                   "instance_transform: numpy.ndarray | None = None, "
                   "instance_object: numpy.ndarray | None = None, "
-                  "light_reach: float = float('inf')) -> None"),
+                  "light_reach: float = float('inf'), geodesic_loop: float = float('inf')) -> None"),
           nb::arg("geometry"), nb::arg("face_covectors").noconvert(),
           nb::arg("face_maps").noconvert(), nb::arg("vertices").noconvert(),
           nb::arg("triangles").noconvert(), nb::arg("triangle_object").noconvert(),
@@ -662,7 +667,7 @@ NB_MODULE(thurston_core, m) {
           nb::arg("instance_mesh").noconvert().none() = nb::none(),
           nb::arg("instance_transform").noconvert().none() = nb::none(),
           nb::arg("instance_object").noconvert().none() = nb::none(),
-          nb::arg("light_reach") = kInf)
+          nb::arg("light_reach") = kInf, nb::arg("geodesic_loop") = kInf)
       .def("trace", &trace,
            nb::sig("def trace(self, origins: numpy.ndarray, directions: numpy.ndarray, "
                    "max_distance: float, max_crossings: int, shade: bool = True, "

@@ -144,6 +144,7 @@ Tracer::Tracer(SceneData& scene, unsigned threads, bool occupancy)
       surfaces_(std::move(scene.surfaces)),
       light_radiance_(std::move(scene.light_radiance)),
       light_reach_(scene.light_reach),
+      geodesic_loop_(scene.geodesic_loop),
       pool_(threads) {
   domain_.faces = scene.face_covectors.size();
   for (const Vec4& c : scene.face_covectors)
@@ -582,7 +583,9 @@ class KernelTracer final : public Tracer {
       WalkContext shadows = context;
       shadows.tolerance = context.tolerance_at(out.depth[i]);
       shadows.tolerance_per_distance = 0.0;
-      light = illumination(shadows, h.X, S, options.max_crossings, options.light_fog, stats, hints);
+      const bool opaque = !surfaces_.materials[surfaces_.triangle_material[prim]].emits();
+      light = illumination(shadows, h.X, S, opaque, options.max_crossings, options.light_fog, stats,
+                           hints);
     }
     for (int a = 0; a < 3; ++a) {
       out.position[3 * i + a] = out.end[3 * i + a] = h.x[a];
@@ -607,8 +610,8 @@ class KernelTracer final : public Tracer {
 
   // Sum over lights and over the geodesics from the surface point H (normal N) to each of them of
   // radiance * cos * falloff * fog * visibility, each geodesic with its own shadow ray.
-  Rgb illumination(const WalkContext& context, const Vec4& H, const Vec4& N, int max_crossings,
-                   double fog, TraceStats& stats, LightHints& hints) const {
+  Rgb illumination(const WalkContext& context, const Vec4& H, const Vec4& N, bool opaque,
+                   int max_crossings, double fog, TraceStats& stats, LightHints& hints) const {
     Rgb sum{0.0f, 0.0f, 0.0f};
     std::vector<LightPath>& paths = hints.paths;
     for (std::size_t l = 0; l < light_lifts_.size(); ++l) {
@@ -624,7 +627,8 @@ class KernelTracer final : public Tracer {
         ++stats.light_paths;
         stats.light_energy += weight * mean_radiance;
         const double cosine = kernel_.dot(H, N, path.direction);
-        if (!(cosine > 0.0) || !visible(context, H, path.direction, path.distance, max_crossings))
+        if (!(cosine > 0.0) || (opaque && path.distance > geodesic_loop_) ||
+            !visible(context, H, path.direction, path.distance, max_crossings))
           continue;
         for (int a = 0; a < 3; ++a) sum[a] += float(cosine * weight * radiance[a]);
       }

@@ -43,6 +43,9 @@ struct SceneData {
   std::vector<std::int32_t> light_of_lift;
   std::vector<Rgb> light_radiance;
   double light_reach = kInf;  // light paths longer than this are not summed (projective kernels)
+  // Every geodesic returns to its start after this length (S3 with -1 in the group: pi), so a light
+  // path longer than it from an opaque surface passes through that surface again: shadowed.
+  double geodesic_loop = kInf;
 };
 
 // Read-only strided 2-D view (strides in elements), so that rays need not be copied.
@@ -157,6 +160,7 @@ class Tracer {
   std::vector<std::vector<Vec4>> light_lifts_;  // per light
   std::vector<Rgb> light_radiance_;
   double light_reach_;
+  double geodesic_loop_;
   double scale_ = 0.0;              // largest extent or coordinate magnitude of the scene
   Vec3 hit_lo_{}, hit_hi_{};        // the scene's bounds widened by a margin (empty: none)
   Occupancy occupancy_;

@@ -53,7 +53,8 @@ def render_settings(settings, width: int, height: int, projection: str = "perspe
         # the panel's distances are in Blender units; the tracer's in chart units
         max_distance=settings.max_distance / settings.scale or None,
         max_crossings=None if settings.max_crossings < 0 else settings.max_crossings,
-        fog=settings.fog / settings.scale or None, threads=settings.threads,
+        fog=settings.fog / settings.scale or None, light_reach=settings.light_reach / settings.scale or None,
+        threads=settings.threads,
         tolerance=settings.tolerance / settings.scale or None)
 
 
@@ -226,7 +227,8 @@ class RenderJob:
             lambert = self.settings.shading == "lambert"
             self.notes += checks.before_render(self.space, self.scene, self.camera, lambert)
             try:
-                self.tracer = render.make_tracer(self.space, self.scene, self.settings.threads)
+                self.tracer = render.make_tracer(self.space, self.scene, self.settings.threads,
+                                                 render.light_reach_for(self.space, self.settings))
             except scenes.SceneError as exc:
                 raise ExportError(str(exc)) from None
         self.notes += [checks.Note(checks.DROPPED, str(w.message)) for w in caught]
