@@ -236,13 +236,16 @@ def image_texture_material(name, pixels):
     return mat, image
 
 
-def tile_torus_for_cycles(scene):
-    """The torus [-0.5, 0.5]^3 unrolled for Cycles: the 27 translated copies of every mesh and
-    light (linked duplicates), each light copy lighting only its own cell's objects (light
-    linking), as the core lights a point by the nearest copy of a light."""
+def tile_torus_for_cycles(scene, cells=7, own_cell_light=False):
+    """The torus [-0.5, 0.5]^3 unrolled for Cycles: the cells^3 translated copies of every mesh and
+    light (linked duplicates, cells odd), every light copy lighting everything, as in the universal
+    cover: exact for points of the central cell as far as the light from beyond (cells - 1) / 2
+    cells away does not count (a light reach). With own_cell_light each light copy lights only its
+    own cell's objects (light linking): a light reach that holds only a point's own cell's copy."""
     b = bpy()
     originals = [o for o in scene.objects if o.type in ("MESH", "LIGHT")]
-    for k, offset in enumerate(np.stack(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij"), -1).reshape(-1, 3)):
+    steps = np.arange(cells) - cells // 2
+    for k, offset in enumerate(np.stack(np.meshgrid(*[steps] * 3, indexing="ij"), -1).reshape(-1, 3)):
         cell = b.data.collections.new(f"cell {k}")
         scene.collection.children.link(cell)
         for o in originals:
@@ -252,8 +255,9 @@ def tile_torus_for_cycles(scene):
             cell.objects.link(copy)
             if copy is o:
                 scene.collection.objects.unlink(o)
-        for light in [o for o in cell.objects if o.type == "LIGHT"]:
-            light.light_linking.receiver_collection = cell
+        if own_cell_light:
+            for light in [o for o in cell.objects if o.type == "LIGHT"]:
+                light.light_linking.receiver_collection = cell
     b.context.view_layer.update()
 
 

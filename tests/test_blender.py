@@ -796,8 +796,10 @@ def test_settings_presets_round_trip(tmp_path, monkeypatch):
 
 def test_point_light_brightness_matches_cycles(tmp_path):
     """A Lambert plane lit head-on by a point light of P watts at distance r has radiance
-    rho / pi * P / (4 pi r^2) (closed form); THURSTON's F12 gives that, and so does Cycles."""
+    rho / pi * P / (4 pi r^2) (closed form); THURSTON's F12 gives that within a light reach that
+    holds only the light's own copy (the others are a cell away), and so does Cycles."""
     sc = bh.fresh_scene("torus", size=(16, 16))
+    sc.thurston.light_reach = 0.5
     rho, watts, r = 0.8, 10.0, 0.3
     plane = bh.box("Plane", (0.4, 0.001, 0.4), (0, r, 0), color=(rho, rho, rho))
     plane.active_material.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = 1.0

@@ -1,6 +1,8 @@
 """Surfaces in real bpy against Cycles: in the torus, seen from inside, a smooth-shaded UV sphere,
 a plane with an Image Texture on its Base Color and a box with two material slots, lit by a point
-light. The reference is Cycles rendering the 3x3x3 tiled scene (direct light only)."""
+light within a light reach that holds only its copy in the point's own cell. The reference is
+Cycles rendering the 3x3x3 tiled scene (direct light only), each light copy linked to its own
+cell's objects."""
 from __future__ import annotations
 
 import math
@@ -15,6 +17,8 @@ pytestmark = pytest.mark.usefixtures("registered_addon")
 import blender_helpers as bh  # noqa: E402
 
 SIZE = (64, 36)
+# The objects lie within 0.45 of the light and its other copies a cell (at least 0.55 from them) away.
+LIGHT_REACH = 0.5
 TEXELS = np.array([[[0.9, 0.1, 0.1, 1], [0.1, 0.8, 0.2, 1]],
                    [[0.2, 0.3, 0.9, 1], [0.9, 0.9, 0.2, 1]]], np.float32)  # linear, top row first
 
@@ -22,6 +26,7 @@ TEXELS = np.array([[[0.9, 0.1, 0.1, 1], [0.1, 0.8, 0.2, 1]],
 def build():
     sc = bh.fresh_scene("torus", size=SIZE)
     sc.thurston.quality = "standard"
+    sc.thurston.light_reach = LIGHT_REACH
     sc.view_settings.view_transform = "Standard"
     bpy.ops.mesh.primitive_uv_sphere_add(segments=12, ring_count=6, radius=0.12, location=(-0.16, 0.32, 0.0))
     ball = bpy.context.object
@@ -67,7 +72,7 @@ def test_smooth_textured_per_face_materials_match_cycles_tiled(tmp_path):
     flat = bh.rgb(bh.f12(sc, tmp_path / "flat.exr"), L + "Combined.")
     for poly in sc.objects["Ball"].data.polygons:
         poly.use_smooth = True
-    bh.tile_torus_for_cycles(sc)
+    bh.tile_torus_for_cycles(sc, 3, own_cell_light=True)
     cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=32), L + "Combined.")
     near = depth < 1.0  # hits within the 27 cells Cycles has
     masks = {name: interior(near & (np.abs(index - k) < 0.01)) for name, k in (("ball", 1), ("plane", 2), ("box", 3))}

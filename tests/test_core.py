@@ -1,4 +1,5 @@
 """Tests of the C++ core (thurston_core) against closed-form answers, with real Embree."""
+import math
 import threading
 
 import numpy as np
@@ -100,7 +101,7 @@ def square_z(z, half_size):
 
 
 def make_tracer(curvature, faces, maps, meshes=(), colors=None, emissions=None, lights=(),
-                threads=0):
+                threads=0, light_reach=math.inf):
     """meshes: list of (vertices, triangles), one object each; lights: list of (lifts, radiance)."""
     vertices, triangles, objects = [np.zeros((0, 3))], [np.zeros((0, 3), np.int32)], [np.zeros(0, np.int32)]
     offset = 0
@@ -119,7 +120,7 @@ def make_tracer(curvature, faces, maps, meshes=(), colors=None, emissions=None, 
                         np.asarray(maps, float).reshape(-1, 4, 4), np.concatenate(vertices),
                         np.concatenate(triangles).astype(np.int32), np.concatenate(objects),
                         colors, emissions, np.concatenate(lifts), np.concatenate(of_lift),
-                        radiance, threads=threads)
+                        radiance, threads=threads, light_reach=light_reach)
 
 
 def e3_rays(origins, directions):
@@ -311,21 +312,28 @@ def test_shadows_emission_and_lamps():
     np.testing.assert_array_equal(r["color"], [[1, 1, 1], [1, 1, 1], [0, 0, 0]])
 
 
-def test_light_through_a_face_uses_nearest_lift_and_shadow_crosses():
-    # Floor z = -0.3 across the torus cell; the light at (-0.45, 0, -0.1) is nearest to the hit
-    # point (0.45, 0, -0.3) through the face x = 0.5, as its lift (0.55, 0, -0.1).
+def test_light_through_a_face_sums_the_lifts_and_shadow_crosses():
+    # Floor z = -0.3 across the torus cell; the light at (-0.45, 0, -0.1) reaches the hit point
+    # (0.45, 0, -0.3) through the face x = 0.5 as its lift (0.55, 0, -0.1), the only one within 0.5.
     floor = square_z(-0.3, HALF)
     light = np.array([-0.45, 0.0, -0.1])
     lifts = [[*(light + n), 1.0] for n in np.stack(np.meshgrid(*[[-1, 0, 1]] * 3), -1).reshape(-1, 3)]
     o, d = e3_rays([0.45, 0, 0.2], [0, 0, -1])
     r2 = 0.1**2 + 0.2**2
     expected = 0.2 / np.sqrt(r2) / r2
-    lit = make_tracer(0, cube_faces(HALF), torus_maps(), [floor], lights=[(lifts, [1, 1, 1])])
+    lit = make_tracer(0, cube_faces(HALF), torus_maps(), [floor], lights=[(lifts, [1, 1, 1])], light_reach=0.5)
     np.testing.assert_allclose(lit.trace(o, d, 10.0, 10)["color"][0], expected, rtol=1e-5)
+    # Every lift: those above the floor's plane light it (cos / r^2); those above the floor's next
+    # copy (z = 0.7) are shadowed by it, those below face its back.
+    every = make_tracer(0, cube_faces(HALF), torus_maps(), [floor], lights=[(lifts, [1, 1, 1])])
+    hit = np.array([0.45, 0.0, -0.3])
+    above = [np.asarray(l[:3]) - hit for l in lifts if abs(l[2] + 0.1) < 1e-9]
+    total = sum(v[2] / np.linalg.norm(v) ** 3 for v in above)
+    np.testing.assert_allclose(every.trace(o, d, 10.0, 10)["color"][0], total, rtol=1e-5)
     # A blocker just inside x = -0.5 sits on that path in the neighbouring copy.
     blocker = box_mesh([-0.495, -0.05, -0.21], [-0.485, 0.05, -0.15])
     dark = make_tracer(0, cube_faces(HALF), torus_maps(), [floor, blocker],
-                       lights=[(lifts, [1, 1, 1])])
+                       lights=[(lifts, [1, 1, 1])], light_reach=0.5)
     np.testing.assert_array_equal(dark.trace(o, d, 10.0, 10)["color"][0], 0)
 
 

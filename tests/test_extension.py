@@ -271,14 +271,14 @@ def test_render_through_addon(installed):
 
 def test_first_use_of_the_startup_scene(installed):
     """F12 on Blender's startup scene says what to change and names the fix; after Fit Scale the
-    image shows lit surfaces."""
+    image shows lit surfaces (all of them: every face faces some of the light's 120 copies)."""
     r = installed
     assert r["first_use_objects"] == ["Camera", "Cube", "Light"]
     kinds = {kind for kind, _ in r["first_use_notes"]}
     assert {"scene_too_large", "camera_outside"} <= kinds, r["first_use_notes"]
     assert any("Fit Scale" in message for _, message in r["first_use_notes"])
     assert r["fit_scale"] == ["FINISHED"] and "scene_too_large" not in r["fitted_notes"]
-    assert 0.1 < r["fitted_lit"] < 0.9
+    assert r["fitted_lit"] > 0.9
 
 
 def test_disable_leaves_nothing_registered(installed):

@@ -62,8 +62,10 @@ def compare_passes(sp, instanced, camera, size=(96, 72)):
     np.testing.assert_allclose(a.passes["depth"][hit], b.passes["depth"][hit], rtol=0, atol=1e-6)
     assert rare(np.abs(a.passes["normal"][hit] - b.passes["normal"][hit]).max(axis=-1) > 1e-5)
     np.testing.assert_array_equal(a.passes["object"], b.passes["object"])
-    # and shadow rays grazing an edge may go either way: a few pixels of the colour
-    assert rare(np.abs(a.passes["color"] - b.passes["color"]).max(axis=-1) > 1e-5)
+    # and shadow rays grazing an edge may go either way: a few pixels of the colour, in proportion
+    # to the shadow rays a point has
+    differs = np.abs(a.passes["color"] - b.passes["color"]).max(axis=-1) > 1e-5
+    assert np.mean(differs) < 1e-3 * max(1.0, a.stats["light_paths_per_point"])
     return a, b
 
 

@@ -128,3 +128,60 @@ def test_light_stats_and_energy_estimate():
 def test_bad_light_reach_is_one_clear_error(reach):
     with pytest.raises(render.RenderError, match="light reach"):
         render.render(spaces.load("torus"), Scene(), render.Settings(width=4, height=4, light_reach=reach))
+
+
+# --- the floor under the lamp (issue 9) against Cycles in the tiled universal cover -------------------
+CYCLES_CELLS, CYCLES_REACH = 7, 3.5
+
+
+def floor_under_lamp():
+    """A floor slab and two walls spanning the domain's cross-sections (in the cover: a corridor
+    along y, repeated), a lamp 0.65 above the floor in plain view, seen from above. Nearest-copy
+    lighting left the floor black: the lamp's nearest copy to it lies below it. What lights a point
+    of the corridor: the lamp's copies along it, one per cell, 0.65 / r^3 falling off."""
+    import blender_helpers as bh
+
+    sc = bh.fresh_scene("torus", size=(48, 27))
+    sc.view_settings.view_transform = "Standard"
+    sc.thurston.quality = "standard"
+    for name, size, location in (("Floor", (1.0, 1.0, 0.02), (0.0, 0.0, -0.26)),
+                                 ("Left", (0.02, 1.0, 1.0), (-0.4, 0.0, 0.0)),
+                                 ("Right", (0.02, 1.0, 1.0), (0.45, 0.0, 0.0))):
+        bh.lambert(bh.box(name, size, location, color=(0.7, 0.7, 0.7)).active_material)
+    lamp = bh.point_light((0.05, 0.1, 0.39), energy=3.0)
+    lamp.data.shadow_soft_size = 0.0
+    bh.camera((0.0, -0.35, 0.15), rotation=(math.radians(55), 0, 0), lens=20)
+    return sc
+
+
+def test_floor_under_the_lamp_matches_cycles_in_the_tiled_cover(tmp_path, registered_addon):
+    """The floor is lit, and pixel by pixel as Cycles renders the scene tiled 7x7x7 in the universal
+    cover (direct light only, all 343 lamps lighting everything): the points of the central cell
+    (no face crossed), lit by every copy within reach 3.5 (Cycles' tiling holds the corridor's
+    lamps three cells each way; the ones one cell further, at reach 3.5 to 4, send under 1%). A
+    missing copy fails it: the reach that keeps only the lamp's own copy."""
+    import blender_helpers as bh
+    from test_blender_surfaces import interior
+
+    sc = floor_under_lamp()
+    sc.view_layers[0].thurston.use_pass_crossings = True
+    L = "ViewLayer."
+    sc.thurston.light_reach = CYCLES_REACH
+    ch = bh.f12(sc, tmp_path / "thurston.exr")
+    thurston = bh.rgb(ch, L + "Combined.")
+    central = interior(next(v for k, v in ch.items() if "Crossings" in k) < 0.5)
+    sc.thurston.light_reach = 0.9  # the lamp's own copy only (the ones a cell away are farther)
+    own_only = bh.rgb(bh.f12(sc, tmp_path / "own.exr"), L + "Combined.")
+    bh.tile_torus_for_cycles(sc, CYCLES_CELLS)
+    cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=1024), L + "Combined.")
+    assert central.sum() > 300
+    assert thurston[central].mean() > 0.05  # lit
+
+    def error(image):  # the per-pixel differences from Cycles relative to its brightness
+        return float(np.abs(image[central] - cycles[central]).sum() / cycles[central].sum())
+
+    report = {"all copies": error(thurston), "own copy only": error(own_only)}
+    print("mean relative per-pixel difference from Cycles:", report)
+    np.testing.assert_allclose(thurston[central].mean(axis=0), cycles[central].mean(axis=0), rtol=0.02)
+    assert report["all copies"] < 0.05, report  # Cycles' noise at 1024 samples: about 0.03
+    assert report["own copy only"] > 3 * report["all copies"], report

@@ -363,8 +363,9 @@ def square(x, half):
     return V, np.array([[0, 1, 2], [0, 2, 3]])
 
 
-@pytest.mark.parametrize("sid", ["torus", "poincare", "seifert_weber"])
-def test_lambert_shading_closed_form(space_cache, sid):
+@pytest.mark.parametrize("sid, reach", [("torus", 0.6), ("poincare", 0.3), ("seifert_weber", 1.0)])
+def test_lambert_shading_closed_form(space_cache, sid, reach):
+    """Within a light reach that holds only the light's own copy (the sum over copies: test_light)."""
     space = space_cache(sid)
     g = space.geometry
     x0, half = {"torus": (0.3, 0.4), "poincare": (0.15, 0.1), "seifert_weber": (0.4, 0.3)}[sid]
@@ -375,7 +376,7 @@ def test_lambert_shading_closed_form(space_cache, sid):
     light_color = np.array([1.0, 0.9, 0.6])
     scene = Scene(objects=[SceneObject("wall", V, F, base)],
                   lights=[PointLight(light_chart, light_color, power)])
-    tracer = render.make_tracer(space, scene)
+    tracer = render.make_tracer(space, scene, light_reach=reach)
     rng = np.random.default_rng(7)
     targets = np.column_stack([np.full(50, x0), rng.uniform(-0.8 * half, 0.8 * half, size=(50, 2))])
     P, D = model_rays(g, np.zeros((50, 3)), targets)
@@ -404,7 +405,7 @@ def test_emission_adds_and_shadow_blocks(space_cache):
     scene = Scene(objects=[SceneObject("wall", V, F, (1, 1, 1), emission=(0.1, 0.2, 0.3)),
                            SceneObject("blocker", blocker_V + [0, 0.2, 0.2], blocker_F, (1, 1, 1))],
                   lights=[PointLight(np.array([0.0, 0.2, 0.2]), np.ones(3), 1.0)])
-    tracer = render.make_tracer(space, scene)
+    tracer = render.make_tracer(space, scene, light_reach=0.7)  # the light's own copy only
     # ray to the wall point straight behind the blocker (seen from the light) and one beside it
     targets = np.array([[0.3, 0.2, 0.2], [0.3, -0.2, -0.2]])
     # the first ray passes below the blocker to reach the wall
@@ -725,11 +726,11 @@ def test_memory_error_during_render_is_a_render_error(space_cache, monkeypatch):
 
 
 # --- lights in S3: the nearest copy over the whole group ----------------------------------------------
-def test_poincare_light_uses_the_nearest_of_all_120_copies(space_cache):
+def test_poincare_light_sums_all_120_copies_near_the_vertices(space_cache):
     """A tiny facet near one vertex of the dodecahedron, lit by a light near another vertex and seen
-    from a point just in front of it: the Lambert closed form with the nearest copy of the light
-    found here over all 120 group elements (closed-form distances), for pairs where the copies
-    around the domain alone would miss the nearest one."""
+    from a point just in front of it: the Lambert closed form summed over all 120 copies of the
+    light and both arcs to each (closed-form distances; the facet glows faintly, so that it casts
+    no shadow), for pairs where the copies around the domain alone would miss the nearest one."""
     space = space_cache("poincare")
     g = space.geometry
     group = space.elements_within(math.pi + 1e-6)
@@ -759,8 +760,9 @@ def test_poincare_light_uses_the_nearest_of_all_120_copies(space_cache):
         if len(cases) == 6:
             break
     assert len(cases) >= 3, "test set-up: too few pairs where the ring of copies misses the nearest light"
-    base, power = np.array([0.9, 0.6, 0.3]), 0.8
+    base, power, glow = np.array([0.9, 0.6, 0.3]), 0.8, 1e-3
     for h, l, H, near, r, room in cases:
+        L = g.to_model(l)
         # the facet's unit normal at H, tilted from the nearest light; in S3 a tangent N at H is the
         # covector of its plane, so the chart plane is N[:3] . x + N[3] = 0 (through h)
         N = tangent(H, g.direction_to(H, near) + 0.5 * tangent(H, rng.normal(size=4)))
@@ -777,14 +779,18 @@ def test_poincare_light_uses_the_nearest_of_all_120_copies(space_cache):
         e2 = np.cross(n, e1)
         s = 0.1 * delta
         quad = np.array([h + s * (x * e1 + y * e2) for x, y in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
-        scene = Scene(objects=[SceneObject("facet", quad, np.array([[0, 1, 2], [0, 2, 3]]), base)],
+        scene = Scene(objects=[SceneObject("facet", quad, np.array([[0, 1, 2], [0, 2, 3]]), base, emission=(glow,) * 3)],
                       lights=[PointLight(l, np.ones(3), power)])
         tracer = render.make_tracer(space, scene)
         out = tracer.trace(Q[None, :], V[None, :], 3.0, 200, shade=True)
         assert out["stop"][0] == 0 and out["object"][0] == 0
         assert out["depth"][0] == pytest.approx(delta, rel=1e-9)
         np.testing.assert_allclose(out["position"][0], h, atol=1e-9)
-        expected = base * power * cos * g.falloff(r)
+        arcs = [(N @ tangent(H, g.direction_to(H, Y)), float(g.distance(H, Y))) for Y in (M @ L for M in group)]
+        # the short arc where the light is in front (c > 0), the long one, leaving the other way, else
+        summed = sum(abs(c) * g.falloff(d) for c, d in arcs)
+        assert cos * g.falloff(r) < 0.5 * summed  # not the nearest copy alone
+        expected = glow + base * power * summed
         np.testing.assert_allclose(out["color"][0], expected, rtol=1e-4)
 
 

@@ -27,9 +27,9 @@ def rays_to(space, targets, origin=(0.0, 0.0, 0.0)):
     return X, g.normalize_tangent(X, g.tangent_to_model(p, np.asarray(targets, float) - p))
 
 
-def trace(space, scene, targets, shade=False):
+def trace(space, scene, targets, shade=False, light_reach=None):
     X, D = rays_to(space, targets)
-    return render.make_tracer(space, scene).trace(X, D, 0.45, 20, shade=shade)
+    return render.make_tracer(space, scene, light_reach=light_reach).trace(X, D, 0.45, 20, shade=shade)
 
 
 def srgb_to_linear(c):  # the sRGB transfer function, as the test's own truth
@@ -100,7 +100,7 @@ def test_texture_and_per_face_materials_in_the_lambert_closed_form(torus):
     u, v = (cols + 0.5) / 4, 1 - (rows + 0.5) / 4  # texel centres; row 0 is the top (v = 1)
     off = u != v  # the diagonal between the triangles is ambiguous
     targets = np.stack([np.full(off.sum(), 0.2), -0.1 + 0.2 * u[off], -0.1 + 0.2 * v[off]], axis=1)
-    out = trace(torus, scene, targets, shade=True)
+    out = trace(torus, scene, targets, shade=True, light_reach=0.5)  # the light's own copy only
     r = np.linalg.norm(targets, axis=1)
     lambert = power * (0.2 / r) / r**2  # cos / r^2 for a point light in E3
     textured = (u > v)[off]  # below the diagonal: triangle 0

@@ -403,15 +403,17 @@ def geodesic_loop(space: Space) -> float:
     return math.inf
 
 
-def compile_scene(space: Space, scene: Scene, light_reach: float = math.inf):
+def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
     """Tracer arrays: triangles of every object and of its copies g(object) that can reach the domain
     (parts sticking out re-enter through the paired faces), and the lights' copies: in E3, S3 and H3
-    every copy within light_reach of the domain (each lights every point within its reach: an
-    infinite reach needs a finite group), elsewhere those around the domain (the tracer takes each
-    light's nearest copy among them)."""
+    every copy within light_reach of the domain (None: the default within the distance limit; each
+    lights every point within its reach: an infinite reach needs a finite group), elsewhere those
+    around the domain (the tracer takes each light's nearest copy among them)."""
     g = space.geometry
     C = space.domain.covectors()
     C = C / np.linalg.norm(C, axis=1)[:, None]
+    if light_reach is None:
+        light_reach = light_reach_for(space, Settings())
     if sums_light_copies(space) and space.group_order is None and not math.isfinite(light_reach):
         raise RenderError(f"{space.name}: an infinite group needs a finite light reach")
     flat, meshes = [], []  # flat: (object index, source object, Y, kept, M); meshes: (index, chart maps)
@@ -505,7 +507,7 @@ def make_tracer(space: Space, scene: Scene, threads: int = 0, light_reach: float
     the core rejects (ValueError) is raised as RenderError."""
     import thurston_core
 
-    data = compile_scene(space, scene, light_reach_for(space, Settings()) if light_reach is None else light_reach)
+    data = compile_scene(space, scene, light_reach)
     try:
         return thurston_core.Tracer(**data, threads=threads)
     except ValueError as exc:

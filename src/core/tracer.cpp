@@ -393,8 +393,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   // Kept by chunk, so that the recording does not depend on the thread count.
   std::vector<std::vector<double>> chunk_segments(options.record_segments ? chunks : 0);
   std::atomic<std::uint64_t> chords{0}, light_failures{0}, light_paths{0};
-  std::mutex energy_mutex;
-  double light_energy = 0.0;
+  std::vector<double> chunk_energy(chunks, 0.0);  // summed in chunk order: the same for any threads
   const std::size_t traced = run_chunks(
       count,
       [&](std::size_t chunk, std::size_t begin, std::size_t end) {
@@ -404,8 +403,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
         chords.fetch_add(local.chords);
         light_failures.fetch_add(local.light_failures);
         light_paths.fetch_add(local.light_paths);
-        const std::lock_guard<std::mutex> energy_lock(energy_mutex);
-        light_energy += local.light_energy;
+        chunk_energy[chunk] = local.light_energy;
       },
       poll, true);
   for (std::size_t i = traced; i < count; ++i) write_miss(out, i, kCancelled, 0, 0.0, 0);
@@ -413,7 +411,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   stats.chords = chords.load();
   stats.light_failures = light_failures.load();
   stats.light_paths = light_paths.load();
-  stats.light_energy = light_energy;
+  for (const double e : chunk_energy) stats.light_energy += e;
   stats.segments = std::move(chunk_segments);
   return stats;
 }
