@@ -245,7 +245,7 @@ def test_lens_shift_sensor_fit_and_clipping_match_cycles(tmp_path):
     sc.thurston.shading = "lambert"
     thurston = bh.rgb(bh.f12(sc, tmp_path / "thurston.exr"), "ViewLayer.Combined.")
 
-    bh.tile_torus_for_cycles(sc)
+    bh.tile_torus_for_cycles(sc, 3)
     cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=16), "ViewLayer.Combined.")
     def seen(image):  # which box each pixel mostly shows: 0 red, 1 green, 2 blue, 3 none
         return np.where(image.max(axis=-1) > 0.5, np.argmax(image, axis=-1), 3)
@@ -295,7 +295,7 @@ def test_film_transparent_alpha_matches_cycles(tmp_path):
     cam = bh.camera((0, 0, 0), lens=24.0)
     cam.data.clip_end = 0.8
     alpha = bh.f12(sc, tmp_path / "thurston.exr")["ViewLayer.Combined.A"]
-    bh.tile_torus_for_cycles(sc)
+    bh.tile_torus_for_cycles(sc, 3)
     cycles = bh.cycles_render(sc, tmp_path / "cycles.exr", samples=16)["ViewLayer.Combined.A"]
     assert 0.1 < (cycles > 0.5).mean() < 0.9
     assert np.mean((alpha > 0.5) != (cycles > 0.5)) < 0.02

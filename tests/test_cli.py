@@ -466,6 +466,22 @@ def test_render_bad_fog_exit_2(tmp_path, capsys, fog):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("reach", ["nan", "-0.5"])
+def test_render_bad_light_reach_exit_2(tmp_path, capsys, reach):
+    out = tmp_path / "x.png"
+    code, _, err = run(["render", "--space", "torus", "--size", "4x4", "--light-reach", reach, "--out", out], capsys)
+    assert code == 2, err
+    assert "light reach" in error_line(err)
+    assert not out.exists()
+
+
+def test_render_light_reach_is_in_the_summary(tmp_path, capsys):
+    out = tmp_path / "x.png"
+    code, _, err = run(["render", "--space", "torus", "--size", "8x6", "--light-reach", "1.5", "--out", out], capsys)
+    assert code == 0, err
+    assert "copies within reach 1.5" in err
+
+
 def test_huge_size_is_refused_with_a_message(tmp_path, capsys):
     out = tmp_path / "x.png"
     code, _, err = run(["render", "--space", "torus", "--size", "40000x40000", "--out", out], capsys)

@@ -1,0 +1,100 @@
+"""Direct light along every geodesic: what the light reach costs. For each space, the default view of
+its default scene rendered at multiples of the default light reach: the copies of the light the
+tracer has, the geodesics to lights per shaded point, the render time (least of --repeat; the tile
+search of a reach is cached on the space, so its first time is given apart), and the estimated
+energy beyond the reach (times the summed). With --baseline DIR (an unpacked wheel of an earlier
+build: its thurston_addon and thurston_core, e.g. from `pip wheel --no-deps` of a checkout from before
+this change) the same render with that build (each light's nearest copy) is timed in a child
+process, for the ratio.
+Run: .venv/bin/python benchmarks/bench_light.py [--size 320x180] [--repeat 3]
+     [--spaces torus,poincare,seifert_weber] [--baseline /tmp/base/wheel]
+"""
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from timing import best_of  # noqa: E402
+
+FACTORS = {"S3": (0.25, 0.5, 1.0), "E3": (0.5, 1.0, 2.0, 4.0), "H3": (0.5, 1.0, 2.0, 4.0)}
+
+
+def view(sid, size, repeat, reach_factor=None):
+    """(least seconds, stats) of the default view; reach_factor None: the build's own default."""
+    from thurston_addon import render, spaces
+    from thurston_addon.scene import default_scene
+
+    space = spaces.load(sid)
+    scene = default_scene(space)
+    settings = render.Settings(width=size[0], height=size[1], quality="draft")
+    if reach_factor is not None:
+        settings.light_reach = reach_factor * render.default_light_reach(space)
+    seconds, result = best_of(repeat, lambda: render.render(space, scene, settings))
+    return seconds, result.stats
+
+
+def baseline_seconds(sid, size, repeat, build):
+    """view() in a child process importing the baseline build instead of this checkout."""
+    command = [sys.executable, __file__, "--time-of", sid, "--size", f"{size[0]}x{size[1]}", "--repeat", str(repeat),
+               "--build", build]
+    return json.loads(subprocess.run(command, capture_output=True, text=True, check=True).stdout)["seconds"]
+
+
+def use_build(build):
+    """Import thurston_addon and thurston_core from build, not from this (editable) checkout."""
+    sys.meta_path[:] = [f for f in sys.meta_path if "Redirecting" not in type(f).__name__]  # the editable install
+    sys.path.insert(0, build)
+
+
+def table(space_ids, size, repeat, baseline):
+    from thurston_addon import render, spaces
+
+    print(f"{'space':<14} {'reach':>12} {'copies':>7} {'geodesics/pt':>12} {'search s':>8} {'render s':>8} "
+          f"{'x nearest':>9} {'left out':>9}")
+    for sid in space_ids:
+        space = spaces.load(sid)
+        old = baseline_seconds(sid, size, repeat, baseline) if baseline else None
+        if old is not None:
+            print(f"{sid:<14} {'nearest copy':>12} {len(space.light_elements()):>7} {1:>12} {'':>8} {old:>8.2f} "
+                  f"{1:>9.2f} {'':>9}")
+        for factor in FACTORS[space.geometry.name]:
+            reach = factor * render.default_light_reach(space)
+            t0 = time.perf_counter()
+            try:
+                render.light_tiles(space, reach) if space.group_order is None else None
+            except spaces.SpaceError:
+                print(f"{sid:<14} {reach:>12.3g} refused: more than the search's limit of tiles within the reach")
+                continue
+            search = time.perf_counter() - t0
+            seconds, s = view(sid, size, repeat, factor)
+            ratio = f"{seconds / old:>9.2f}" if old else f"{'':>9}"
+            label = f"{reach:.3g}" + (" (default)" if factor == 1.0 else "")
+            print(f"{sid:<14} {label:>12} {s['light_copies']:>7} {s['light_paths_per_point']:>12.1f} {search:>8.2f} "
+                  f"{seconds:>8.2f} {ratio} {s['light_energy_left_out']:>9.3g}")
+    print(f"{size[0]}x{size[1]} draft, the default scene and view, all threads; render s: least of {repeat}; "
+          "left out: estimated energy beyond the reach up to the distance limit, times the summed")
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--size", default="320x180")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--spaces", default="torus,poincare,seifert_weber")
+    ap.add_argument("--baseline", metavar="DIR", help="an earlier build (unpacked wheel) to time the nearest copy with")
+    ap.add_argument("--time-of", help=argparse.SUPPRESS)  # the child's one measurement, as JSON
+    ap.add_argument("--build", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    size = tuple(int(v) for v in args.size.split("x"))
+    if args.time_of:
+        use_build(args.build)
+        seconds, _ = view(args.time_of, size, args.repeat)
+        print(json.dumps({"seconds": seconds}))
+        return
+    table(args.spaces.split(","), size, args.repeat, args.baseline)
+
+
+if __name__ == "__main__":
+    main()
