@@ -65,8 +65,8 @@ def table(space_ids, size, repeat, baseline):
             t0 = time.perf_counter()
             try:
                 render.light_tiles(space, reach) if space.group_order is None else None
-            except spaces.SpaceError:
-                print(f"{sid:<14} {reach:>12.3g} refused: more than the search's limit of tiles within the reach")
+            except render.RenderError:
+                print(f"{sid:<14} {reach:>12.3g} refused: more than {render.LIGHT_TILE_LIMIT} tiles within the reach")
                 continue
             search = time.perf_counter() - t0
             seconds, s = view(sid, size, repeat, factor)

@@ -371,27 +371,45 @@ def light_copies(space: Space, L, reach: float) -> list[np.ndarray]:
     return [Y for Y in copies if np.max(space.face_distances(Y)) <= reach + 1e-9]
 
 
-def light_tiles(space: Space, reach: float) -> list[np.ndarray]:
-    """The elements g whose tiles gD can lie within reach of D (an infinite group), cached per
-    reach. Such a tile has a vertex within reach of each face plane of D, and D a vertex within
+LIGHT_TILE_LIMIT = 20000  # tiles a light reach may need (an H3 reach of a few domain sizes has more)
+
+
+def light_tiles(space: Space, reach: float) -> np.ndarray:
+    """The elements g (N,4,4) whose tiles gD can lie within reach of D (an infinite group), cached
+    per reach. Such a tile has a vertex within reach of each face plane of D, and D a vertex within
     reach of each face plane of gD (else a plane separates them by more); those tiles are connected
-    through faces, so the search walks over the tiles that pass both tests."""
+    through faces, so a breadth-first walk over the face neighbours that pass both tests finds them
+    (level by level in numpy; a tile is known by its image of the origin)."""
     cached = space.__dict__.setdefault("_light_tiles", {})
     if reach in cached:
         return cached[reach]
     g = space.geometry
     C = space.domain.covectors()
     corners = g.to_model(space.domain.vertices)
+    steps = np.array([f.element for f in space.domain.faces])
 
-    def near(X):  # whether the points X have one within reach of each face plane of D
-        return bool(np.all(g.plane_distances(X, C).min(axis=0) <= reach + 1e-9))
+    def near(X):  # (n, V, 4) -> whether each row has a point within reach of each face plane of D
+        d = g.plane_distances(g.normalize_point(X.reshape(-1, 4)), C).reshape(len(X), -1, len(C))
+        return np.all(d.min(axis=1) <= reach + 1e-9, axis=1)
 
-    def can_meet(M):
-        X, Y = g.normalize_point(corners @ M.T), g.normalize_point(np.linalg.solve(M, corners.T).T)
-        return near(X) and near(Y)
+    def key(M):
+        return tuple(np.round(M[:, 3], 6))
 
-    cached[reach] = space._search([np.eye(4)], [f.element for f in space.domain.faces], can_meet,
-                                  f"whose tiles lie within the light reach {reach:g} of the domain")
+    tiles = {key(np.eye(4)): np.eye(4)}
+    frontier = np.eye(4)[None]
+    while len(frontier):
+        candidates = {}
+        for M in (frontier[:, None] @ steps[None]).reshape(-1, 4, 4):
+            candidates.setdefault(key(M), M)
+        new = [k for k in candidates if k not in tiles]
+        M = np.array([candidates[k] for k in new]).reshape(-1, 4, 4)
+        ok = near(np.einsum("nij,vj->nvi", M, corners)) & near(np.linalg.solve(M, np.broadcast_to(corners.T, (len(M), *corners.T.shape))).swapaxes(1, 2))
+        tiles.update((k, m) for k, m, keep in zip(new, M, ok) if keep)
+        frontier = M[ok]
+        if len(tiles) > LIGHT_TILE_LIMIT:
+            raise RenderError(f"{space.name}: light reach {reach:g} needs more than {LIGHT_TILE_LIMIT} copies of the "
+                              "domain; choose a smaller light reach")
+    cached[reach] = np.array(list(tiles.values()))
     return cached[reach]
 
 
