@@ -403,7 +403,8 @@ def light_tiles(space: Space, reach: float) -> np.ndarray:
             candidates.setdefault(key(M), M)
         new = [k for k in candidates if k not in tiles]
         M = np.array([candidates[k] for k in new]).reshape(-1, 4, 4)
-        ok = near(np.einsum("nij,vj->nvi", M, corners)) & near(np.linalg.solve(M, np.broadcast_to(corners.T, (len(M), *corners.T.shape))).swapaxes(1, 2))
+        pulled_back = np.linalg.solve(M, np.broadcast_to(corners.T, (len(M), 4, len(corners)))).swapaxes(1, 2)
+        ok = near(np.einsum("nij,vj->nvi", M, corners)) & near(pulled_back)
         tiles.update((k, m) for k, m, keep in zip(new, M, ok) if keep)
         frontier = M[ok]
         if len(tiles) > LIGHT_TILE_LIMIT:
