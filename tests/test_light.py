@@ -23,40 +23,48 @@ def ball_scene(centre, light, power=1.0):
                  lights=[PointLight(np.asarray(light, float), np.ones(3), power)])
 
 
-def shade_one(space, scene, origin, target, light_reach):
-    """The traced colour, model hit point and model unit normal of the ray from origin to target."""
+def shade_one(space, scene, origin, target, light_reach, fog=math.inf):
+    """The traced colour, model hit point and model unit normal of the ray from origin to target,
+    and the trace's output."""
     g = space.geometry
     tracer = render.make_tracer(space, scene, threads=1, light_reach=light_reach)
     o, d = np.array([origin], float), np.array([target], float) - np.array([origin], float)
     P = g.to_model(o)
     D = g.normalize_tangent(P, g.tangent_to_model(o, d))
-    out = tracer.trace(P, D, 2.0, 20, shade=True)
+    out = tracer.trace(P, D, 2.0, 20, shade=True, fog=fog)
     assert out["stop"][0] == 0 and out["object"][0] == 0
     x, n = out["position"][0], out["normal"][0].astype(float)
     H = g.normalize_point(g.to_model(x[None]))[0]
     N = g.normalize_tangent(H[None], g.tangent_to_model(x[None], n[None]))[0]
-    return out["color"][0].astype(float), H, N, tracer
+    return out["color"][0].astype(float), H, N, out
 
 
-def test_torus_sums_every_lattice_copy_within_the_reach():
+@pytest.mark.parametrize("fog", [math.inf, 0.5])
+def test_torus_sums_every_lattice_copy_within_the_reach(fog):
     """E3: the irradiance at a point of the ball is sum_k max(0, cos theta_k) p / r_k^2 over the
-    lattice copies L + k of the light with r_k <= reach (every one visible), to float precision."""
+    lattice copies L + k of the light with r_k <= reach (every one visible), to float precision;
+    with fog each term falls by exp(-r_k / fog). The trace counts those geodesics (facing or not)
+    and sums p / r_k^2 exp(-r_k / fog) over them (the energy the stats set the part beyond against)."""
     space = spaces.load("torus")
     light, power, reach = np.array([-0.2, 0.1, 0.3]), 0.7, 2.5
-    colour, H, N, tracer = shade_one(space, ball_scene([0.1, 0.2, -0.15], light, power), [0.1, -0.2, -0.15],
-                                     [0.1, 0.2, -0.15], reach)
+    colour, H, N, out = shade_one(space, ball_scene([0.1, 0.2, -0.15], light, power), [0.1, -0.2, -0.15],
+                                  [0.1, 0.2, -0.15], reach, fog)
     x = H[:3] / H[3]
-    total, copies = 0.0, 0
+    total, energy, paths, facing = 0.0, 0.0, 0, 0
     for k in itertools.product(range(-4, 5), repeat=3):
         v = light + np.array(k) - x
         r = np.linalg.norm(v)
         assert abs(r - reach) > 1e-6  # no copy on the boundary of the reach
-        if r <= reach and N[:3] @ v > 0:
-            total += (N[:3] @ v / r) * power / r**2
-            copies += 1
-    assert copies > 20  # many copies, not just the nearest
+        if r <= reach:
+            paths += 1
+            energy += power / r**2 * math.exp(-r / fog)
+            if N[:3] @ v > 0:
+                total += (N[:3] @ v / r) * power / r**2 * math.exp(-r / fog)
+                facing += 1
+    assert facing > 20  # many copies, not just the nearest
     np.testing.assert_allclose(colour, GLOW + RHO * total, rtol=2e-5)
-    assert tracer.light_reach == reach
+    assert out["light_paths"] == paths
+    assert float(out["light_energy"]) == pytest.approx(energy, rel=1e-6)  # the radiance is float32
 
 
 def test_poincare_sums_120_copies_and_both_arcs():
@@ -69,8 +77,8 @@ def test_poincare_sums_120_copies_and_both_arcs():
     group = space.elements_within(math.pi + 1e-6)
     assert len(group) == 120
     light, power = np.array([0.08, -0.05, 0.12]), 0.3
-    colour, H, N, tracer = shade_one(space, ball_scene([0.0, 0.15, 0.0], light, power), [0.0, -0.1, 0.0],
-                                     [0.0, 0.15, 0.0], None)
+    colour, H, N, out = shade_one(space, ball_scene([0.0, 0.15, 0.0], light, power), [0.0, -0.1, 0.0],
+                                  [0.0, 0.15, 0.0], None)
     L = g.normalize_point(g.to_model(light[None]))[0]
     total = 0.0
     for M in group:
@@ -80,7 +88,7 @@ def test_poincare_sums_120_copies_and_both_arcs():
         u /= np.linalg.norm(u)
         total += abs(N @ u) * power / math.sin(d) ** 2
     np.testing.assert_allclose(colour, GLOW + RHO * total, rtol=1e-4)
-    assert tracer.num_light_lifts == 120 and tracer.light_reach == pytest.approx(2 * math.pi)
+    assert out["light_paths"] == 240  # every copy, both arcs
 
 
 def test_opaque_points_in_the_poincare_sphere_see_no_long_arcs():
