@@ -506,7 +506,8 @@ class KernelTracer final : public Tracer {
                    const TraceOutputs& out, std::vector<double>* segments,
                    TraceStats& stats) const override {
     const WalkContext context = this->context(options);
-    LightHints hints{std::vector<typename Kernel::LightHint>(light_lifts_.size()), {}};  // rays of a chunk are neighbouring pixels
+    // rays of a chunk are neighbouring pixels
+    LightHints hints{std::vector<typename Kernel::LightHint>(light_lifts_.size()), {}};
     for (std::size_t i = begin; i < end; ++i) {
       const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
       const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
