@@ -36,3 +36,8 @@ def h2xr_metric(x):
     p = np.array([x[0], x[1], 0.0])
     q = 1.0 - p @ p
     return np.diag([1.0 / q, 1.0 / q, 1.0]) + np.outer(p, p) / q**2
+
+
+def s2xr_metric(x):
+    """S2xR: |dx|^2 / |x|^2 on R^3 minus the origin (x = e^w u: dw^2 + the unit sphere's metric)."""
+    return np.eye(3) / (np.asarray(x, float) @ x)
