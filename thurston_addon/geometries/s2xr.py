@@ -32,6 +32,7 @@ class S2xR(AffineGeometry):
     name = "S2xR"
     kernel = "s2xr"
     copy_rings = 1  # a shell's neighbours are its two dilated copies
+    chart_plane_faces = False  # faces are spheres |x| = const
 
     # --- charts -------------------------------------------------------------------------------
     def in_chart(self, x):
