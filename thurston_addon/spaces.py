@@ -629,7 +629,11 @@ class CoordinateSpace(Space):
             if not c[3] < 0:
                 raise SpaceError(f"{where}: generator {name!r} face {c.tolist()} must have the chart origin "
                                  "strictly inside (its last entry < 0)")
-            covectors += [c, -self.geometry.pull_back_plane(c, M)]
+            try:
+                image = -self.geometry.pull_back_plane(c, M)
+            except ValueError as exc:
+                raise SpaceError(f"{where}: generator {name!r}: {exc}") from None
+            covectors += [c, image]
             elements += [M, np.linalg.inv(M)]
         self.domain = self._face_domain(covectors, elements)
         if len(self.domain.faces) != len(covectors):

@@ -38,7 +38,7 @@ class S2xR(AffineGeometry):
     def in_chart(self, x):
         """Finite points other than the origin."""
         x = np.asarray(x, float)
-        return np.all(np.isfinite(x), axis=-1) & (np.sum(x * x, axis=-1) > 0)
+        return np.all(np.isfinite(x), axis=-1) & np.any(x != 0, axis=-1)  # (|x|^2 may underflow far in)
 
     def plane_coordinates(self, X):
         """(0, 0, w, 1), w = log|x|: the spheres |x| = e^w0 are the planes w = w0."""
