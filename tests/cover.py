@@ -36,3 +36,21 @@ def cover_first_hits(G, space, P, V, length, centres, outer, inner, step=0.01):
                 break
         found.append(first)
     return found[0], found[1], margin
+
+
+def check_depths(G, space, out, P, V, length, centres, outer, inner):
+    """Each traced ray against cover_first_hits: a miss where the cover geodesic passes clear of
+    every ball, a hit between the circumscribed and inscribed entries where it enters one (grazing
+    rays are not compared). Returns (compared, hits)."""
+    compared = hits = 0
+    for i in range(len(P)):
+        t_outer, t_inner, margin = cover_first_hits(G, space, P[i], V[i], length, centres, outer, inner)
+        if math.isinf(t_outer) and margin > 0.01:
+            assert out["stop"][i] == 1, i
+            compared += 1
+        elif math.isfinite(t_inner) and t_inner - t_outer < 0.01:  # not grazing
+            assert out["stop"][i] == 0, i
+            assert t_outer - 1e-5 <= out["depth"][i] <= t_inner + 1e-5, (i, t_outer, out["depth"][i], t_inner)
+            compared += 1
+            hits += 1
+    return compared, hits

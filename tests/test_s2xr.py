@@ -13,14 +13,12 @@ import sys
 import numpy as np
 import pytest
 import trimesh
-from scipy.integrate import solve_ivp
 
-import thurston_core
 from thurston_addon import render, spaces
 from thurston_addon.geometries import get
 from thurston_addon.scene import Scene, SceneObject
-from cover import cover_first_hits
-from truth import s2xr_metric
+from cover import check_depths
+from truth import christoffel_from, flows_against_dop853, s2xr_metric
 
 G = get("S2xR")
 
@@ -31,17 +29,7 @@ def metric_derivative(x):
 
 
 def christoffel_truth(x):
-    dg = metric_derivative(x)
-    lowered = 0.5 * (np.einsum("ilj->lij", dg) + np.einsum("jli->lij", dg) - dg)
-    return np.einsum("kl,lij->kij", np.linalg.inv(s2xr_metric(x)), lowered)
-
-
-def dop853(x0, v0, t):
-    def rhs(_t, y):
-        return np.concatenate([y[3:], -np.einsum("kij,i,j->k", christoffel_truth(y[:3]), y[3:], y[3:])])
-    sol = solve_ivp(rhs, (0.0, t), np.concatenate([x0, v0]), method="DOP853", rtol=1e-12, atol=1e-12)
-    assert sol.success
-    return sol.y[:3, -1], sol.y[3:, -1]
+    return christoffel_from(s2xr_metric(x), metric_derivative(x))
 
 
 def unit(x, u):
@@ -77,10 +65,9 @@ def geodesic_cases(rng):
 def test_closed_forms_match_dop853_of_the_geodesic_equation():
     rng = np.random.default_rng(2)
     for x, v, t in geodesic_cases(rng):
-        x_ref, v_ref = dop853(x, v, t)
-        xp, vp = G.chart_geodesic(x, v, t)
-        xc, vc = thurston_core.geodesic_flow("S2xR", x[None].copy(), v[None].copy(), np.array([t]))
-        for got, want in ((xp, x_ref), (vp, v_ref), (xc[0], x_ref), (vc[0], v_ref)):
+        (x_ref, v_ref), flows = flows_against_dop853(G, christoffel_truth, x, v, t)
+        (xp, vp), (xc, vc) = flows
+        for got, want in ((xp, x_ref), (vp, v_ref), (xc, x_ref), (vc, v_ref)):
             assert np.all(np.isfinite(got))
             np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.abs(want).max())
         assert abs(vp @ s2xr_metric(xp) @ vp - 1) < 1e-12
@@ -201,17 +188,7 @@ def test_depth_matches_the_cover_geodesic_first_hit(space):
     aim = G.connect(P[n // 2:], G.to_model(CENTRES[rng.integers(len(CENTRES), size=n - n // 2)]))[0]
     V[n // 2:] = G.normalize_tangent(P[n // 2:], aim + 0.1 * np.c_[x[n // 2:] * rng.normal(size=(n - n // 2, 3)), np.zeros(n - n // 2)])
     out = tracer.trace(np.ascontiguousarray(P), np.ascontiguousarray(V), length, 10000, shade=False, tolerance=1e-6)
-    compared = hits = 0
-    for i in range(n):
-        t_outer, t_inner, margin = cover_first_hits(G, space, P[i], V[i], length, CENTRES, SIZES, MESH_INNER * SIZES)
-        if math.isinf(t_outer) and margin > 0.01:
-            assert out["stop"][i] == 1, i
-            compared += 1
-        elif math.isfinite(t_inner) and t_inner - t_outer < 0.01:  # not grazing
-            assert out["stop"][i] == 0, i
-            assert t_outer - 1e-5 <= out["depth"][i] <= t_inner + 1e-5, (i, t_outer, out["depth"][i], t_inner)
-            compared += 1
-            hits += 1
+    compared, hits = check_depths(G, space, out, P, V, length, CENTRES, SIZES, MESH_INNER * SIZES)
     assert compared >= 70 and hits >= 20, (compared, hits)
     assert np.all(np.isfinite(out["end"]))
 
