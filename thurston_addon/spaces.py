@@ -750,8 +750,9 @@ class ShellSpace(CoordinateSpace):
     """A coordinate domain whose faces are the spheres |x| = e^w0 of S2xR: the shell between the
     inner and the outer one. Each face is given as the covector (0, 0, c, d) of the geometry's
     plane coordinates (0, 0, w, 1), w = log|x|: the sphere c w + d = 0, the domain on the side
-    <= 0. A shell has no vertices or edges; `domain.vertices` are the spheres' points on the chart
-    axes (they span the domain's chart box, and the group's copies of them its neighbours)."""
+    <= 0. A shell has no edges (its faces no vertex rings); `domain.vertices` are the spheres'
+    points on the chart axes (they span the domain's chart box, and the group's copies of them its
+    neighbours)."""
 
     def _face_domain(self, covectors, elements) -> Domain:
         where = self.source
@@ -769,9 +770,8 @@ class ShellSpace(CoordinateSpace):
             raise SpaceError(f"{where}: a face sphere does not bound the shell between |x| = e^{inner:g} and e^{outer:g}")
         axes = np.vstack([np.eye(3), -np.eye(3)])
         vertices = np.vstack([math.exp(inner) * axes, math.exp(outer) * axes])
-        faces = [Face(covector=np.asarray(c, float) / np.linalg.norm(c[:3]), element=M,
-                      vertices=list(range(6, 12)) if s > 0 else list(range(6)))
-                 for c, M, (_, s) in zip(covectors, elements, bounds)]
+        faces = [Face(covector=np.asarray(c, float) / np.linalg.norm(c[:3]), element=M, vertices=[])
+                 for c, M in zip(covectors, elements)]
         self.radii = (math.exp(inner), math.exp(outer))
         return Domain(vertices=vertices, faces=faces, plane_coordinates=self.geometry.plane_coordinates)
 
