@@ -262,6 +262,12 @@ class Space:
         """Chart segments that draw the domain, grouped by class (the default scene's tubes)."""
         raise NotImplementedError
 
+    def guide_mesh(self) -> tuple[np.ndarray, list, list]:
+        """The domain as a mesh to model inside (Blender's domain guide): chart vertices, edges
+        (vertex pairs) and faces (vertex rings)."""
+        d = self.domain
+        return d.vertices, [(a, b) for a, b, _, _ in d.edges], [f.vertices for f in d.faces]
+
     @cached_property
     def face_classes(self) -> list[int]:
         """The class of each face: a face and its partner share one."""
@@ -741,8 +747,8 @@ class CoordinateSpace(Space):
         out = np.zeros((0, 3))
         while len(out) < n:
             x = rng.uniform(lo, hi, (4 * n, 3))
-            inside = g.in_chart(x) & self.domain.contains(g.to_model(x), tol=-1e-6)
-            out = np.vstack([out, x[inside]])
+            x = x[g.in_chart(x)]  # the chart's own points only (the Klein disk's box reaches outside it)
+            out = np.vstack([out, x[self.domain.contains(g.to_model(x), tol=-1e-6)]])
         return out[:n]
 
 
@@ -818,6 +824,15 @@ class ShellSpace(CoordinateSpace):
                 ring = radius * circle[:, axes]
                 groups[c] += list(zip(ring[:-1], ring[1:]))
         return groups
+
+    def guide_mesh(self) -> tuple[np.ndarray, list, list]:
+        """The shell's two spheres, as latitude-longitude meshes."""
+        import trimesh
+
+        sphere = trimesh.creation.uv_sphere(radius=1.0, count=[12, 24])
+        V = np.vstack([r * sphere.vertices for r in self.radii])
+        faces = np.vstack([sphere.faces, sphere.faces + len(sphere.vertices)])
+        return V, [], faces.tolist()
 
 
 def from_data(data: dict, source: str) -> Space:
