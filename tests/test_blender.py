@@ -22,7 +22,7 @@ import blender_helpers as bh  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 THURSTON = Path(sys.executable).with_name("thurston")
-CURVED = ("nil", "sol", "genus2xs1")  # geodesics bend in the chart: traced in chords within a tolerance
+CURVED = ("nil", "sol", "genus2xs1", "s2xs1")  # geodesics bend in the chart: traced in chords within a tolerance
 
 
 def _registered():
@@ -106,7 +106,7 @@ def build_scene(space="torus", scale=1.0, rotation=(1.45, 0.08, 0.25)):
 
 # --- 2. renders through every path equal the core's render of the same scene as files ------------------
 @pytest.mark.parametrize("space,scale", [("torus", 1.0), ("poincare", 2.0), ("nil", 1.0), ("sol", 2.0),
-                                         ("genus2xs1", 1.0)])
+                                         ("genus2xs1", 1.0), ("s2xs1", 0.1)])
 def test_operators_and_f12_match_core(tmp_path, space, scale):
     sc = build_scene(space, scale)
     toml = bh.write_scene_files(sc, tmp_path, scale)
@@ -293,6 +293,17 @@ def test_domain_guide_of_genus2xs1():
     assert len(pts) == 16 and len(obj.data.edges) == 24 and len(obj.data.polygons) == 10
     angles = np.sort(np.arctan2(pts[pts[:, 2] > 0, 1], pts[pts[:, 2] > 0, 0]))
     np.testing.assert_allclose(np.diff(angles), math.pi / 4, atol=1e-6)
+
+
+def test_domain_guide_of_s2xs1_is_its_two_spheres():
+    """The shell 1 <= |x| <= e^(2 pi): the guide's vertices lie on the two spheres, both drawn."""
+    bh.fresh_scene("s2xs1", scale=0.001)
+    assert bpy.ops.thurston.domain_guide() == {"FINISHED"}
+    obj, pts = guide_points()
+    radii = np.linalg.norm(pts, axis=1) / 0.001
+    on_inner, on_outer = np.isclose(radii, 1, rtol=1e-6), np.isclose(radii, math.exp(2 * math.pi), rtol=1e-6)
+    assert np.all(on_inner | on_outer) and on_inner.sum() == on_outer.sum() > 100
+    assert len(obj.data.polygons) > 100
 
 
 def prism_coordinates(space, points):

@@ -13,14 +13,12 @@ import sys
 import numpy as np
 import pytest
 import trimesh
-from scipy.integrate import solve_ivp
-from scipy.optimize import brentq
 
-import thurston_core
 from thurston_addon import render, spaces
 from thurston_addon.geometries import get
 from thurston_addon.scene import Scene, SceneObject
-from truth import h2xr_metric
+from cover import check_depths
+from truth import christoffel_from, flows_against_dop853, h2xr_metric
 
 G = get("H2xR")
 SQ2 = math.sqrt(2.0)
@@ -46,17 +44,7 @@ def metric_derivative(x):
 
 
 def christoffel_truth(x):
-    dg = metric_derivative(x)
-    lowered = 0.5 * (np.einsum("ilj->lij", dg) + np.einsum("jli->lij", dg) - dg)
-    return np.einsum("kl,lij->kij", np.linalg.inv(h2xr_metric(x)), lowered)
-
-
-def dop853(x0, v0, t):
-    def rhs(_t, y):
-        return np.concatenate([y[3:], -np.einsum("kij,i,j->k", christoffel_truth(y[:3]), y[3:], y[3:])])
-    sol = solve_ivp(rhs, (0.0, t), np.concatenate([x0, v0]), method="DOP853", rtol=1e-12, atol=1e-12)
-    assert sol.success
-    return sol.y[:3, -1], sol.y[3:, -1]
+    return christoffel_from(h2xr_metric(x), metric_derivative(x))
 
 
 def unit(x, u):
@@ -95,11 +83,10 @@ def geodesic_cases(rng):
 def test_closed_forms_match_dop853_of_the_geodesic_equation():
     rng = np.random.default_rng(2)
     for x, v, t in geodesic_cases(rng):
-        x_ref, v_ref = dop853(x, v, t)
-        xp, vp = G.chart_geodesic(x, v, t)
-        xc, vc = thurston_core.geodesic_flow("H2xR", x[None].copy(), v[None].copy(), np.array([t]))
+        (x_ref, v_ref), flows = flows_against_dop853(G, christoffel_truth, x, v, t)
+        (xp, vp), (xc, vc) = flows
         scale = 1e-9 * (1 + np.abs(x_ref))
-        for got, want in ((xp, x_ref), (vp, v_ref), (xc[0], x_ref), (vc[0], v_ref)):
+        for got, want in ((xp, x_ref), (vp, v_ref), (xc, x_ref), (vc, v_ref)):
             assert np.all(np.abs(got - want) <= scale + 1e-9 * np.abs(want)), (x, v, t, got, want)
         assert abs(vp @ h2xr_metric(xp) @ vp - 1) < 1e-10  # rounding where the metric is 1e7 (r = 0.995)
 
@@ -192,37 +179,6 @@ RADIUS = 0.14
 TOLERANCE = 1e-6
 
 
-def cover_truth(space, P, V, length, step=0.01):
-    """The first arclength at which the closed-form geodesic, followed in the universal cover and
-    carried into the domain piece by piece by the isometry that reduces each piece's start, meets
-    a chart sphere |x - c| = rho, for rho the inscribed and circumscribed radii of the mesh:
-    (t_outer, t_inner, closest approach), inf where it does not meet."""
-    t = np.arange(0.0, length + step, step)
-    Y, _ = G.geodesic(P[None], V[None], t)
-    _, _, M = space.move_inside(Y)
-
-    def chart(k, s):
-        X, _ = G.geodesic(P, V, s)
-        return G.to_chart(M[k] @ X)
-
-    x = G.to_chart(np.einsum("kij,kj->ki", M, Y))
-    x_next = G.to_chart(np.einsum("kij,kj->ki", M[:-1], Y[1:]))  # each piece's end by its start's map
-    closest = np.min(np.linalg.norm(x[:, None] - CENTRES[None], axis=-1))
-    found = []
-    for rho in (OUTER, INNER):
-        first = math.inf
-        for k in range(len(t) - 1):
-            d0 = np.linalg.norm(x[k] - CENTRES, axis=1) - rho
-            d1 = np.linalg.norm(x_next[k] - CENTRES, axis=1) - rho
-            hit = np.flatnonzero((d0 > 0) & (d1 <= 0))
-            if len(hit):
-                c = CENTRES[hit[0]]
-                first = brentq(lambda s: np.linalg.norm(chart(k, s) - c) - rho, t[k], t[k + 1], xtol=1e-13)
-                break
-        found.append(first)
-    return found[0], found[1], closest
-
-
 MESH = trimesh.creation.icosphere(subdivisions=3, radius=RADIUS)
 INNER = float(np.min(np.abs(np.einsum("kj,kj->k", MESH.face_normals, MESH.triangles[:, 0]))))
 OUTER = RADIUS
@@ -242,17 +198,7 @@ def test_depth_matches_the_cover_geodesic_first_hit(space):
     P = G.to_model(x)
     V = G.normalize_tangent(P, G.tangent_to_model(x, u))
     out = tracer.trace(np.ascontiguousarray(P), np.ascontiguousarray(V), length, 10000, shade=False, tolerance=TOLERANCE)
-    compared = hits = 0
-    for i in range(n):
-        t_outer, t_inner, closest = cover_truth(space, P[i], V[i], length)
-        if math.isinf(t_outer) and closest > OUTER + 0.01:
-            assert out["stop"][i] == 1, i
-            compared += 1
-        elif math.isfinite(t_inner) and t_inner - t_outer < 0.01:  # not grazing
-            assert out["stop"][i] == 0, i
-            assert t_outer - 1e-5 <= out["depth"][i] <= t_inner + 1e-5, (i, t_outer, out["depth"][i], t_inner)
-            compared += 1
-            hits += 1
+    compared, hits = check_depths(G, space, out, P, V, length, CENTRES, [OUTER] * len(CENTRES), [INNER] * len(CENTRES))
     assert compared >= 80 and hits >= 20, (compared, hits)
     assert np.all(np.isfinite(out["end"])) and not np.isnan(out["depth"][out["stop"] == 0]).any()
 

@@ -317,6 +317,8 @@ def check_trace_outputs(space, out, max_distance, max_crossings, n_objects):
 @pytest.mark.parametrize("sid", spaces.preset_ids())
 def test_no_leak_at_edges_and_vertices(space_cache, sid):
     space = space_cache(sid)
+    if not space.domain.edges:
+        pytest.skip("a shell domain has no edges or vertices (test_s2xr.py shoots its radial and tangential rays)")
     g = space.geometry
     rng = np.random.default_rng(5)
     n = 100_000

@@ -36,3 +36,33 @@ def h2xr_metric(x):
     p = np.array([x[0], x[1], 0.0])
     q = 1.0 - p @ p
     return np.diag([1.0 / q, 1.0 / q, 1.0]) + np.outer(p, p) / q**2
+
+
+def s2xr_metric(x):
+    """S2xR: |dx|^2 / |x|^2 on R^3 minus the origin (x = e^w u: dw^2 + the unit sphere's metric)."""
+    return np.eye(3) / (np.asarray(x, float) @ x)
+
+
+def christoffel_from(g, dg):
+    """Gamma^k_ij (k, i, j) from the metric g_ij and its derivatives dg[l, i, j] = d_l g_ij."""
+    lowered = 0.5 * (np.einsum("ilj->lij", dg) + np.einsum("jli->lij", dg) - dg)
+    return np.einsum("kl,lij->kij", np.linalg.inv(g), lowered)
+
+
+def dop853(christoffel, x0, v0, t):
+    """Chart position and velocity at t along x'' = -Gamma(x)(x', x'), DOP853 at rtol = atol = 1e-12."""
+    from scipy.integrate import solve_ivp
+
+    def rhs(_t, y):
+        return np.concatenate([y[3:], -np.einsum("kij,i,j->k", christoffel(y[:3]), y[3:], y[3:])])
+    sol = solve_ivp(rhs, (0.0, t), np.concatenate([x0, v0]), method="DOP853", rtol=1e-12, atol=1e-12)
+    assert sol.success
+    return sol.y[:3, -1], sol.y[3:, -1]
+
+
+def flows_against_dop853(G, christoffel, x, v, t):
+    """(reference, flows): DOP853's chart position and velocity at t from (x, v), and those of the
+    geometry's Python closed form and of the C++ core's flow."""
+    import thurston_core
+    xc, vc = thurston_core.geodesic_flow(G.name, x[None].copy(), v[None].copy(), np.array([t]))
+    return dop853(christoffel, x, v, t), [G.chart_geodesic(x, v, t), (xc[0], vc[0])]

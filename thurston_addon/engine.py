@@ -78,8 +78,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         # with a render region, Blender's result rectangle is relative to the region
         out = self.begin_result(0, 0, w, h, layer=layer_name)
         layer = out.layers[0]
-        rgba = np.concatenate([np.nan_to_num(job.result.passes["color"]), job.result.passes["alpha"][..., None]], axis=-1)
-        values = {"Combined": rgba, **export.pass_values(job)}
+        values = {"Combined": export.combined(job.result.passes), **export.pass_values(job)}
         for rp in layer.passes:
             a = values.get(rp.name)
             if a is not None:
@@ -102,7 +101,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
             scene = export.export_scene(depsgraph, scale, [], meshes=self._meshes)
             reach = render.light_reach_for(space, export.render_settings(bscene.thurston, 1, 1))  # the size is not used
             self._viewport_world = (space, render.make_tracer(space, scene, bscene.thurston.threads, reach))
-        except (export.ExportError, render.RenderError) as exc:
+        except (export.ExportError, render.RenderError, scenes.SceneError) as exc:
             self._viewport_world = exc
         self._scene_version += 1
         self.tag_redraw()
@@ -158,8 +157,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
             settings.width, settings.height = max(1, w // level), max(1, h // level)
             result = render.render(space, None, settings, camera=camera, tracer=tracer,
                                    progress=lambda done, total: not cancelled())
-            rgba = np.concatenate([np.nan_to_num(result.passes["color"]), result.passes["alpha"][..., None]], axis=-1)
-            return _flip_rows(rgba.astype(np.float32))
+            return _flip_rows(export.combined(result.passes))
 
         return frame
 

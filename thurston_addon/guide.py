@@ -26,9 +26,8 @@ def _guide_collection(scene, create):
 def build(scene):
     """Create or update the guide object for the scene's current space and scale."""
     space = export.load_space(scene.thurston)
-    V = space.domain.vertices * scene.thurston.scale
-    edges = [(a, b) for a, b, _, _ in space.domain.edges]
-    faces = [f.vertices for f in space.domain.faces]
+    V, edges, faces = space.guide_mesh()
+    V = V * scene.thurston.scale
     coll = _guide_collection(scene, create=True)
     obj = bpy.data.objects.get(OBJECT)
     mesh = bpy.data.meshes.new(OBJECT)

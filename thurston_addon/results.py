@@ -1,7 +1,8 @@
 """Renders into Blender: float image datablocks (kept in the .blend: packed when the file is saved)
 and the World's panorama background."""
 import bpy
-import numpy as np
+
+from . import export
 
 IMAGE_TAG = "thurston_image"  # on the images this add-on made (reused; a user's image is left alone)
 
@@ -20,8 +21,7 @@ def store_image(name: str, passes: dict):
     elif tuple(image.size) != (w, h):
         image.scale(w, h)
     image.colorspace_settings.name = "Linear Rec.709" if "Linear Rec.709" in _colorspaces(image) else "Linear"
-    rgba = np.concatenate([np.nan_to_num(color), passes["alpha"][..., None]], axis=-1).astype(np.float32)
-    image.pixels.foreach_set(rgba[::-1].ravel())  # Blender's rows are bottom-up
+    image.pixels.foreach_set(export.combined(passes)[::-1].ravel())  # Blender's rows are bottom-up
     image.update()
     return image
 

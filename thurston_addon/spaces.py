@@ -262,6 +262,12 @@ class Space:
         """Chart segments that draw the domain, grouped by class (the default scene's tubes)."""
         raise NotImplementedError
 
+    def guide_mesh(self) -> tuple[np.ndarray, list, list]:
+        """The domain as a mesh to model inside (Blender's domain guide): chart vertices, edges
+        (vertex pairs) and faces (vertex rings)."""
+        d = self.domain
+        return d.vertices, [(a, b) for a, b, _, _ in d.edges], [f.vertices for f in d.faces]
+
     @cached_property
     def face_classes(self) -> list[int]:
         """The class of each face: a face and its partner share one."""
@@ -629,9 +635,13 @@ class CoordinateSpace(Space):
             if not c[3] < 0:
                 raise SpaceError(f"{where}: generator {name!r} face {c.tolist()} must have the chart origin "
                                  "strictly inside (its last entry < 0)")
-            covectors += [c, -self.geometry.pull_back_plane(c, M)]
+            try:
+                image = -self.geometry.pull_back_plane(c, M)
+            except ValueError as exc:
+                raise SpaceError(f"{where}: generator {name!r}: {exc}") from None
+            covectors += [c, image]
             elements += [M, np.linalg.inv(M)]
-        self.domain = _halfspace_domain(covectors, elements, where, self.geometry)
+        self.domain = self._face_domain(covectors, elements)
         if len(self.domain.faces) != len(covectors):
             raise SpaceError(f"{where}: {len(covectors) - len(self.domain.faces)} of the generators' faces "
                              "do not bound the domain (each face and its image must be faces of it)")
@@ -639,6 +649,9 @@ class CoordinateSpace(Space):
         for face in self.domain.faces:
             face.partner = keys[self.geometry.element_key(np.linalg.inv(face.element))]
         self._validate(data)
+
+    def _face_domain(self, covectors, elements) -> Domain:
+        return _halfspace_domain(covectors, elements, self.source, self.geometry)
 
     @property
     def inradius(self) -> float:
@@ -729,21 +742,108 @@ class CoordinateSpace(Space):
 
     def _interior_points(self, rng, n):
         """Random chart points strictly inside the domain."""
+        g = self.geometry
         lo, hi = self.domain.vertices.min(axis=0), self.domain.vertices.max(axis=0)
         out = np.zeros((0, 3))
         while len(out) < n:
             x = rng.uniform(lo, hi, (4 * n, 3))
-            inside = np.all(np.c_[x, np.ones(len(x))] @ self.domain.covectors().T < -1e-6, axis=1)
-            out = np.vstack([out, x[inside]])
+            x = x[g.in_chart(x)]  # the chart's own points only (the Klein disk's box reaches outside it)
+            out = np.vstack([out, x[self.domain.contains(g.to_model(x), tol=-1e-6)]])
         return out[:n]
+
+
+class ShellSpace(CoordinateSpace):
+    """A coordinate domain whose faces are the spheres |x| = e^w0 of S2xR: the shell between the
+    inner and the outer one. Each face is given as the covector (0, 0, c, d) of the geometry's
+    plane coordinates (0, 0, w, 1), w = log|x|: the sphere c w + d = 0, the domain on the side
+    <= 0. A shell has no edges (its faces no vertex rings); `domain.vertices` are the spheres'
+    points on the chart axes (they span the domain's chart box, and the group's copies of them its
+    neighbours)."""
+
+    def _face_domain(self, covectors, elements) -> Domain:
+        where = self.source
+        bounds = []  # (w0, +1 for an outer face w <= w0, -1 for an inner one w >= w0)
+        for c in covectors:
+            if c[0] != 0 or c[1] != 0 or c[2] == 0:
+                raise SpaceError(f"{where}: the face {c.tolist()} is not a sphere |x| = const "
+                                 f"({self.geometry.name} faces are [0, 0, c, d]: the sphere c log|x| + d = 0)")
+            bounds.append((-c[3] / c[2], 1 if c[2] > 0 else -1))
+        outer = min((w for w, s in bounds if s > 0), default=math.inf)
+        inner = max((w for w, s in bounds if s < 0), default=-math.inf)
+        if not inner < outer < math.inf:
+            raise SpaceError(f"{where}: the faces do not bound a shell between two spheres")
+        if any(abs(w - (outer if s > 0 else inner)) > 1e-12 * (1 + abs(w)) for w, s in bounds):
+            raise SpaceError(f"{where}: a face sphere does not bound the shell between |x| = e^{inner:g} and e^{outer:g}")
+        axes = np.vstack([np.eye(3), -np.eye(3)])
+        vertices = np.vstack([math.exp(inner) * axes, math.exp(outer) * axes])
+        faces = [Face(covector=np.asarray(c, float) / np.linalg.norm(c[:3]), element=M, vertices=[])
+                 for c, M in zip(covectors, elements)]
+        self.radii = (math.exp(inner), math.exp(outer))
+        return Domain(vertices=vertices, faces=faces, plane_coordinates=self.geometry.plane_coordinates)
+
+    @property
+    def inradius(self) -> float:
+        """Half the shell's width, log(R_out / R_in) / 2: the radius of the largest metric ball in it."""
+        return 0.5 * math.log(self.radii[1] / self.radii[0])
+
+    @cached_property
+    def chart_inradius(self) -> float:
+        """The radius of the largest chart ball inside the shell."""
+        return 0.5 * (self.radii[1] - self.radii[0])
+
+    @cached_property
+    def volume(self) -> float:
+        """The volume density integrated over the shell in the coordinates (w, cos theta, phi),
+        x = e^w u(theta, phi) (chart volume e^{3 w} dw dcos dphi), by Gauss-Legendre rules."""
+        g = self.geometry
+        u, weights = np.polynomial.legendre.leggauss(g.volume_order)
+        lo, hi = np.log(self.radii)
+        w = lo + (hi - lo) * (u + 1) / 2
+        cos, phi = u, np.pi * (u + 1)
+        W, C, P = np.meshgrid(w, cos, phi, indexing="ij")
+        S = np.sqrt(1 - C**2)
+        x = np.exp(W)[..., None] * np.stack([S * np.cos(P), S * np.sin(P), C], axis=-1)
+        jacobian = np.exp(3 * W) * (hi - lo) / 2 * np.pi
+        weight = np.einsum("i,j,k->ijk", weights, weights, weights)
+        return float(np.sum(weight * jacobian * g.volume_density(x)))
+
+    def outline(self, inset: float) -> list[list[tuple[np.ndarray, np.ndarray]]]:
+        """Three great circles on each face sphere, moved `inset` into the shell, by face class
+        (a sphere and its partner share one; a class is drawn once, on its outer sphere)."""
+        groups: list[list] = [[] for _ in range(max(self.face_classes) + 1)]
+        angles = np.linspace(0, 2 * np.pi, 97)
+        circle = np.c_[np.cos(angles), np.sin(angles), np.zeros_like(angles)]
+        drawn = set()
+        for face, c in sorted(zip(self.domain.faces, self.face_classes), key=lambda fc: -fc[0].covector[2]):
+            if c in drawn:
+                continue
+            drawn.add(c)
+            outer = face.covector[2] > 0
+            radius = self.radii[1] - inset if outer else self.radii[0] + inset * self.radii[0] / self.radii[1]
+            for axes in ([0, 1, 2], [1, 2, 0], [2, 0, 1]):
+                ring = radius * circle[:, axes]
+                groups[c] += list(zip(ring[:-1], ring[1:]))
+        return groups
+
+    def guide_mesh(self) -> tuple[np.ndarray, list, list]:
+        """The shell's two spheres, as latitude-longitude meshes."""
+        import trimesh
+
+        sphere = trimesh.creation.uv_sphere(radius=1.0, count=[12, 24])
+        V = np.vstack([r * sphere.vertices for r in self.radii])
+        faces = np.vstack([sphere.faces, sphere.faces + len(sphere.vertices)])
+        return V, [], faces.tolist()
 
 
 def from_data(data: dict, source: str) -> Space:
     """The space a file's fields describe: a coordinate domain where the generators name their
-    faces, else the Dirichlet domain of the chart origin."""
+    faces (a shell where the geometry's faces are spheres), else the Dirichlet domain of the
+    chart origin."""
     gens = data.get("generator") if isinstance(data, dict) else None
     given = isinstance(gens, list) and any(isinstance(g, dict) and "face" in g for g in gens)
-    return (CoordinateSpace if given else DirichletSpace)(data, source)
+    if not given:
+        return DirichletSpace(data, source)
+    return (CoordinateSpace if _geometry(data, source).chart_plane_faces else ShellSpace)(data, source)
 
 
 def preset_dirs() -> list[Path]:

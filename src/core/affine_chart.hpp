@@ -1,12 +1,13 @@
 // How the model 4-vectors and face maps of flows whose model is their chart (Nil, Sol) meet the
-// marching kernel: points (x, 1), tangent vectors (v, 0), face maps affine.
+// marching kernel: points (x, 1), tangent vectors (v, 0), face maps affine, faces chart planes.
 #pragma once
 
+#include "chart_planes.hpp"
 #include "vec.hpp"
 
 namespace thurston {
 
-struct AffineChart {
+struct AffineChart : ChartPlanes {
   // A model point and tangent vector as chart (x, 1) and (v, 0); false where P is no point.
   static bool to_chart(Vec4& P, Vec4& V) {
     if (!(P[3] != 0.0)) return false;

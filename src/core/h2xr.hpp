@@ -9,12 +9,13 @@
 #include <algorithm>
 #include <cmath>
 
+#include "chart_planes.hpp"
 #include "closed_form.hpp"
 #include "vec.hpp"
 
 namespace thurston {
 
-struct H2xRFlow : ClosedForm<H2xRFlow> {
+struct H2xRFlow : ChartPlanes, ClosedForm<H2xRFlow> {
   // The geodesic from p with unit chart velocity v at arclength t, through the hyperboloid point
   // P = s (x, y, 1), s = 1 / sqrt(1 - r^2), and its velocity P' = s (u, 0) + s^3 (x . u) (x, y, 1).
   static void geodesic(const Vec3& p, const Vec3& v, double t, Vec3& xt, Vec3& vt) {

@@ -3,12 +3,17 @@
 //
 // MarchingKernel<Flow> turns a geometry's flow (nil.hpp, sol.hpp, h2xr.hpp) into the kernel
 // interface of kernel.hpp. Points and tangent vectors are chart 4-vectors (x, 1) and (v, 0); the
-// domain is a convex chart polyhedron whose face maps need not map faces onto faces: after every
-// crossing the point is reduced into the domain by the maps of the faces it lies outside of.
+// domain is bounded by faces (chart planes, or what the flow's side functions make of the
+// covectors: S2xR's spheres) whose face maps need not map faces onto faces: after every crossing
+// the point is reduced into the domain by the maps of the faces it lies outside of.
 //
 // A Flow provides the meeting of its model with the chart (AffineChart where they are one):
 //   static bool to_chart(Vec4& P, Vec4& V)   a ray's model point and tangent as chart 4-vectors;
 //   static void map(const Mat4& M, Vec3& x, Vec3& v)   a face map applied to a chart state;
+//   static side(c, x), side_gradient(c, x), side_acceleration_bound(c, K)   a face covector's side
+//                                       function (negative inside), its gradient, and a bound of its
+//                                       second derivative along a curve with |x''| <= K (ChartPlanes
+//                                       where faces are chart planes);
 // and for a chart point x and chart velocity v of unit length in the metric:
 //   void flow(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt,
 //             double& error) const      the geodesic at arclength t (error: a bound of the
@@ -35,6 +40,7 @@
 #include <cmath>
 #include <vector>
 
+#include "chart_planes.hpp"
 #include "kernel.hpp"
 
 namespace thurston {
@@ -216,19 +222,22 @@ class MarchingKernel {
     return true;
   }
 
-  // The root of n . x(t) + d = 0 in [0, h] along the segment, where the side function goes from
-  // f0 to the other sign; `guess` is a starting point in [0, h].
-  static double find_root(const typename Flow::Segment& segment, double h, const Vec3& n, double d,
-                          double f0, double guess) {
+  // The root of Sides::side(c, x(t)) = 0 in [0, h] along the segment (Sides: the flow's faces, or
+  // ChartPlanes for a triangle's plane), where the side function goes from f0 to the other sign;
+  // `guess` is a starting point in [0, h].
+  template <class Sides>
+  static double find_root(const typename Flow::Segment& segment, double h, const Vec4& c, double f0,
+                          double guess) {
     double lo = 0.0, hi = h, flo = f0;
     double t = std::clamp(guess, lo, hi);
-    const double size = norm3(n);  // side values are distances times this
     for (int iteration = 0; iteration < 60; ++iteration) {
       Vec3 x, v;
       segment.at(t, x, v);
-      const double f = dot3(n, x) + d, df = dot3(n, v);
-      // on the plane to rounding: this is the root (whichever side of it t lies)
-      if (std::abs(f) <= 4e-16 * size * (1.0 + norm3(x))) return t;
+      const Vec3 n = Sides::side_gradient(c, x);
+      const double f = Sides::side(c, x), df = dot3(n, v);
+      // on the face to rounding: this is the root (whichever side of it t lies); side values are
+      // distances times |n|
+      if (std::abs(f) <= 4e-16 * norm3(n) * (1.0 + norm3(x))) return t;
       if ((f < 0.0) == (flo < 0.0)) {
         lo = t;
         flo = f;
@@ -272,8 +281,7 @@ class MarchingKernel<Flow>::Walk {
     // Leaving now: numerically on a face and heading out (carries rays across edges and vertices).
     for (std::size_t f = 0; f < domain.faces; ++f) {
       const Vec4 c = domain.covector(f);
-      const Vec3 n{c[0], c[1], c[2]};
-      if (dot3(n, x_) + c[3] > -kOnFace && dot3(n, v_) > 0.0) {
+      if (Flow::side(c, x_) > -kOnFace && dot3(Flow::side_gradient(c, x_), v_) > 0.0) {
         exit_face_ = int(f);
         return Advance::kCross;
       }
@@ -325,12 +333,11 @@ class MarchingKernel<Flow>::Walk {
     double exit = h;
     for (std::size_t f = 0; f < domain.faces; ++f) {
       const Vec4 c = domain.covector(f);
-      const Vec3 n{c[0], c[1], c[2]};
-      const double f1 = dot3(n, x1) + c[3];
+      const double f1 = Flow::side(c, x1);
       if (!(f1 > 0.0)) continue;
-      const double f0 = std::min(dot3(n, x_) + c[3], -kOnFace);
+      const double f0 = std::min(Flow::side(c, x_), -kOnFace);
       const double guess = h * f0 / (f0 - f1);
-      const double t = find_root(segment_, h, n, c[3], f0, guess);
+      const double t = find_root<Flow>(segment_, h, c, f0, guess);
       if (t < exit || face < 0) {
         exit = t;
         face = int(f);
@@ -370,7 +377,7 @@ class MarchingKernel<Flow>::Walk {
     const double h = chord_.length;
     double t = std::clamp(u, 0.0, 1.0) * h;
     const double f0 = dot3(n, chord_.x0) + plane[3], f1 = dot3(n, chord_.x1) + plane[3];
-    if ((f0 < 0.0) != (f1 < 0.0) && f0 != 0.0) t = find_root(segment_, h, n, plane[3], f0, t);
+    if ((f0 < 0.0) != (f1 < 0.0) && f0 != 0.0) t = find_root<ChartPlanes>(segment_, h, plane, f0, t);
     Vec3 x, v;
     segment_.at(t, x, v);
     return {t, point4(x), vector4(v), x};
@@ -398,18 +405,18 @@ class MarchingKernel<Flow>::Walk {
   }
 
   // The longest step from the state (x, v), up to `limit`, that a chart acceleration bound K
-  // keeps clear of every face plane: the first root of a + b t + |n| K t^2 / 2 (a = n . x + d,
-  // b = n . v), in its stable form.
+  // keeps clear of every face: the first root of a + b t + B t^2 / 2 (a the side at x, b its
+  // rate, B the bound of its second derivative), in its stable form.
   double safe_step(const Vec3& x, const Vec3& v, double K, double limit) const {
     const Domain& domain = context_.domain;
     double safe = limit;
     for (std::size_t f = 0; f < domain.faces; ++f) {
       const Vec4 c = domain.covector(f);
-      const Vec3 n{c[0], c[1], c[2]};
-      const double a = std::min(dot3(n, x) + c[3], 0.0), b = dot3(n, v);
-      const double bound = norm3(n) * K;  // |d^2/dt^2 (n . x)| <= bound
+      const double a = std::min(Flow::side(c, x), 0.0), b = dot3(Flow::side_gradient(c, x), v);
+      const double bound = Flow::side_acceleration_bound(c, K);
       const double root = std::sqrt(b * b - 2.0 * bound * a);
-      safe = std::min(safe, b > 0.0 ? -2.0 * a / (b + root) : (root - b) / bound);
+      if (b > 0.0) safe = std::min(safe, -2.0 * a / (b + root));
+      else if (bound > 0.0) safe = std::min(safe, (root - b) / bound);  // else never reached
     }
     return safe;
   }
@@ -425,7 +432,7 @@ class MarchingKernel<Flow>::Walk {
       double worst_side = kReduce;
       for (std::size_t f = 0; f < domain.faces; ++f) {
         const Vec4 c = domain.covector(f);
-        const double side = c[0] * x_[0] + c[1] * x_[1] + c[2] * x_[2] + c[3];
+        const double side = Flow::side(c, x_);
         if (side > worst_side) {
           worst_side = side;
           worst = int(f);
@@ -437,8 +444,8 @@ class MarchingKernel<Flow>::Walk {
     }
     for (std::size_t f = 0; f < domain.faces; ++f) {
       const Vec4 c = domain.covector(f);
-      const Vec3 n{c[0], c[1], c[2]};
-      const double side = dot3(n, x_) + c[3], rate = dot3(n, v_);
+      const Vec3 n = Flow::side_gradient(c, x_);
+      const double side = Flow::side(c, x_), rate = dot3(n, v_);
       if (!(side > -kOnFace && rate <= 0.0)) continue;
       const double gap = side + 2.0 * kOnFace;
       if (rate < -1e-6 * norm3(n)) {

@@ -10,6 +10,7 @@
 #include "march.hpp"
 #include "nil.hpp"
 #include "projective.hpp"
+#include "s2xr.hpp"
 #include "sol.hpp"
 
 #if defined(__SSE2__) || defined(_M_X64)
@@ -707,6 +708,7 @@ const Geometry kGeometries[] = {
     {"Nil", 0, make_marching<NilFlow>, normalise_affine, flow_of<NilFlow>},
     {"Sol", 0, make_marching<SolFlow>, normalise_affine, flow_of<SolFlow>},
     {"H2xR", 0, make_marching<H2xRFlow>, H2xRFlow::normalise_lift, flow_of<H2xRFlow>},
+    {"S2xR", 0, make_marching<S2xRFlow>, normalise_affine, flow_of<S2xRFlow>},
 };
 
 const Geometry& find(const std::string& name) {

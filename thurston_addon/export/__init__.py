@@ -262,6 +262,11 @@ def blender_passes(result: render.Result, scale: float) -> dict:
     return passes
 
 
+def combined(passes: dict) -> np.ndarray:
+    """Blender's Combined pixels (h, w, 4) float32: the colour, premultiplied by the alpha."""
+    return np.concatenate([np.nan_to_num(passes["color"]), passes["alpha"][..., None]], axis=-1).astype(np.float32)
+
+
 @dataclass(frozen=True)
 class BlenderPass:
     """A render pass the engine fills besides Combined."""

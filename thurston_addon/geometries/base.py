@@ -26,6 +26,9 @@ def _floats(a):
 class Geometry:
     # Gauss-Legendre points per axis of a coordinate domain's volume integral (spaces.py)
     volume_order = 16
+    # Whether a coordinate domain's faces are chart planes (a convex chart polyhedron); S2xR's are
+    # the spheres |x| = const (spaces.ShellSpace)
+    chart_plane_faces = True
     # Whether an isometry M maps chart points affinely, as M on (x, 1): copies of an instanced mesh
     # are then instances themselves (render.py)
     affine_isometries = False

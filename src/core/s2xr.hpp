@@ -1,0 +1,64 @@
+// S2xR: R^3 minus the origin with the metric |dx|^2 / |x|^2 (x = e^w u, u on the unit sphere).
+// Geodesics in closed form: with b = <v, x> / |x|^2 (the speed of w) and p = v - b x (|p| = a |x|,
+// a the speed on the sphere), x(t) = e^{b t} (cos(a t) x + sin(a t) / a . p), log-spirals in a
+// plane through the origin. The chart is the model (AffineChart); face maps are e^c R (R in O(3)),
+// faces the spheres w = log|x| = w0, given as covectors (0, 0, c2, c3) of (0, 0, w, 1)
+// (geometries/s2xr.py): w is linear in arclength, so exits are exact.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+
+#include "affine_chart.hpp"
+#include "closed_form.hpp"
+#include "vec.hpp"
+
+namespace thurston {
+
+struct S2xRFlow : AffineChart, ClosedForm<S2xRFlow> {
+  static void geodesic(const Vec3& x, const Vec3& v, double t, Vec3& xt, Vec3& vt) {
+    const double r2 = dot3(x, x), b = dot3(v, x) / r2;
+    const Vec3 p = sub3(v, scaled3(b, x));
+    const double a = std::sqrt(dot3(p, p) / r2), at = a * t;
+    const double grow = std::exp(b * t), c = std::cos(at), sin_over = a > 0.0 ? std::sin(at) / a : t;
+    for (int i = 0; i < 3; ++i) {
+      const double spiral = c * x[i] + sin_over * p[i];
+      const double turning = -a * a * sin_over * x[i] + c * p[i];
+      xt[i] = grow * spiral;
+      vt[i] = grow * (b * spiral + turning);
+    }
+  }
+  // What the closed form's roundings may add: a few ulps of |x(t)| per unit length.
+  static double rounding(const Vec3& x, double t) {
+    const double r = std::sqrt(dot3(x, x));
+    return 4e-16 * r * std::exp(t) * (1.0 + t);
+  }
+
+  // |x''| = |x| (a^2 + b^2) = |x| along a unit-speed log-spiral (its chart velocity has length
+  // |x|, turning at rate a and growing at rate b); over a step of length h, |x| <= |x0| e^h.
+  double acceleration_bound(const Vec3& x, const Vec3&, double h) const {
+    return std::sqrt(dot3(x, x)) * std::exp(h);
+  }
+  // Sectional curvatures lie in [0, 1]: nearby geodesics separate at most linearly (rate 1 bounds it).
+  double growth_rate() const { return 1.0; }
+  double max_step() const { return 1.0; }
+
+  double dot(const Vec3& x, const Vec3& a, const Vec3& b) const { return dot3(a, b) / dot3(x, x); }
+  Vec3 raise(const Vec3& x, const Vec3& n) const { return scaled3(dot3(x, x), n); }
+  double volume_density(const Vec3& x) const {
+    const double r2 = dot3(x, x);
+    return 1.0 / (r2 * std::sqrt(r2));
+  }
+  // The distance itself: the sphere angle of the directions and the difference of w.
+  double separation(const Vec3& q, const Vec3& p) const {
+    const double angle = std::atan2(norm3(cross3(q, p)), dot3(q, p));
+    return std::hypot(angle, 0.5 * std::log(dot3(p, p) / dot3(q, q)));
+  }
+
+  // Faces: the spheres c2 w + c3 = 0 (c[0] = c[1] = 0), w = log|x|, linear along every geodesic.
+  static double side(const Vec4& c, const Vec3& x) { return c[2] * 0.5 * std::log(dot3(x, x)) + c[3]; }
+  static Vec3 side_gradient(const Vec4& c, const Vec3& x) { return scaled3(c[2] / dot3(x, x), x); }
+  static double side_acceleration_bound(const Vec4&, double) { return 0.0; }
+};
+
+}  // namespace thurston

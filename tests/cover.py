@@ -1,0 +1,56 @@
+"""Independent truth for depth: a geodesic's first entry into chart balls, found by a fine march of
+the geometry's closed form in the universal cover (each piece carried into the domain by the
+isometry that reduces its start), then a root of the distance to the ball's centre."""
+import math
+
+import numpy as np
+from scipy.optimize import brentq
+
+
+def cover_first_hits(G, space, P, V, length, centres, outer, inner, step=0.01):
+    """(t_outer, t_inner, margin): the first arclengths at which the geodesic (P, V) meets a chart
+    sphere |x - c| = rho, for rho the circumscribed (`outer`) and inscribed (`inner`) radii of each
+    centre's mesh (inf where it does not meet), and its closest approach to a circumscribed sphere."""
+    centres, outer, inner = np.asarray(centres, float), np.asarray(outer, float), np.asarray(inner, float)
+    t = np.arange(0.0, length + step, step)
+    Y, _ = G.geodesic(P[None], V[None], t)
+    _, _, M = space.move_inside(Y)
+
+    def chart(k, s):
+        X, _ = G.geodesic(P, V, s)
+        return G.to_chart(M[k] @ X)
+
+    x = G.to_chart(np.einsum("kij,kj->ki", M, Y))
+    x_next = G.to_chart(np.einsum("kij,kj->ki", M[:-1], Y[1:]))  # each piece's end by its start's map
+    margin = np.min(np.linalg.norm(x[:, None] - centres[None], axis=-1) - outer)
+    found = []
+    for rho in (outer, inner):
+        first = math.inf
+        for k in range(len(t) - 1):
+            d0 = np.linalg.norm(x[k] - centres, axis=1) - rho
+            d1 = np.linalg.norm(x_next[k] - centres, axis=1) - rho
+            hit = np.flatnonzero((d0 > 0) & (d1 <= 0))
+            if len(hit):
+                c, r = centres[hit[0]], rho[hit[0]]
+                first = brentq(lambda s: np.linalg.norm(chart(k, s) - c) - r, t[k], t[k + 1], xtol=1e-13)
+                break
+        found.append(first)
+    return found[0], found[1], margin
+
+
+def check_depths(G, space, out, P, V, length, centres, outer, inner):
+    """Each traced ray against cover_first_hits: a miss where the cover geodesic passes clear of
+    every ball, a hit between the circumscribed and inscribed entries where it enters one (grazing
+    rays are not compared). Returns (compared, hits)."""
+    compared = hits = 0
+    for i in range(len(P)):
+        t_outer, t_inner, margin = cover_first_hits(G, space, P[i], V[i], length, centres, outer, inner)
+        if math.isinf(t_outer) and margin > 0.01:
+            assert out["stop"][i] == 1, i
+            compared += 1
+        elif math.isfinite(t_inner) and t_inner - t_outer < 0.01:  # not grazing
+            assert out["stop"][i] == 0, i
+            assert t_outer - 1e-5 <= out["depth"][i] <= t_inner + 1e-5, (i, t_outer, out["depth"][i], t_inner)
+            compared += 1
+            hits += 1
+    return compared, hits
