@@ -814,7 +814,7 @@ def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: fl
     of power p as spread uniformly, 1/vol per volume: a shell of radius r holds area(r) / vol of
     them and each sends p / area(r), so the part from R to D is 4 pi p (D - R) / vol in E3, H3
     and S3 alike (with fog f: 4 pi p f (exp(-R/f) - exp(-D/f)) / vol). Without the limit it
-    diverges in E3 and H3 (Olbers). Nil, Sol, H2xR: each light's nearest copy, no estimate."""
+    diverges in E3 and H3 (Olbers). Nil, Sol, H2xR, S2xR: each light's nearest copy, no estimate."""
     stats = {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0}
     if not sums_light_copies(space):
         return {**stats, "light_reach": None, "light_energy_left_out": None}
