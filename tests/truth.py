@@ -66,3 +66,15 @@ def flows_against_dop853(G, christoffel, x, v, t):
     import thurston_core
     xc, vc = thurston_core.geodesic_flow(G.name, x[None].copy(), v[None].copy(), np.array([t]))
     return dop853(christoffel, x, v, t), [G.chart_geodesic(x, v, t), (xc[0], vc[0])]
+
+
+def check_flows_against_dop853(G, christoffel, metric, cases, tol=1e-9, speed_tol=1e-10):
+    """For each case (x, v, t): the Python and the C++ flows' position and velocity equal DOP853's
+    within tol (relative, and absolute on the scale 1 + |reference|), finite, at unit speed in
+    `metric` to speed_tol."""
+    for x, v, t in cases:
+        (x_ref, v_ref), ((xp, vp), (xc, vc)) = flows_against_dop853(G, christoffel, x, v, t)
+        for got, want in ((xp, x_ref), (vp, v_ref), (xc, x_ref), (vc, v_ref)):
+            assert np.all(np.isfinite(got)), (x, v, t)
+            assert np.all(np.abs(got - want) <= tol * (1 + np.abs(want)) + tol * np.abs(want)), (x, v, t, got, want)
+        assert abs(vp @ metric(xp) @ vp - 1) < speed_tol, (x, v, t)
