@@ -243,3 +243,16 @@ def test_cli_lists_and_renders_the_preset(tmp_path):
     subprocess.run([sys.executable, "-m", "thurston_addon.cli", "render", "--space", "s2xs1", "--out", str(out),
                     "--size", "64x36", "--quality", "draft"], capture_output=True, text=True, check=True)
     assert out.stat().st_size > 0
+
+
+def test_the_default_scene_is_shown_whole():
+    """The great circles of the default scene average to the chart's missing origin: they are
+    brought home by their vertices, and nothing of the scene is dropped or cut."""
+    import warnings
+
+    from thurston_addon.scene import default_scene
+
+    space = spaces.load("s2xs1")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        render.compile_scene(space, default_scene(space))

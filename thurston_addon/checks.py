@@ -34,10 +34,21 @@ class Note:
     message: str
 
 
+HOME_SAMPLE = 1000  # vertices an object's home is chosen by
+
+
 def home_element(space: Space, vertices) -> np.ndarray:
-    """The isometry that brings an object (chart vertices) home: its centre, the chart mean of its
-    vertices, into the domain. Raises SpaceError if the centre cannot be brought in."""
-    return home_elements(space, np.asarray(vertices, float).mean(axis=0)[None])[0]
+    """The isometry that brings an object (chart vertices) home: the one that brings the most of
+    its vertices (up to HOME_SAMPLE of them, evenly taken) into the domain. (Its centre will not do
+    where the chart mean is no point of the object's region: S2xR's great circles average to the
+    chart's missing origin.) Raises SpaceError if a vertex cannot be brought in."""
+    g = space.geometry
+    V = np.asarray(vertices, float)
+    sample = V[::max(1, len(V) // HOME_SAMPLE)]
+    M = space.move_inside(g.to_model(sample))[2]
+    keys = [g.element_key(m) for m in M]
+    best = max(set(keys), key=keys.count)
+    return g.reorthonormalize(M[keys.index(best)])
 
 
 def home_elements(space: Space, centres) -> np.ndarray:

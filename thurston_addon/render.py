@@ -173,9 +173,9 @@ def light_summary(s: dict) -> str:
 def _object_copies(space: Space, obj, C):
     """The copies g(obj) that can reach the domain, each as (model vertices, indices of the kept
     triangles, the isometry g), and whether every vertex of the object is brought into the domain
-    by one of them. The copies are
-    taken around the copy whose centre (the chart mean of its vertices) lies in the domain, so an
-    object anywhere in the universal cover is shown, as the camera is (checks.home_element)."""
+    by one of them. The copies are taken around the copy that has the most of its vertices in the
+    domain, so an object anywhere in the universal cover is shown, as the camera is
+    (checks.home_element)."""
     g = space.geometry
     try:
         home = checks.home_element(space, obj.vertices)
