@@ -18,7 +18,7 @@ from thurston_addon import render, spaces
 from thurston_addon.geometries import get
 from thurston_addon.scene import Scene, SceneObject
 from cover import check_depths
-from truth import check_flows_against_dop853, christoffel_from, h2xr_metric
+from truth import check_flows_against_dop853, christoffel_from, h2xr_metric, unit_in
 
 G = get("H2xR")
 SQ2 = math.sqrt(2.0)
@@ -48,8 +48,7 @@ def christoffel_truth(x):
 
 
 def unit(x, u):
-    u = np.asarray(u, float)
-    return u / math.sqrt(u @ h2xr_metric(x) @ u)
+    return unit_in(h2xr_metric, x, u)
 
 
 def disk_points(rng, n, radius=0.95, height=2.0):

@@ -18,7 +18,7 @@ from thurston_addon import render, spaces
 from thurston_addon.geometries import get
 from thurston_addon.scene import Scene, SceneObject
 from cover import check_depths
-from truth import check_flows_against_dop853, christoffel_from, s2xr_metric
+from truth import check_flows_against_dop853, christoffel_from, s2xr_metric, unit_in
 
 G = get("S2xR")
 
@@ -33,8 +33,7 @@ def christoffel_truth(x):
 
 
 def unit(x, u):
-    u = np.asarray(u, float)
-    return u / math.sqrt(u @ s2xr_metric(x) @ u)
+    return unit_in(s2xr_metric, x, u)
 
 
 def shell_points(rng, n, lo=-1.0, hi=2.0):

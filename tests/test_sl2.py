@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from thurston_addon.geometries import sl2
-from truth import christoffel_from, dop853
+from truth import christoffel_from, dop853, unit_in
 
 G = sl2.SL2()
 
@@ -42,8 +42,7 @@ def christoffel_truth(x):
 
 
 def unit(x, u):
-    u = np.asarray(u, float)
-    return u / math.sqrt(u @ metric_truth(x) @ u)
+    return unit_in(metric_truth, x, u)
 
 
 def random_point(rng, radius=0.8):

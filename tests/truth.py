@@ -78,3 +78,9 @@ def check_flows_against_dop853(G, christoffel, metric, cases, tol=1e-9, speed_to
             assert np.all(np.isfinite(got)), (x, v, t)
             assert np.all(np.abs(got - want) <= tol * (1 + np.abs(want)) + tol * np.abs(want)), (x, v, t, got, want)
         assert abs(vp @ metric(xp) @ vp - 1) < speed_tol, (x, v, t)
+
+
+def unit_in(metric, x, u):
+    """The chart vector u at x scaled to unit length in metric(x)."""
+    u = np.asarray(u, float)
+    return u / np.sqrt(u @ metric(x) @ u)
