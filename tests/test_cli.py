@@ -99,6 +99,18 @@ def test_entry_point_subprocess():
 
 
 # --- render ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("sid", sorted(PRESETS))
+def test_every_preset_renders_its_default_view(tmp_path, capsys, sid):
+    """From the command line, each preset's default scene: rays meet it, and the image is not flat."""
+    out = tmp_path / f"{sid}.exr"
+    code, _, err = run(["render", "--space", sid, "--size", "64x36", "--quality", "draft", "--out", out], capsys)
+    assert code == 0, err
+    names, pix, _, _ = read_image(out)
+    hit = np.isfinite(pix[..., names.index("Z")])
+    assert hit.mean() > 0.05
+    assert np.ptp(pix[..., :3][hit]) > 0.05
+
+
 def test_render_png_and_exr(tmp_path, capsys):
     png = tmp_path / "view.png"
     code, out, err = run(["render", "--space", "torus", "--size", "64x36", "--quality", "draft", "--out", png], capsys)

@@ -7,8 +7,6 @@ geodesic, followed in the universal cover and carried into the domain by the gro
 spheres inside the domain (the mesh lies between its inscribed and circumscribed spheres).
 """
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -266,13 +264,3 @@ def test_no_leak_at_the_octagon_vertices(space):
         assert np.all((out["stop"] == 0) | (out["stop"] == 1)), np.bincount(out["stop"])
         assert np.all(np.isfinite(out["end"]))
         assert space.domain.contains(G.to_model(out["end"]), tol=1e-6).all()
-
-
-def test_cli_lists_and_renders_the_preset(tmp_path):
-    listing = subprocess.run([sys.executable, "-m", "thurston_addon.cli", "spaces"], capture_output=True, text=True, check=True)
-    row = next(line for line in listing.stdout.splitlines() if line.startswith("genus2xs1"))
-    assert row.split()[1] == "H2xR"
-    out = tmp_path / "x.png"
-    subprocess.run([sys.executable, "-m", "thurston_addon.cli", "render", "--space", "genus2xs1", "--out", str(out),
-                    "--size", "64x36", "--quality", "draft"], capture_output=True, text=True, check=True)
-    assert out.stat().st_size > 0

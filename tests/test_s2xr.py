@@ -7,8 +7,6 @@ closed-form geodesic, followed in the universal cover and carried into the shell
 chart spheres (the mesh lies between its inscribed and circumscribed spheres).
 """
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -232,16 +230,6 @@ def test_radial_and_tangential_rays_stay_finite_and_inside(space):
         r = np.linalg.norm(out["end"][n // 2:], axis=1)
         free = out["stop"][n // 2:] == 1
         np.testing.assert_allclose(r[free], np.linalg.norm(x[n // 2:], axis=1)[free], rtol=1e-9)  # |x| kept
-
-
-def test_cli_lists_and_renders_the_preset(tmp_path):
-    listing = subprocess.run([sys.executable, "-m", "thurston_addon.cli", "spaces"], capture_output=True, text=True, check=True)
-    row = next(line for line in listing.stdout.splitlines() if line.startswith("s2xs1"))
-    assert row.split()[1] == "S2xR"
-    out = tmp_path / "x.png"
-    subprocess.run([sys.executable, "-m", "thurston_addon.cli", "render", "--space", "s2xs1", "--out", str(out),
-                    "--size", "64x36", "--quality", "draft"], capture_output=True, text=True, check=True)
-    assert out.stat().st_size > 0
 
 
 def test_the_default_scene_is_shown_whole():
