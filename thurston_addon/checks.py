@@ -4,6 +4,7 @@ here: the command line prints the notes as warnings, the Blender layer puts them
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,7 +48,7 @@ def home_element(space: Space, vertices) -> np.ndarray:
     sample = V[::max(1, len(V) // HOME_SAMPLE)]
     M = space.move_inside(g.to_model(sample))[2]
     keys = [g.element_key(m) for m in M]
-    best = max(set(keys), key=keys.count)
+    best, _ = Counter(keys).most_common(1)[0]
     return g.reorthonormalize(M[keys.index(best)])
 
 

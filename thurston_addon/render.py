@@ -605,27 +605,29 @@ def view_directions(camera: Camera, settings: Settings, jitter=(0.5, 0.5)):
             np.broadcast_to(np.sin(lat)[:, None], (h, w)))
 
 
-def camera_rays(space: Space, camera: Camera, settings: Settings, jitter=(0.5, 0.5), frame=None):
+def camera_rays(space: Space, camera: Camera, settings: Settings, jitter=(0.5, 0.5), frame=None, view=None):
     """Origins and unit directions (model) for every pixel of the window, rows top-down. `frame`:
     the result of camera_frame(space, camera), computed once per render and passed in for every
-    sample. Rays start at their clip start (clip_range) along their geodesics, moved into the domain."""
+    sample; `view`: view_directions(camera, settings, jitter), where the caller has it. Rays start
+    at their clip start (clip_range) along their geodesics, moved into the domain."""
     g = space.geometry
     X, (f, r, u) = frame if frame is not None else camera_frame(space, camera)
-    a, b, c = view_directions(camera, settings, jitter)
+    a, b, c = view if view is not None else view_directions(camera, settings, jitter)
     D = np.ascontiguousarray((a[..., None] * f + b[..., None] * r + c[..., None] * u).reshape(-1, 4))
     origins = np.broadcast_to(X, (len(D), 4)).copy()
     if camera.clip_start > 0:
-        origins, D = g.geodesic(origins, D, clip_range(camera, settings, jitter, math.inf)[0])
+        origins, D = g.geodesic(origins, D, clip_range(camera, settings, a, math.inf)[0])
         origins, D, _ = space.move_inside(origins, D)
         origins, D = np.ascontiguousarray(origins, float), np.ascontiguousarray(D, float)
     return origins, D
 
 
-def clip_range(camera: Camera, settings: Settings, jitter, reach: float):
+def clip_range(camera: Camera, settings: Settings, along_axis, reach: float):
     """Per ray of the window, the geodesic distances (start, end) between which it sees: Blender's
     clipping, by planes square to the view axis at the clip distances (the ray's distance over its
-    cosine to the axis; panoramas: spheres), the end no farther than `reach`."""
-    cos = view_directions(camera, settings, jitter)[0].ravel() if settings.projection == "perspective" else 1.0
+    cosine to the axis, `along_axis`: view_directions' first part; panoramas: spheres), the end no
+    farther than `reach`."""
+    cos = np.ravel(along_axis) if settings.projection == "perspective" else 1.0
     start = np.broadcast_to(camera.clip_start / cos, (settings.window[2] * settings.window[3],))
     return start, np.minimum(reach, (camera.clip_end or math.inf) / cos)
 
@@ -719,9 +721,6 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     _, _, w, h = settings.window  # the pixels rendered
     pixel_angle = (math.radians(camera.fov) if settings.projection == "perspective" else 2 * math.pi) / W
     tolerances = settings.tolerances(space, pixel_angle)
-    # every ray is traced from its clip start, as far as the farthest ray's clip end needs
-    ranges = (clip_range(camera, settings, jitter, reach) for jitter in (CENTRE, *offsets))
-    limits = (float(max(np.max(end - start) for start, end in ranges)), max_crossings, *tolerances)
     shade = settings.shading == "lambert"
     # (jitter, shade, is colour sample): the centre pass first where no colour sample gives it
     jobs = [(o, shade, True) for o in offsets]
@@ -735,13 +734,16 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     chords = light_failures = light_paths = shaded_points = 0
     light_energy = 0.0
     for k, (jitter, shaded, colour) in enumerate(jobs):
-        origins, directions = camera_rays(space, camera, settings, jitter, frame=frame)
+        view = view_directions(camera, settings, jitter)
+        origins, directions = camera_rays(space, camera, settings, jitter, frame=frame, view=view)
+        # every ray is traced from its clip start, as far as this sample's farthest clip end needs
+        start, end = clip_range(camera, settings, view[0], reach)
+        limits = (float(np.max(end - start)), max_crossings, *tolerances)
         base = k * pixels
         report = None if progress is None else (lambda done, _n, base=base: progress(base + done, total))
         out = trace(tracer, origins, directions, *limits, shade=shaded, progress=report, fog=settings.fog)
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
-        start, end = clip_range(camera, settings, jitter, reach)
         _miss_beyond(out, end - start)
         chords += int(out["chords"])
         light_failures += int(out["light_failures"])
@@ -749,7 +751,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         light_energy += float(out["light_energy"])
         shaded_points += int(np.sum(out["stop"] == 0)) if shaded else 0
         if jitter == CENTRE:
-            first = out
+            first, first_start, first_limits = out, start, limits
             sample = _error_sample(out, space.geometry)
             probe = (origins[sample], directions[sample])
         del origins, directions
@@ -767,7 +769,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "color": (color_sum / len(offsets)).reshape(h, w, 3).astype(np.float32),
         # the colour of a miss is 0, so the colour is premultiplied by this alpha
         "alpha": (hit_sum / len(offsets) if settings.transparent else np.ones(w * h)).reshape(h, w).astype(np.float32),
-        "depth": (first["depth"] + clip_range(camera, settings, CENTRE, reach)[0]).reshape(h, w),
+        "depth": (first["depth"] + first_start).reshape(h, w),
         "normal": first["normal"].reshape(h, w, 3),
         "position": first["position"].reshape(h, w, 3),
         "object": first["object"].reshape(h, w),
@@ -777,7 +779,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     hits = first["stop"] == 0
     median_depth = float(np.median(first["depth"][hits])) if hits.any() else 0.0
     origins, directions = probe
-    measured, measured_pixels, changed = retrace_error(space, tracer, origins, directions, first, sample, limits,
+    measured, measured_pixels, changed = retrace_error(space, tracer, origins, directions, first, sample, first_limits,
                                                        pixel_angle)
     stats = {
         "rays": len(offsets) * pixels, "rays_traced": total, "chords": chords, "seconds": seconds,
