@@ -13,6 +13,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 pytestmark = pytest.mark.usefixtures("registered_addon")
 
+import thurston_addon  # noqa: E402
 from thurston_addon import checks, engine  # noqa: E402
 
 import blender_helpers as bh  # noqa: E402
@@ -364,3 +365,40 @@ def test_viewport_reexports_only_what_changed():
         assert seen and seen[-1] == (False, False)
     finally:
         bpy.app.handlers.depsgraph_update_post.remove(record)
+
+
+# --- settings, operators' notes, layout --------------------------------------------------------------------
+def test_samples_setting_and_distinct_draft_and_preview():
+    """The panel's Samples overrides the quality's; draft and preview differ in samples per pixel."""
+    from thurston_addon import render
+
+    assert render.QUALITY["draft"].samples < render.QUALITY["preview"].samples
+    sc = scene_with_boxes()
+    sc.render.engine = "THURSTON"
+    for quality, samples, want in (("draft", 0, 1), ("preview", 0, 2), ("draft", 3, 3)):
+        sc.thurston.quality, sc.thurston.samples = quality, samples
+        bpy.ops.render.render()
+        assert sc.thurston.stats.rays == want * 40 * 24, (quality, samples)
+
+
+def test_operators_report_the_notes():
+    """Render View says what the engine says: a scene without lights is noted in its stats."""
+    bh.fresh_scene("torus", size=(8, 6))
+    bh.box("Floor", (0.8, 0.8, 0.02), (0, 0.2, -0.12))
+    bh.camera((0, -0.1, 0), lens=30.0)
+    assert bpy.ops.thurston.render_view() == {"FINISHED"}
+    assert checks.NO_LIGHTS in note_kinds(bpy.context.scene)
+
+
+def test_only_registration_imports_the_ui_packages():
+    """The layout: nothing but the package's registration imports operators/ or panels/."""
+    import re
+
+    root = Path(thurston_addon.__file__).parent
+    for path in root.rglob("*.py"):
+        rel = path.relative_to(root)
+        if rel.parts[0] in ("operators", "panels") or rel == Path("__init__.py"):
+            continue
+        text = path.read_text()
+        assert not re.search(r"from \.+\s*(operators|panels)\b|from \.+ import .*\b(operators|panels)\b|"
+                             r"thurston_addon\.(operators|panels)", text), rel
