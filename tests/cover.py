@@ -1,6 +1,7 @@
 """Independent truth for depth: a geodesic's first entry into chart balls, found by a fine march of
 the geometry's closed form in the universal cover (each piece carried into the domain by the
-isometry that reduces its start), then a root of the distance to the ball's centre."""
+isometry that reduces its start), then a root of the distance to the ball's centre. The march is
+the geometry's model (cover_first_hits) or the caller's own (first_hits: SL2's cover elements)."""
 import math
 
 import numpy as np
@@ -11,7 +12,6 @@ def cover_first_hits(G, space, P, V, length, centres, outer, inner, step=0.01):
     """(t_outer, t_inner, margin): the first arclengths at which the geodesic (P, V) meets a chart
     sphere |x - c| = rho, for rho the circumscribed (`outer`) and inscribed (`inner`) radii of each
     centre's mesh (inf where it does not meet), and its closest approach to a circumscribed sphere."""
-    centres, outer, inner = np.asarray(centres, float), np.asarray(outer, float), np.asarray(inner, float)
     t = np.arange(0.0, length + step, step)
     Y, _ = G.geodesic(P[None], V[None], t)
     _, _, M = space.move_inside(Y)
@@ -22,6 +22,14 @@ def cover_first_hits(G, space, P, V, length, centres, outer, inner, step=0.01):
 
     x = G.to_chart(np.einsum("kij,kj->ki", M, Y))
     x_next = G.to_chart(np.einsum("kij,kj->ki", M[:-1], Y[1:]))  # each piece's end by its start's map
+    return first_hits(t, x, x_next, chart, centres, outer, inner)
+
+
+def first_hits(t, x, x_next, chart, centres, outer, inner):
+    """cover_first_hits from a march: the reduced chart points x at the times t, each piece's end
+    x_next reduced by its start's isometry, and chart(k, s), the point at s in [t[k], t[k + 1]]
+    reduced by piece k's isometry."""
+    centres, outer, inner = np.asarray(centres, float), np.asarray(outer, float), np.asarray(inner, float)
     margin = np.min(np.linalg.norm(x[:, None] - centres[None], axis=-1) - outer)
     found = []
     for rho in (outer, inner):
@@ -38,13 +46,16 @@ def cover_first_hits(G, space, P, V, length, centres, outer, inner, step=0.01):
     return found[0], found[1], margin
 
 
-def check_depths(G, space, out, P, V, length, centres, outer, inner):
-    """Each traced ray against cover_first_hits: a miss where the cover geodesic passes clear of
-    every ball, a hit between the circumscribed and inscribed entries where it enters one (grazing
-    rays are not compared). Returns (compared, hits)."""
+def check_depths(G, space, out, P, V, length, centres, outer, inner, truth=None):
+    """Each traced ray against cover_first_hits (or truth(i), the same for ray i): a miss where the
+    cover geodesic passes clear of every ball, a hit between the circumscribed and inscribed entries
+    where it enters one (grazing rays are not compared). Returns (compared, hits)."""
     compared = hits = 0
     for i in range(len(P)):
-        t_outer, t_inner, margin = cover_first_hits(G, space, P[i], V[i], length, centres, outer, inner)
+        if truth is None:
+            t_outer, t_inner, margin = cover_first_hits(G, space, P[i], V[i], length, centres, outer, inner)
+        else:
+            t_outer, t_inner, margin = truth(i)
         if math.isinf(t_outer) and margin > 0.01:
             assert out["stop"][i] == 1, i
             compared += 1

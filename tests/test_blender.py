@@ -22,7 +22,7 @@ import blender_helpers as bh  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 THURSTON = Path(sys.executable).with_name("thurston")
-CURVED = ("nil", "sol", "genus2xs1", "s2xs1")  # geodesics bend in the chart: traced in chords within a tolerance
+CURVED = ("nil", "sol", "genus2xs1", "s2xs1", "sl2")  # geodesics bend in the chart: traced in chords within a tolerance
 
 
 def _registered():
@@ -106,7 +106,7 @@ def build_scene(space="torus", scale=1.0, rotation=(1.45, 0.08, 0.25)):
 
 # --- 2. renders through every path equal the core's render of the same scene as files ------------------
 @pytest.mark.parametrize("space,scale", [("torus", 1.0), ("poincare", 2.0), ("nil", 1.0), ("sol", 2.0),
-                                         ("genus2xs1", 1.0), ("s2xs1", 0.1)])
+                                         ("genus2xs1", 1.0), ("s2xs1", 0.1), ("sl2", 1.0)])
 def test_operators_and_f12_match_core(tmp_path, space, scale):
     sc = build_scene(space, scale)
     toml = bh.write_scene_files(sc, tmp_path, scale)
@@ -293,6 +293,26 @@ def test_domain_guide_of_genus2xs1():
     assert len(pts) == 16 and len(obj.data.edges) == 24 and len(obj.data.polygons) == 10
     angles = np.sort(np.arctan2(pts[pts[:, 2] > 0, 1], pts[pts[:, 2] > 0, 0]))
     np.testing.assert_allclose(np.diff(angles), math.pi / 4, atol=1e-6)
+
+
+def test_domain_guide_of_sl2_is_the_curved_octagonal_prism():
+    """The octagon times [-pi, pi] in the Poincare chart: the guide's points lie on the domain's
+    boundary (a side's Klein test or a lid at equality), and its sides bulge towards the axis
+    (circle arcs, not the chords of the vertices)."""
+    bh.fresh_scene("sl2")
+    assert bpy.ops.thurston.domain_guide() == {"FINISHED"}
+    obj, pts = guide_points()
+    w = pts[:, 0] + 1j * pts[:, 1]
+    k = 2 * w / (1 + np.abs(w) ** 2)
+    side = np.max(np.c_[k.real, k.imag] @ np.array([[math.cos(a), math.sin(a)] for a in np.arange(8) * math.pi / 4]).T, axis=1)
+    on_side = np.abs(side - math.sqrt(2 * math.sqrt(2) - 2)) < 1e-5
+    on_lid = np.abs(np.abs(pts[:, 2]) - math.pi) < 1e-5
+    assert np.all(on_side | on_lid) and len(obj.data.polygons) > 1000
+    poincare_vertex = math.sqrt(12 * math.sqrt(2) - 16) / (1 + math.sqrt(1 - (12 * math.sqrt(2) - 16)))
+    chord = poincare_vertex * math.cos(math.pi / 8)  # the chord of two vertices, at its midpoint
+    eighths = np.angle(w) / (math.pi / 4)
+    mid = on_side & ~on_lid & (np.abs(eighths - np.round(eighths)) < 1e-6)  # the sides' middles
+    assert mid.any() and np.all(np.abs(w[mid]) < chord - 0.01)
 
 
 def test_domain_guide_of_s2xs1_is_its_two_spheres():

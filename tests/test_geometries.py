@@ -115,8 +115,8 @@ def test_metric_derivative_helper_matches_finite_differences(name, rng):
 
 
 def test_get_unknown_geometry():
-    with pytest.raises(ValueError, match="'SL2'; known: E3, S3, H3, Nil, Sol"):
-        geometries.get("SL2")
+    with pytest.raises(ValueError, match="'SL3'; known: E3, S3, H3, Nil, Sol, H2xR, S2xR, SL2"):
+        geometries.get("SL3")
 
 
 # --- metric -----------------------------------------------------------------------------------------

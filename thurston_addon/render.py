@@ -188,7 +188,7 @@ def _object_copies(space: Space, obj, C):
         covered = np.zeros(len(X), bool)
         for M in space.neighbourhood(rings):
             Y = X @ M.T
-            ok = Y[:, 3] > 1e-9 * np.linalg.norm(Y, axis=1)  # the copy stays on the chart's side
+            ok = g.charted(Y)  # the copy stays on the chart's side
             H = g.plane_coordinates(Y)
             outside = (H / np.linalg.norm(H, axis=1)[:, None]) @ C.T > 1e-9
             covered |= ok & ~outside.any(axis=1)
@@ -466,7 +466,7 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
     offset = 0
     for index, source, Y, kept, M in flat:
         used, local = np.unique(source.triangles[kept], return_inverse=True)
-        verts.append(g.to_chart(Y[used]))
+        verts.append(g.mesh_to_chart(Y[used]))
         tris.append(local.reshape(-1, 3) + offset)
         owner.append(np.full(len(kept), index, np.int32))
         offset += len(used)

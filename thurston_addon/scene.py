@@ -572,7 +572,8 @@ def default_scene(space) -> Scene:
     centre, and a light near the camera."""
     import trimesh
 
-    size = space.extent
+    # the domain's size, but no more than twice its inscribed ball (SL2's fibre is long beside its disk)
+    size = min(space.extent, 4 * space.chart_inradius)
     radius = 0.012 * size
     palette = np.array([[0.9, 0.25, 0.2], [0.2, 0.7, 0.3], [0.25, 0.45, 0.95], [0.95, 0.8, 0.2],
                         [0.8, 0.3, 0.85], [0.2, 0.8, 0.85], [0.95, 0.55, 0.2], [0.6, 0.6, 0.6],

@@ -253,10 +253,17 @@ class Space:
         return float(np.ptp(self.domain.vertices, axis=0).max())
 
     @cached_property
-    def chart_inradius(self) -> float:
-        """The chart distance from the chart origin to the nearest face plane."""
+    def face_feet(self) -> np.ndarray:
+        """The chart points of the faces nearest the chart origin in the plane chart (the feet of
+        the perpendiculars there: on a face whose plane chart is the chart, the nearest points)."""
         C = self.domain.covectors()
-        return float(np.min(np.abs(C[:, 3]) / np.linalg.norm(C[:, :3], axis=1)))
+        n = C[:, :3]
+        return self.geometry.from_plane_chart(-C[:, 3:4] * n / np.sum(n * n, axis=1)[:, None])
+
+    @cached_property
+    def chart_inradius(self) -> float:
+        """The chart distance from the chart origin to the nearest face."""
+        return float(np.min(np.linalg.norm(self.face_feet, axis=1)))
 
     def outline(self, inset: float) -> list[list[tuple[np.ndarray, np.ndarray]]]:
         """Chart segments that draw the domain, grouped by class (the default scene's tubes)."""
@@ -351,6 +358,9 @@ def _generator_tables(data, where, geometry):
         M = np.array([_vector(r, 4, f"{w} row {k}") for k, r in enumerate(rows)])
         if not geometry.is_isometry(M, tol=1e-9):
             raise SpaceError(f"{w}: the matrix is not an isometry of {geometry.name}")
+        problem = geometry.generator_problem(M)
+        if problem:
+            raise SpaceError(f"{w}: the matrix {problem}")
         out.append((name, geometry.reorthonormalize(M)))
     return out
 
@@ -380,7 +390,7 @@ def _halfspace_domain(covectors, elements, source, geometry) -> Domain:
         if len(on) < 3:
             continue
         faces.append(Face(covector=c, element=M, vertices=_ring(V, on, c[:3])))
-    return Domain(vertices=V, faces=faces, plane_coordinates=geometry.plane_coordinates)
+    return Domain(vertices=geometry.from_plane_chart(V), faces=faces, plane_coordinates=geometry.plane_coordinates)
 
 
 def _ring(V, idx, normal):
@@ -655,15 +665,24 @@ class CoordinateSpace(Space):
 
     @property
     def inradius(self) -> float:
-        """The chart inradius: the metrics of Nil and Sol are Euclidean at the chart origin, so this
-        is the geodesic inradius to first order."""
-        return self.chart_inradius
+        """The inradius to first order at the chart origin: the metric length there of the chart
+        vectors to the faces' feet (Nil's, Sol's and H2xR's metrics are Euclidean at the origin)."""
+        feet = self.face_feet
+        g0 = self.geometry.metric(np.zeros(3))
+        return float(np.sqrt(np.min(np.einsum("fi,ij,fj->f", feet, g0, feet))))
+
+    @cached_property
+    def plane_vertices(self) -> np.ndarray:
+        """The domain's vertices in the plane chart, where its faces are planes."""
+        g = self.geometry
+        Y = g.plane_coordinates(g.to_model(self.domain.vertices))
+        return Y[:, :3] / Y[:, 3:]
 
     def outline(self, inset: float) -> list[list[tuple[np.ndarray, np.ndarray]]]:
         """Each face's frame, its edges moved `inset` into the face, by face class: a face and its
         partner share a colour (as in the paper's Nil and Sol figures), so where the pairing twists
         the frames seen through a face do not continue those around it."""
-        V = self.domain.vertices
+        V = self.plane_vertices
         groups: list[list] = [[] for _ in range(max(self.face_classes) + 1)]
         for face, c in zip(self.domain.faces, self.face_classes):
             ring = V[face.vertices]
@@ -678,21 +697,58 @@ class CoordinateSpace(Space):
                 # the point of the face at distance `inset` from both sides: ring[i] + x a + y b
                 G = np.array([[a @ a, a @ b], [a @ b, b @ b]])
                 corners.append(ring[i] + np.linalg.solve(G, [inset, inset]) @ np.array([a, b]))
-            groups[c] += [(corners[i], corners[(i + 1) % k]) for i in range(k)]
+            groups[c] += [piece for i in range(k) for piece in self._chart_segments(corners[i], corners[(i + 1) % k])]
         return groups
+
+    PIECES = 16  # chart chords per plane-chart segment where the faces are curved in the chart
+
+    def _chart_segments(self, a, b):
+        """The plane-chart segment a b in the chart: itself, or chart chords of its image (curved
+        where the plane chart is not the chart)."""
+        g = self.geometry
+        if g.plane_chart_is_chart:
+            return [(a, b)]
+        x = g.from_plane_chart(a + np.linspace(0, 1, self.PIECES + 1)[:, None] * (b - a))
+        return list(zip(x[:-1], x[1:]))
+
+    def guide_mesh(self) -> tuple[np.ndarray, list, list]:
+        """The domain's faces and edges; where the plane chart is not the chart, each face's fan of
+        triangles from its centre subdivided in the plane chart, and each edge in PIECES, carried
+        to the chart."""
+        if self.geometry.plane_chart_is_chart:
+            return super().guide_mesh()
+        import trimesh
+
+        V = self.plane_vertices
+        points, triangles, pairs, count = [], [], [], 0
+        for face in self.domain.faces:
+            ring = V[face.vertices]
+            k = len(ring)
+            y, t = np.vstack([ring, ring.mean(axis=0)]), np.array([[i, (i + 1) % k, k] for i in range(k)])
+            for _ in range(4):
+                y, t = trimesh.remesh.subdivide(y, t)
+            points.append(y)
+            triangles += (t + count).tolist()
+            count += len(y)
+        steps = np.linspace(0, 1, self.PIECES + 1)[:, None]
+        for a, b, _, _ in self.domain.edges:
+            points.append(V[a] + steps * (V[b] - V[a]))
+            pairs += [(count + i, count + i + 1) for i in range(self.PIECES)]
+            count += self.PIECES + 1
+        return self.geometry.from_plane_chart(np.vstack(points)), pairs, triangles
 
     @cached_property
     def volume(self) -> float:
         """Riemannian volume of the domain: the volume density integrated over the cones from the
-        origin over the face triangles, by a collapsed Gauss-Legendre rule on each (the Dirichlet
-        domains' radial closed form needs a projective chart)."""
+        origin over the face triangles in the plane chart, by a collapsed Gauss-Legendre rule on
+        each (the Dirichlet domains' radial closed form needs a projective chart)."""
         g = self.geometry
         u, w = np.polynomial.legendre.leggauss(g.volume_order)
         u, w = 0.5 * (u + 1), 0.5 * w
         # (a, b, c) in the unit cube -> the tetrahedron (0, p, q, r): x = a (p + b (q - p + c (r - q)))
         A, B, Cc = np.meshgrid(u, u, u, indexing="ij")
         W = np.einsum("i,j,k->ijk", w, w, w) * A**2 * B
-        V = self.domain.vertices
+        V = self.plane_vertices
         total = 0.0
         for face in self.domain.faces:
             ring = V[face.vertices]
@@ -700,7 +756,7 @@ class CoordinateSpace(Space):
             for p, q in zip(ring, np.roll(ring, -1, axis=0)):
                 X = A[..., None] * (centre + B[..., None] * (p - centre + Cc[..., None] * (q - p)))
                 jac = abs(np.linalg.det(np.array([centre, p - centre, q - p])))
-                total += float(np.sum(W * jac * g.volume_density(X)))
+                total += float(np.sum(W * jac * g.plane_chart_density(X)))
         return total
 
     def reduces_to_identity(self, M, probes) -> bool:

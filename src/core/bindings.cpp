@@ -513,7 +513,7 @@ is not given. Triangles of emissive materials cast no shadows.
 light_lifts: float64 (K,4) points (copies of the point lights in the universal cover);
 light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3). E3, S3, H3
 sum every geodesic from a shaded point to each lift no longer than light_reach (keyword; S3 also
-the long arc, of length 2 pi - d); the marching geometries (Nil, Sol, H2xR, S2xR) the one to each light's nearest lift.
+the long arc, of length 2 pi - d); the marching geometries (Nil, Sol, H2xR, S2xR, SL2) the one to each light's nearest lift.
 geodesic_loop (keyword): the length after which every geodesic returns to its start (S3 with -1 in
 the group: pi); light paths longer than it from an opaque surface are shadowed by that surface.
 threads: worker threads, 0 for one per hardware thread.

@@ -11,6 +11,7 @@
 #include "nil.hpp"
 #include "projective.hpp"
 #include "s2xr.hpp"
+#include "sl2.hpp"
 #include "sol.hpp"
 
 #if defined(__SSE2__) || defined(_M_X64)
@@ -709,6 +710,7 @@ const Geometry kGeometries[] = {
     {"Sol", 0, make_marching<SolFlow>, normalise_affine, flow_of<SolFlow>},
     {"H2xR", 0, make_marching<H2xRFlow>, H2xRFlow::normalise_lift, flow_of<H2xRFlow>},
     {"S2xR", 0, make_marching<S2xRFlow>, normalise_affine, flow_of<S2xRFlow>},
+    {"SL2", 0, make_marching<SL2Flow>, SL2Flow::normalise_lift, flow_of<SL2Flow>},
 };
 
 const Geometry& find(const std::string& name) {

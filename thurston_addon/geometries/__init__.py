@@ -1,17 +1,18 @@
 """Geometry kernels: metric, geodesic flow, isometries and charts, float64 numpy, no Blender.
 
 `get(name)` returns the geometry for a space file's `geometry` field. Every geometry offers the
-interface of base.py (ProjectiveGeometry for E3, S3, H3; AffineGeometry for Nil, Sol and S2xR; H2xR its own).
+interface of base.py (ProjectiveGeometry for E3, S3, H3; AffineGeometry for Nil, Sol and S2xR; H2xR and SL2 their own).
 """
 from .euclidean import Euclidean
 from .h2xr import H2xR
 from .hyperbolic import Hyperbolic
 from .nil import Nil
 from .s2xr import S2xR
+from .sl2 import SL2
 from .sol import Sol
 from .spherical import Spherical
 
-GEOMETRIES = {g.name: g for g in (Euclidean(), Spherical(), Hyperbolic(), Nil(), Sol(), H2xR(), S2xR())}
+GEOMETRIES = {g.name: g for g in (Euclidean(), Spherical(), Hyperbolic(), Nil(), Sol(), H2xR(), S2xR(), SL2())}
 
 
 def get(name: str):

@@ -29,6 +29,9 @@ class Geometry:
     # Whether a coordinate domain's faces are chart planes (a convex chart polyhedron); S2xR's are
     # the spheres |x| = const (spaces.ShellSpace)
     chart_plane_faces = True
+    # Whether the face planes' coordinates (plane_coordinates, as y = Y[:3] / Y[3]) are the chart's
+    # own; SL2's are (Klein(w), phi) over its Poincare chart, so its faces are curved in the chart
+    plane_chart_is_chart = True
     # Whether an isometry M maps chart points affinely, as M on (x, 1): copies of an instanced mesh
     # are then instances themselves (render.py)
     affine_isometries = False
@@ -54,6 +57,27 @@ class Geometry:
         """The homogeneous vectors of model points X that face covectors pair with: the model
         vectors themselves where the chart is their projective image (E3, S3, H3, Nil, Sol)."""
         return _floats(X)
+
+    def from_plane_chart(self, y):
+        """Chart points of plane-chart points y = Y[:3] / Y[3] (Y = plane_coordinates(X))."""
+        return _floats(y)
+
+    def plane_chart_density(self, y):
+        """The volume density in the plane chart."""
+        return self.volume_density(y)
+
+    def mesh_to_chart(self, Y):
+        """Chart points of a small connected mesh's model vertices (SL2: on one branch of phi)."""
+        return self.to_chart(Y)
+
+    def charted(self, Y):
+        """Whether model vectors are points of the chart (S3: its hemisphere X[3] > 0)."""
+        Y = _floats(Y)
+        return Y[..., 3] > 1e-9 * np.linalg.norm(Y, axis=-1)
+
+    def generator_problem(self, M):
+        """Why a space file may not use the isometry M as a generator (None: it may)."""
+        return None
 
     def pull_back_plane(self, c, M):
         """The covector of the plane that the isometry M maps onto the plane c."""
