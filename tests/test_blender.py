@@ -794,7 +794,7 @@ def test_render_blend_subprocess(tmp_path):
 
 
 @pytest.mark.parametrize("space", CURVED)
-def test_render_blend_in_nil_and_sol(tmp_path, space):
+def test_render_blend_in_the_curved_geometries(tmp_path, space):
     sc = build_scene(space)
     sc.thurston.passes = {"COLOR"}
     blend = tmp_path / "walk.blend"

@@ -13,7 +13,7 @@ import trimesh
 
 from thurston_addon import render, spaces
 from thurston_addon.geometries import sl2
-from thurston_addon.scene import Scene, SceneObject
+from thurston_addon.scene import PointLight, Scene, SceneObject
 from cover import check_depths, first_hits
 from truth import check_flows_against_dop853, christoffel_from, unit_in
 
@@ -412,3 +412,53 @@ def test_no_leak_at_the_octagon_vertices(space):
         assert np.all((out["stop"] == 0) | (out["stop"] == 1)), np.bincount(out["stop"])
         assert np.all(np.isfinite(out["end"]))
         assert space.domain.contains(G.to_model(out["end"]), tol=1e-6).all()
+
+
+def test_lambert_colour_is_base_power_cos_falloff(space):
+    """Hits on a lid-like square phi = 0.4 lit by a light 0.6 above it: colour = base * power * cos
+    * falloff, with the geodesic to the light found here by scipy's root finder on the cover's closed
+    form (chart_geodesic), the metric normal facing the ray and the falloff from central differences
+    of the closed form (falloff_along), to 2e-3 (the tracer's forward-difference Jacobian of exp)."""
+    from scipy.optimize import fsolve
+
+    colour, power = np.array([0.8, 0.6, 0.4]), 0.7
+    grid = np.linspace(-0.35, 0.35, 8)
+    X, Y = np.meshgrid(grid, grid)
+    square = trimesh.Trimesh(np.c_[X.ravel(), Y.ravel(), np.full(64, 0.4)],
+                             [[i * 8 + j, i * 8 + j + 1, i * 8 + j + 9] for i in range(7) for j in range(7)]
+                             + [[i * 8 + j, i * 8 + j + 9, i * 8 + j + 8] for i in range(7) for j in range(7)])
+    light = np.array([0.05, -0.05, 1.0])
+    scene = Scene(objects=[SceneObject("square", square.vertices, square.faces, colour)],
+                  lights=[PointLight(light, np.ones(3), power)])
+    rng = np.random.default_rng(17)
+    n = 300
+    x = np.c_[rng.uniform(-0.3, 0.3, (n, 2)), rng.uniform(1.2, 1.6, n)]
+    u = np.array([unit(p, [rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), -1.0]) for p in x])
+    P = G.to_model(x)
+    V = G.normalize_tangent(P, G.tangent_to_model(x, u))
+    out = render.make_tracer(space, scene).trace(np.ascontiguousarray(P), np.ascontiguousarray(V), 3.0, 100,
+                                                shade=True, tolerance=1e-7)
+    rows = np.flatnonzero(out["stop"] == 0)
+    assert len(rows) >= 100 and int(out["light_failures"]) == 0
+    checked = 0
+    for i in rows[:60]:
+        h = out["position"][i]
+        frame = np.linalg.inv(np.linalg.cholesky(metric_truth(h)).T)  # columns orthonormal at h
+
+        def miss(w):
+            r = np.linalg.norm(w)
+            return G.chart_geodesic(h, frame @ (w / r), r)[0] - light
+
+        w = fsolve(miss, np.linalg.solve(frame, light - h), xtol=1e-13)
+        assert np.abs(miss(w)).max() < 1e-10
+        r = np.linalg.norm(w)
+        to_light = frame @ (w / r)
+        normal = np.linalg.solve(metric_truth(h), [0.0, 0.0, 1.0])
+        normal /= math.sqrt(normal[2])  # unit: n . g^-1 n = normal[2] for the covector (0, 0, 1)
+        cos = abs(normal @ metric_truth(h) @ to_light)  # the rays come from above, as the light
+        H = G.to_model(h)
+        falloff = float(G.falloff_along(H, G.normalize_tangent(H, G.tangent_to_model(h, to_light)), np.array(r)))
+        want = colour * power * cos * falloff
+        np.testing.assert_allclose(out["color"][i], want, rtol=2e-3)
+        checked += 1
+    assert checked == 60
