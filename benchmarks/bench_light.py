@@ -1,8 +1,8 @@
 """Direct light along every geodesic: what the light reach costs. For each space, the default view of
 its default scene rendered at multiples of the default light reach: the copies of the light the
 tracer has, the geodesics to lights per shaded point, the render time (least of --repeat; the tile
-search of a reach is cached on the space, so its first time is given apart; the copy search of H2xR
-and S2xR is part of every render, and given apart too), and the estimated
+search of a reach, and H2xR's and S2xR's copy search of a light and reach, are cached on the space,
+so their first time is given apart), and the estimated
 energy beyond the reach (times the summed). With --baseline DIR (an unpacked wheel of an earlier
 build: its thurston_addon and thurston_core, e.g. from `pip wheel --no-deps` of a checkout from before
 this change) the same render with that build (each light's nearest copy) is timed in a child
@@ -53,7 +53,7 @@ def use_build(build):
 
 def copy_search(space, reach):
     """The first search for the copies of the default scene's lights within the reach: E3, H3 the
-    tile walk (cached per reach afterwards), H2xR, S2xR the walk over copies (done by every render)."""
+    tile walk (cached per reach afterwards), H2xR, S2xR the walk over copies (cached per light and reach)."""
     from thurston_addon import render
     from thurston_addon.scene import default_scene
 

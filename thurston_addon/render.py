@@ -384,13 +384,25 @@ def cover_copies(space: Space, L, reach: float) -> list[np.ndarray]:
     (g -> g s, s a face's element), level by level in numpy. The geodesic from L to a copy within
     reach stays within reach of D (D's neighbourhoods are convex) and passes through a chain of
     face-neighbouring tiles, whose copies lie within rho = space.farthest_distance(L) of it: so a
-    walk through the copies within reach + rho of D misses none."""
+    walk through the copies within reach + rho of D misses none. Cached per light and reach."""
+    def key(Y):  # relative: far copies have large model vectors, known to ~1e-16 of their size
+        return tuple(np.round(Y / np.linalg.norm(Y), 8))
+
+    cached = space.__dict__.setdefault("_cover_copies", {})  # the viewport renders one scene again and again
+    if (key(L), reach) not in cached:
+        if len(cached) >= COVER_COPIES_CACHED:
+            cached.pop(next(iter(cached)))
+        cached[key(L), reach] = _walk_cover_copies(space, L, reach, key)
+    return cached[key(L), reach]
+
+
+COVER_COPIES_CACHED = 64  # lights and reaches whose copies a space keeps
+
+
+def _walk_cover_copies(space: Space, L, reach: float, key) -> list[np.ndarray]:
     g = space.geometry
     rho = space.farthest_distance(L)
     steps = np.array([f.element for f in space.domain.faces])
-
-    def key(Y):  # relative: far copies have large model vectors, known to ~1e-16 of their size
-        return tuple(np.round(Y / np.linalg.norm(Y), 8))
 
     found = {key(L): L}
     kept = [L]
