@@ -367,8 +367,8 @@ def light_reach_for(space: Space, settings: Settings) -> float:
 
 def light_copies(space: Space, L, reach: float) -> list[np.ndarray]:
     """The copies g L of the light L (a model point in the domain D) that can lie within `reach` of
-    D: in E3 and H3 those in tiles gD within reach of D (light_tiles), in the coordinate domains of
-    H2xR and S2xR those cover_copies finds, each with every face plane of D within reach."""
+    D: in E3 and H3 those in tiles gD within reach of D (light_tiles) with every face plane of D
+    within reach, in the coordinate domains of H2xR and S2xR those within reach (cover_copies)."""
     g = space.geometry
     if space.group_order is not None:  # finite (S3): all of it
         return [M @ L for M in space.elements_within(g.diameter + 1e-6)]
@@ -380,11 +380,13 @@ def light_copies(space: Space, L, reach: float) -> list[np.ndarray]:
 
 def cover_copies(space: Space, L, reach: float) -> list[np.ndarray]:
     """The copies g L of the light L (a model point in the domain D) within reach of D (the
-    geometry's domain_distance), by a breadth-first walk from L to the copies in neighbouring tiles
-    (g -> g s, s a face's element), level by level in numpy. The geodesic from L to a copy within
-    reach stays within reach of D (D's neighbourhoods are convex) and passes through a chain of
-    face-neighbouring tiles, whose copies lie within rho = space.farthest_distance(L) of it: so a
-    walk through the copies within reach + rho of D misses none. Cached per light and reach."""
+    geometry's domain_distance), by a breadth-first walk from L over g L -> s g L (s a face's
+    element), level by level in numpy, through the copies within reach + rho of D (rho =
+    space.farthest_distance(L)). None is missed: the geodesic from L to a copy g L within reach
+    passes through a chain of face-neighbouring tiles D, t1 D, t1 t2 D, ..., g D (g = t1 ... tk),
+    and the walk reaches g L through the copies of the suffixes, tj ... tk L = (t1 ... tj-1)^-1 g L,
+    each as near D as g L is to the tile t1 ... tj-1 D, which the geodesic crosses: within its
+    length d(L, g L) <= reach + rho. Cached per light and reach."""
     def key(Y):  # relative: far copies have large model vectors, known to ~1e-16 of their size
         return tuple(np.round(Y / np.linalg.norm(Y), 8))
 
