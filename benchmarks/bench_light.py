@@ -1,13 +1,14 @@
 """Direct light along every geodesic: what the light reach costs. For each space, the default view of
 its default scene rendered at multiples of the default light reach: the copies of the light the
 tracer has, the geodesics to lights per shaded point, the render time (least of --repeat; the tile
-search of a reach is cached on the space, so its first time is given apart), and the estimated
+search of a reach, and H2xR's and S2xR's copy search of a light and reach, are cached on the space,
+so their first time is given apart), and the estimated
 energy beyond the reach (times the summed). With --baseline DIR (an unpacked wheel of an earlier
 build: its thurston_addon and thurston_core, e.g. from `pip wheel --no-deps` of a checkout from before
 this change) the same render with that build (each light's nearest copy) is timed in a child
 process, for the ratio.
 Run: .venv/bin/python benchmarks/bench_light.py [--size 320x180] [--repeat 3]
-     [--spaces torus,poincare,seifert_weber] [--baseline /tmp/base/wheel]
+     [--spaces torus,poincare,seifert_weber,genus2xs1,s2xs1] [--baseline /tmp/base/wheel]
 """
 import argparse
 import json
@@ -19,7 +20,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from timing import best_of  # noqa: E402
 
-FACTORS = {"S3": (0.25, 0.5, 1.0), "E3": (0.5, 1.0, 2.0, 4.0), "H3": (0.5, 1.0, 2.0, 4.0)}
+FACTORS = {"S3": (0.25, 0.5, 1.0), "E3": (0.5, 1.0, 2.0, 4.0), "H3": (0.5, 1.0, 2.0, 4.0), "H2xR": (0.5, 1.0, 1.5),
+           "S2xR": (0.5, 1.0, 2.0)}
 
 
 def view(sid, size, repeat, reach_factor=None):
@@ -49,6 +51,22 @@ def use_build(build):
     sys.path.insert(0, build)
 
 
+def copy_search(space, reach):
+    """The first search for the copies of the default scene's lights within the reach: E3, H3 the
+    tile walk (cached per reach afterwards), H2xR, S2xR the walk over copies (cached per light and reach)."""
+    from thurston_addon import render
+    from thurston_addon.scene import default_scene
+
+    if space.group_order is not None:
+        return
+    if space.geometry.projective:
+        render.light_tiles(space, reach)
+        return
+    for light in default_scene(space).lights:
+        L, _, _ = space.bring_inside(space.geometry.to_model(light.position))
+        render.cover_copies(space, L, reach)
+
+
 def table(space_ids, size, repeat, baseline):
     from thurston_addon import render, spaces
 
@@ -64,9 +82,10 @@ def table(space_ids, size, repeat, baseline):
             reach = factor * render.default_light_reach(space)
             t0 = time.perf_counter()
             try:
-                render.light_tiles(space, reach) if space.group_order is None else None
+                copy_search(space, reach)
             except render.RenderError:
-                print(f"{sid:<14} {reach:>12.3g} refused: more than {render.LIGHT_TILE_LIMIT} tiles within the reach")
+                print(f"{sid:<14} {reach:>12.3g} refused: more than {render.LIGHT_TILE_LIMIT} tiles or copies within "
+                      "the reach")
                 continue
             search = time.perf_counter() - t0
             seconds, s = view(sid, size, repeat, factor)
@@ -82,7 +101,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--size", default="320x180")
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--spaces", default="torus,poincare,seifert_weber")
+    ap.add_argument("--spaces", default="torus,poincare,seifert_weber,genus2xs1,s2xs1")
     ap.add_argument("--baseline", metavar="DIR", help="an earlier build (unpacked wheel) to time the nearest copy with")
     ap.add_argument("--time-of", help=argparse.SUPPRESS)  # the child's one measurement, as JSON
     ap.add_argument("--build", help=argparse.SUPPRESS)

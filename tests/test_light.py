@@ -1,6 +1,7 @@
-"""Direct light along every geodesic (E3, S3, H3) against closed forms: the sum over the copies of
-a point light (and in S3 over both arcs to each) of cos * power * falloff, where nothing shadows
-(the shaded object is emissive, so it casts no shadow, and there is nothing else), and the
+"""Direct light along every geodesic (E3, S3, H3, H2xR, S2xR) against closed forms: the sum over the
+copies of a point light (in S3 over both arcs to each, in S2xR over every arc round the sphere) of
+cos * power * falloff, where nothing shadows (the shaded object is emissive, so it casts no
+shadow, and there is nothing else), every path shadowed where the light is shut in, and the
 render's light statistics."""
 from __future__ import annotations
 
@@ -127,6 +128,12 @@ def test_light_stats_and_energy_estimate():
     sw = spaces.load("seifert_weber")
     r = render.render(sw, default_scene(sw), render.Settings(width=16, height=9, quality="draft"))
     assert math.isfinite(r.stats["light_reach"]) and 0 < r.stats["light_energy_left_out"] < math.inf
+    for sid in ("genus2xs1", "s2xs1"):  # every copy within the reach, along every geodesic
+        space = spaces.load(sid)
+        r = render.render(space, default_scene(space), render.Settings(width=16, height=9, quality="draft"))
+        assert r.stats["light_reach"] == pytest.approx(render.default_light_reach(space))
+        assert r.stats["light_copies"] > 1 and r.stats["light_paths_per_point"] > 1
+        assert 0 < r.stats["light_energy_left_out"] < math.inf and r.stats["light_failures"] == 0
     nil = spaces.load("nil")
     r = render.render(nil, default_scene(nil), render.Settings(width=16, height=9, quality="draft"))
     assert r.stats["light_reach"] is None and "nearest" in r.summary()
@@ -193,3 +200,161 @@ def test_floor_under_the_lamp_matches_cycles_in_the_tiled_cover(tmp_path, regist
     np.testing.assert_allclose(thurston[central].mean(axis=0), cycles[central].mean(axis=0), rtol=0.02)
     assert report["all copies"] < 0.05, report  # Cycles' noise at 1024 samples: about 0.03
     assert report["own copy only"] > 3 * report["all copies"], report
+
+
+# --- H2xR and S2xR: every copy in the universal cover, every connecting geodesic -----------------------
+# The truth below is written from the product structure alone: the copies from the preset's
+# generator matrices (words searched in the test), distances from the hyperboloid's and the sphere's
+# textbook formulas, the cosine towards each copy as minus the derivative of that geodesic's length
+# along the normal (central differences), the falloff as the wavefront's area density. The tracer's
+# copy search (render.cover_copies) and its C++ connections share none of it.
+
+def h2xr_model(x):
+    """Chart (x, y, z) -> the model (X1, X2, e^z, X0), (X1, X2, X0) = (x, y, 1) / sqrt(1 - x^2 - y^2)."""
+    s = 1 / math.sqrt(1 - x[0] ** 2 - x[1] ** 2)
+    return np.array([s * x[0], s * x[1], math.exp(x[2]), s])
+
+
+def h2xr_chart(X):
+    return np.array([X[0] / X[3], X[1] / X[3], math.log(X[2])])
+
+
+def h2xr_distance(a, b):
+    """(horizontal, vertical) distances of chart points: cosh d = (1 - a.b) / sqrt((1 - a^2)(1 - b^2))
+    on the disk, and the difference of z."""
+    c = (1 - a[0] * b[0] - a[1] * b[1]) / math.sqrt((1 - a[0] ** 2 - a[1] ** 2) * (1 - b[0] ** 2 - b[1] ** 2))
+    return math.acosh(max(c, 1.0)), b[2] - a[2]
+
+
+def deck_elements(space, origin, within, distance_from_origin, rho):
+    """The group elements g with distance_from_origin(g) <= within, by a breadth-first search over
+    the generators and their inverses that goes on through elements up to rho farther (a geodesic
+    to g O passes through tiles whose copies of O lie within rho, the domain's circumradius about
+    O, of it); an element is known by its image g O of the model point O (the action is free)."""
+    steps = [*space.generators, *(np.linalg.inv(M) for M in space.generators)]
+    key = lambda M: tuple(np.round(M @ origin / np.linalg.norm(M @ origin), 8))
+    found, frontier = {key(np.eye(4)): np.eye(4)}, [np.eye(4)]
+    while frontier:
+        nxt = []
+        for M in frontier:
+            for S in steps:
+                N = M @ S
+                if key(N) not in found and distance_from_origin(N) <= within + rho:
+                    found[key(N)] = N
+                    nxt.append(N)
+        frontier = nxt
+    return [M for M in found.values() if distance_from_origin(M) <= within]
+
+
+def central_difference(f, x, n, h=1e-6):
+    return (f(x + h * n) - f(x - h * n)) / (2 * h)
+
+
+def test_genus2_x_circle_sums_every_copy_in_the_cover():
+    """H2xR, genus2xs1: a point of a ball lit by a light is lit along the one geodesic to each copy
+    g L of the light in H2 x R within the reach (the Fuchsian group's copies times the circle's),
+    with cos * p * d / (r^2 sinh d) (the wavefront: H2's circle of radius d = the horizontal length
+    times the flat direction; r^2 = d^2 + dz^2), to the float32 colour's precision. Each copy's
+    term exceeds the tolerance 50 times over, so a missing copy fails it."""
+    space = spaces.load("genus2xs1")
+    light, power, reach = np.array([0.25, -0.1, 0.6]), 0.8, 4.5
+    centre = np.array([-0.1, 0.3, -0.2])
+    colour, H, N, out = shade_one(space, ball_scene(centre, light, power), centre + [0.0, -0.3, 0.1], centre, reach)
+    g = space.geometry
+    x, n = g.to_chart(H), g.tangent_to_chart(H, N)  # the hit point and its unit normal, as the trace gave them
+    L = h2xr_model(light)
+    origin = np.array([0.0, 0.0, 1.0, 1.0])
+    around = lambda M: math.hypot(*h2xr_distance(np.zeros(3), h2xr_chart(M @ origin)))
+    # d(O, gO) <= d(O, x) + reach + d(L, O) for a copy within reach of x
+    bound = math.hypot(*h2xr_distance(np.zeros(3), x)) + reach + math.hypot(*h2xr_distance(np.zeros(3), light))
+    terms, energy = [], 0.0
+    rho = max(math.hypot(*h2xr_distance(np.zeros(3), v)) for v in space.domain.vertices)
+    for M in deck_elements(space, origin, bound, around, rho):
+        q = h2xr_chart(M @ L)
+        d, dz = h2xr_distance(x, q)
+        r = math.hypot(d, dz)
+        if r > reach:
+            continue
+        assert reach - r > 1e-6  # no copy on the boundary of the reach
+        falloff = d / (r * r * math.sinh(d))
+        energy += power * falloff
+        cosine = -central_difference(lambda p: math.hypot(*h2xr_distance(p, q)), x, n)
+        terms.append(max(cosine, 0.0) * power * falloff)
+    terms = np.array(terms)
+    assert len(terms) == out["light_paths"] and np.count_nonzero(terms) > 15
+    assert float(out["light_energy"]) == pytest.approx(energy, rel=1e-6)
+    rtol = 1e-5  # the colour is float32
+    np.testing.assert_allclose(colour, GLOW + RHO * terms.sum(), rtol=rtol)
+    print("relative error", np.abs(colour / (GLOW + RHO * terms.sum()) - 1).max(), "smallest term / colour",
+          RHO * terms[terms > 0].min() / colour.max())
+    assert RHO * terms[terms > 0].min() > 50 * rtol * colour.max()  # a missing copy fails it
+
+
+def test_s2_x_circle_sums_every_arc_of_every_copy():
+    """S2xR, s2xs1: from a point to each copy of the light (dilated by e^{2 pi k}) the cover holds one
+    geodesic per great-circle arc between their directions, going either way round and winding:
+    sphere angles theta + 2 pi n and 2 pi (n + 1) - theta, with r^2 = angle^2 + dw^2 and the
+    falloff angle / (r^2 |sin angle|) (the sphere's circle times the flat direction). The sum of
+    cos * p * falloff over those within the reach, against the traced colour."""
+    space = spaces.load("s2xs1")
+    light, power, reach = np.array([14.0, -26.0, 9.0]), 0.8, 13.0
+    centre = np.array([0.0, -30.0, 0.0])
+    scale = np.linalg.norm(centre)  # the metric is |dx| / |x|: a ball of chart radius 0.02 |x|
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.02 * scale)
+    scene = Scene(objects=[SceneObject("ball", ball.vertices + centre, ball.faces, (RHO,) * 3, emission=(GLOW,) * 3)],
+                  lights=[PointLight(light, np.ones(3), power)])
+    colour, H, N, out = shade_one(space, scene, centre + [0.0, -0.3 * scale, 0.1 * scale], centre, reach)
+    g = space.geometry
+    x, n = g.to_chart(H), g.tangent_to_chart(H, N)
+    (dilation,) = space.generators
+
+    def angle_and_dw(p, q):
+        u, v = p / np.linalg.norm(p), q / np.linalg.norm(q)
+        return math.atan2(np.linalg.norm(np.cross(u, v)), u @ v), math.log(np.linalg.norm(q) / np.linalg.norm(p))
+
+    terms, energy, arcs = [], 0.0, set()
+    for k in range(-4, 5):
+        q = (np.linalg.matrix_power(dilation, k) @ np.r_[light, 1.0])[:3]
+        for n_turns in range(4):
+            for way in (+1, -1):  # the arc towards q's direction, or the other way round
+                def length(p):
+                    theta, dw = angle_and_dw(p, q)
+                    return math.hypot(2 * math.pi * n_turns + (theta if way > 0 else 2 * math.pi - theta), dw)
+                theta, dw = angle_and_dw(x, q)
+                alpha = 2 * math.pi * n_turns + (theta if way > 0 else 2 * math.pi - theta)
+                r = math.hypot(alpha, dw)
+                if r > reach:
+                    continue
+                assert reach - r > 1e-6
+                arcs.add((k, n_turns, way))
+                falloff = alpha / (r * r * abs(math.sin(alpha)))
+                energy += power * falloff
+                terms.append(max(-central_difference(length, x, n), 0.0) * power * falloff)
+    terms = np.array(terms)
+    assert len(terms) == out["light_paths"]
+    assert {(0, 0, -1), (0, 1, 1), (0, 1, -1), (1, 0, 1), (-1, 0, 1)} <= arcs  # both ways, winding, other copies
+    assert float(out["light_energy"]) == pytest.approx(energy, rel=1e-6)
+    rtol = 1e-5  # the colour is float32
+    np.testing.assert_allclose(colour, GLOW + RHO * terms.sum(), rtol=rtol)
+    print("relative error", np.abs(colour / (GLOW + RHO * terms.sum()) - 1).max(), "smallest term / colour",
+          RHO * terms[terms > 0].min() / colour.max())
+    assert RHO * terms[terms > 0].min() > 50 * rtol * colour.max()
+
+
+@pytest.mark.parametrize("sid, light, centre, lamp_radius", [
+    ("genus2xs1", [0.25, -0.1, 0.6], [-0.1, 0.3, -0.2], 0.05),
+    ("s2xs1", [14.0, -26.0, 9.0], [0.0, -30.0, 0.0], 0.05 * 31.0)])
+def test_a_shut_in_light_is_shadowed_along_every_geodesic(sid, light, centre, lamp_radius):
+    """The light inside a closed opaque ball: every geodesic to every copy (the shadow rays cross
+    faces, go round the sphere, wind) meets the ball, so only the shaded ball's own emission is left."""
+    space = spaces.load(sid)
+    scene = ball_scene(np.array(centre), light, 0.8)
+    if sid == "s2xs1":  # the metric is |dx| / |x|: balls of chart radius proportional to |x|
+        ball = trimesh.creation.icosphere(subdivisions=3, radius=0.02 * np.linalg.norm(centre))
+        scene.objects[0] = SceneObject("ball", ball.vertices + centre, ball.faces, (RHO,) * 3, emission=(GLOW,) * 3)
+    shell = trimesh.creation.icosphere(subdivisions=2, radius=lamp_radius)
+    scene.objects.append(SceneObject("lamp shade", shell.vertices + light, shell.faces, (0.5,) * 3))
+    origin = np.array(centre) + np.array([0.0, -0.3, 0.1]) * (np.linalg.norm(centre) if sid == "s2xs1" else 1.0)
+    colour, _, _, out = shade_one(space, scene, origin, centre, 4.5 if sid == "genus2xs1" else 13.0)
+    assert out["light_paths"] > 5
+    np.testing.assert_array_equal(colour, np.float32(GLOW))

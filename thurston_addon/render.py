@@ -339,20 +339,24 @@ def _instance_copies(space: Space, obj, C):
 
 
 def sums_light_copies(space: Space) -> bool:
-    """Whether the tracer sums the light of every copy within the reach (the closed-form geodesics
-    of E3, S3, H3); elsewhere each light's nearest copy among space.light_elements() lights."""
-    return space.geometry.projective
+    """Whether the tracer sums the light of every copy within the reach along every geodesic to it
+    (the closed-form connecting geodesics of E3, S3, H3, H2xR, S2xR); elsewhere (Nil, Sol) each
+    light's nearest copy among space.light_elements() lights."""
+    return space.geometry.sums_light_copies
 
 
 def default_light_reach(space: Space) -> float:
-    """S3: everything, both arcs (the long arcs are shorter than 2 pi). E3: the domain's diameter
-    (bounded by twice its circumradius), so every point has its light's own copy and the ring around
-    it. H3: the circumradius (the light's nearest copy, for a light near the centre), as the copies
-    within R grow as exp(2R). The cost: benchmarks/bench_light.py."""
+    """A finite group (S3): everything, both arcs (the long arcs are shorter than 2 pi). Else the
+    geometry's multiple of the circumradius: E3 and S2xR twice it (E3: the domain's diameter at most,
+    so every point has its light's own copy and the ring around it; S2xR: the copies one period up
+    and down and the arcs round the sphere both ways), H3 and H2xR once (the light's nearest copy
+    for a light near the centre), as the copies within R grow as exp(2R), exp(R). The cost:
+    benchmarks/bench_light.py."""
     if not sums_light_copies(space):
         return math.inf  # the nearest copy, wherever it is
-    k = space.geometry.curvature
-    return 2 * space.geometry.diameter if k > 0 else (2 if k == 0 else 1) * space.circumradius
+    if space.group_order is not None:
+        return 2 * space.geometry.diameter
+    return space.geometry.light_reach_circumradii * space.circumradius
 
 
 def light_reach_for(space: Space, settings: Settings) -> float:
@@ -363,12 +367,65 @@ def light_reach_for(space: Space, settings: Settings) -> float:
 
 def light_copies(space: Space, L, reach: float) -> list[np.ndarray]:
     """The copies g L of the light L (a model point in the domain D) that can lie within `reach` of
-    D: those in tiles gD within reach of D (light_tiles), with every face plane of D within reach."""
+    D: in E3 and H3 those in tiles gD within reach of D (light_tiles) with every face plane of D
+    within reach, in the coordinate domains of H2xR and S2xR those within reach (cover_copies)."""
     g = space.geometry
     if space.group_order is not None:  # finite (S3): all of it
         return [M @ L for M in space.elements_within(g.diameter + 1e-6)]
+    if not g.projective:
+        return cover_copies(space, L, reach)
     copies = (g.normalize_point(M @ L) for M in light_tiles(space, reach))
     return [Y for Y in copies if np.max(space.face_distances(Y)) <= reach + 1e-9]
+
+
+def cover_copies(space: Space, L, reach: float) -> list[np.ndarray]:
+    """The copies g L of the light L (a model point in the domain D) within reach of D (the
+    geometry's domain_distance), by a breadth-first walk from L over g L -> s g L (s a face's
+    element), level by level in numpy, through the copies within reach + rho of D (rho =
+    space.farthest_distance(L)). None is missed: the geodesic from L to a copy g L within reach
+    passes through a chain of face-neighbouring tiles D, t1 D, t1 t2 D, ..., g D (g = t1 ... tk),
+    and the walk reaches g L through the copies of the suffixes, tj ... tk L = (t1 ... tj-1)^-1 g L,
+    each as near D as g L is to the tile t1 ... tj-1 D, which the geodesic crosses: within its
+    length d(L, g L) <= reach + rho. Cached per light and reach."""
+    def key(Y):  # relative: far copies have large model vectors, known to ~1e-16 of their size
+        return tuple(np.round(Y / np.linalg.norm(Y), 8))
+
+    cached = space.__dict__.setdefault("_cover_copies", {})  # the viewport renders one scene again and again
+    if (key(L), reach) not in cached:
+        if len(cached) >= COVER_COPIES_CACHED:
+            cached.pop(next(iter(cached)))
+        cached[key(L), reach] = _walk_cover_copies(space, L, reach, key)
+    return cached[key(L), reach]
+
+
+COVER_COPIES_CACHED = 64  # lights and reaches whose copies a space keeps
+
+
+def _walk_cover_copies(space: Space, L, reach: float, key) -> list[np.ndarray]:
+    g = space.geometry
+    rho = space.farthest_distance(L)
+    steps = np.array([f.element for f in space.domain.faces])
+
+    found = {key(L): L}
+    kept = [L]
+    frontier = L[None]
+    while len(frontier):
+        candidates = {}
+        for Y in g.normalize_point(np.einsum("sij,nj->nsi", steps, frontier).reshape(-1, 4)):
+            candidates.setdefault(key(Y), Y)
+        new = np.array([Y for k, Y in candidates.items() if k not in found]).reshape(-1, 4)
+        distance = g.domain_distance(new, space.domain)
+        walk = distance <= reach + rho + 1e-9
+        found.update((key(Y), Y) for Y in new[walk])
+        kept += list(new[walk & (distance <= reach + 1e-9)])
+        frontier = new[walk]
+        if len(found) > LIGHT_TILE_LIMIT:
+            raise RenderError(f"{space.name}: light reach {reach:g} needs more than {LIGHT_TILE_LIMIT} copies of the "
+                              "light; choose a smaller light reach")
+    # a copy whose key rounded two ways would light twice: keep one of each point
+    kept = np.array(kept)
+    near = g.distance(kept[:, None], kept[None]) < 1e-6
+    return list(kept[~np.any(np.triu(near, 1), axis=0)])
 
 
 LIGHT_TILE_LIMIT = 20000  # tiles a light reach may need (an H3 reach of a few domain sizes has more)
@@ -424,10 +481,10 @@ def geodesic_loop(space: Space) -> float:
 
 def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
     """Tracer arrays: triangles of every object and of its copies g(object) that can reach the domain
-    (parts sticking out re-enter through the paired faces), and the lights' copies: in E3, S3 and H3
-    every copy within light_reach of the domain (None: the default within the distance limit; each
-    lights every point within its reach: an infinite reach needs a finite group), elsewhere those
-    around the domain (the tracer takes each light's nearest copy among them)."""
+    (parts sticking out re-enter through the paired faces), and the lights' copies: in E3, S3, H3,
+    H2xR and S2xR every copy within light_reach of the domain (None: the default within the distance
+    limit; each lights every point within its reach: an infinite reach needs a finite group), in
+    Nil and Sol those around the domain (the tracer takes each light's nearest copy among them)."""
     g = space.geometry
     C = space.domain.covectors()
     C = C / np.linalg.norm(C, axis=1)[:, None]
@@ -815,8 +872,11 @@ def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: fl
     cosines and shadows, averaged over the shaded points). The estimate takes the copies of a light
     of power p as spread uniformly, 1/vol per volume: a shell of radius r holds area(r) / vol of
     them and each sends p / area(r), so the part from R to D is 4 pi p (D - R) / vol in E3, H3
-    and S3 alike (with fog f: 4 pi p f (exp(-R/f) - exp(-D/f)) / vol). Without the limit it
-    diverges in E3 and H3 (Olbers). Nil, Sol, H2xR, S2xR: each light's nearest copy, no estimate."""
+    and S3 alike (with fog f: 4 pi p f (exp(-R/f) - exp(-D/f)) / vol), and in every geometry: averaged
+    over the points of the space, the geodesics from the light of lengths in [r, r + dr] bring
+    4 pi dr p / vol (the exponential map's Jacobian, which the falloff divides by, is the change of
+    variables from the light's directions to the points). Without the limit the sum diverges
+    (Olbers) wherever it is not cut at S3's two arcs. Nil, Sol: each light's nearest copy, no estimate."""
     stats = {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0}
     if not sums_light_copies(space):
         return {**stats, "light_reach": None, "light_energy_left_out": None}

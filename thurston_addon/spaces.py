@@ -663,6 +663,19 @@ class CoordinateSpace(Space):
     def _face_domain(self, covectors, elements) -> Domain:
         return _halfspace_domain(covectors, elements, self.source, self.geometry)
 
+    group_order = None  # lattices and bundles: infinite
+
+    def farthest_distance(self, X) -> float:
+        """The largest distance from the model point X to the domain's points: at a vertex, the domain
+        being the convex hull of its vertices in a geometry whose distance functions are convex (H2xR)."""
+        g = self.geometry
+        return float(np.max(g.distance(X, g.to_model(self.domain.vertices))))
+
+    @cached_property
+    def circumradius(self) -> float:
+        """The largest distance from the chart origin (the domain's centre) to the domain."""
+        return self.farthest_distance(self.geometry.to_model(np.zeros(3)))
+
     @property
     def inradius(self) -> float:
         """The inradius to first order at the chart origin: the metric length there of the chart
@@ -841,6 +854,17 @@ class ShellSpace(CoordinateSpace):
     def inradius(self) -> float:
         """Half the shell's width, log(R_out / R_in) / 2: the radius of the largest metric ball in it."""
         return 0.5 * math.log(self.radii[1] / self.radii[0])
+
+    def farthest_distance(self, X) -> float:
+        """The antipodal direction on the farther face sphere: hypot(pi, the larger difference of w)."""
+        w = float(self.geometry.plane_coordinates(np.asarray(X, float))[2])
+        lo, hi = np.log(self.radii)
+        return math.hypot(math.pi, max(w - lo, hi - w))
+
+    @cached_property
+    def circumradius(self) -> float:
+        """About a point of the middle sphere: hypot(pi, half the shell's width)."""
+        return math.hypot(math.pi, self.inradius)
 
     @cached_property
     def chart_inradius(self) -> float:

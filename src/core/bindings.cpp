@@ -511,9 +511,10 @@ triangles: int32 (NT,3); triangle_object: int32 (NT,).
 object_color, object_emission: float32 (NO,3), each object's one material where triangle_material
 is not given. Triangles of emissive materials cast no shadows.
 light_lifts: float64 (K,4) points (copies of the point lights in the universal cover);
-light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3). E3, S3, H3
-sum every geodesic from a shaded point to each lift no longer than light_reach (keyword; S3 also
-the long arc, of length 2 pi - d); the marching geometries (Nil, Sol, H2xR, S2xR, SL2) the one to each light's nearest lift.
+light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3). E3, S3, H3,
+H2xR and S2xR sum every geodesic from a shaded point to each lift no longer than light_reach
+(keyword; S3 also the long arc, of length 2 pi - d; S2xR every arc round the sphere, either way and
+winding); Nil, Sol and SL2 the one to each light's nearest lift.
 geodesic_loop (keyword): the length after which every geodesic returns to its start (S3 with -1 in
 the group: pi); light paths longer than it from an opaque surface are shadowed by that surface.
 threads: worker threads, 0 for one per hardware thread.
@@ -694,7 +695,7 @@ NB_MODULE(thurston_core, m) {
            "(N,) (-1: none).")
       .def_prop_ro("geometry", [](const TracerHandle& t) { return t.geometry; })
       .def_prop_ro("light_reach", [](const TracerHandle& t) { return t.tracer->light_reach(); },
-                   "Light paths longer than this are not summed (E3, S3, H3).")
+                   "Light paths longer than this are not summed (E3, S3, H3, H2xR, S2xR).")
       .def_prop_ro("num_light_lifts", [](const TracerHandle& t) { return t.tracer->num_light_lifts(); })
       .def_prop_ro("light_power", [](const TracerHandle& t) { return t.tracer->light_power(); },
                    "The sum over lights of their radiance's mean over RGB.")

@@ -9,8 +9,11 @@
 #include <algorithm>
 #include <cmath>
 
+#include <vector>
+
 #include "chart_planes.hpp"
 #include "closed_form.hpp"
+#include "kernel.hpp"
 #include "vec.hpp"
 
 namespace thurston {
@@ -68,6 +71,26 @@ struct H2xRFlow : ChartPlanes, ClosedForm<H2xRFlow> {
     const double c = (1.0 - q[0] * p[0] - q[1] * p[1]) /
                      std::sqrt((1.0 - q[0] * q[0] - q[1] * q[1]) * (1.0 - p[0] * p[0] - p[1] * p[1]));
     return std::hypot(std::acosh(std::max(c, 1.0)), p[2] - q[2]);
+  }
+
+  // Light along every geodesic: the cover's one geodesic from h to the light's copy l (chart
+  // points), if no longer than reach: the H^2 geodesic of the disk parts (length d) times the
+  // straight z part. The wavefront is H^2's circle of radius d times the flat direction:
+  // area density r^2 sinh(d) / d.
+  static void connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>& paths) {
+    const double sh = 1.0 / std::sqrt(1.0 - h[0] * h[0] - h[1] * h[1]);
+    const double sl = 1.0 / std::sqrt(1.0 - l[0] * l[0] - l[1] * l[1]);
+    const double P[3] = {sh * h[0], sh * h[1], sh}, Q[3] = {sl * l[0], sl * l[1], sl};
+    const double cosh_d = sh * sl * (1.0 - h[0] * l[0] - h[1] * l[1]);
+    // W = Q - cosh(d) P, the tangent at P towards Q, of Lorentz length sinh d
+    const double W[3] = {Q[0] - cosh_d * P[0], Q[1] - cosh_d * P[1], Q[2] - cosh_d * P[2]};
+    const double sinh_d = std::sqrt(std::max(W[0] * W[0] + W[1] * W[1] - W[2] * W[2], 0.0));
+    const double d = std::asinh(sinh_d), dz = l[2] - h[2], r = std::hypot(d, dz);
+    if (!(r <= reach) || !(r > 0.0)) return;
+    // the chart image of W / sinh d (unit in H^2) scaled by d / r, and z at speed dz / r
+    const double horizontal = sinh_d > 0.0 ? d / (r * sinh_d * P[2]) : 0.0;
+    const Vec3 v{horizontal * (W[0] - h[0] * W[2]), horizontal * (W[1] - h[1] * W[2]), dz / r};
+    paths.push_back({vector4(v), r, floored_falloff(r * r * (d > 0.0 ? sinh_d / d : 1.0))});
   }
 
   // A model point (X1, X2, e^z, X0) and tangent vector as chart (x, 1) and (v, 0).

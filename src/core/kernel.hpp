@@ -16,13 +16,14 @@
 //   double dot(const Vec4& X, const Vec4& a, const Vec4& b) the metric at X;
 //   bool normalise(const Vec4& X, Vec4& v)                 unit length at X;
 //   Vec3 chart_vector(const Vec4& X, const Vec4& v)         its chart image, unit in the chart;
-//   K::LightHint and either
+//   K::LightHint, K::kEveryLightPath and, where that is true,
 //   void light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
 //       std::vector<LightPath>&)   every geodesic from the surface point H to the lifts no longer
-//       than reach (closed forms: ProjectiveKernel), or
+//       than reach (closed forms: ProjectiveKernel, the marching kernels of H2xR and S2xR), else
 //   bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath&, LightHint&)
 //       the geodesic to the light's nearest copy among the lifts (found by shooting: the marching
-//       kernels); the hint carries what one point's search leaves for the next (per thread).
+//       kernels of Nil and Sol); the hint carries what one point's search leaves for the next (per
+//       thread).
 // Points and tangent vectors are 4-vectors: model vectors in the projective kernel, (x, 1) and
 // (v, 0) in chart coordinates in the others; face maps act on them linearly.
 #pragma once

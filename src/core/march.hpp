@@ -33,11 +33,17 @@
 //   Vec3 raise(const Vec3& x, const Vec3& covector) const           g^-1 at x;
 //   double volume_density(const Vec3& x) const                     sqrt det g;
 //   double separation(const Vec3& x, const Vec3& y) const   an isometry-invariant estimate of the
-//                                       distance, to pick the nearest copy of a light.
+//                                       distance, to pick the nearest copy of a light;
+// and where the connecting geodesics have a closed form (H2xR, S2xR)
+//   static void connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>&)
+//                                       every geodesic from h to the light's copy l no longer
+//                                       than reach, each with its direction, length and falloff
+//                                       (the kernel then sums every copy, else the nearest one).
 #pragma once
 
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
 #include <vector>
 
 #include "chart_planes.hpp"
@@ -76,11 +82,20 @@ WalkEnd walk_chords(Walk& w, const WalkContext& context, double length, int max_
   }
 }
 
+// Whether a flow offers its connecting geodesics in closed form (Flow::connections).
+template <class Flow, class = void>
+struct HasConnections : std::false_type {};
+template <class Flow>
+struct HasConnections<Flow, std::void_t<decltype(&Flow::connections)>> : std::true_type {};
+
 template <class Flow>
 class MarchingKernel {
  public:
   explicit MarchingKernel(Flow flow = Flow()) : flow_(flow) {}
   const Flow& flow() const { return flow_; }
+
+  // Every geodesic to every copy within the reach (light_paths), else the nearest copy's (light_path).
+  static constexpr bool kEveryLightPath = HasConnections<Flow>::value;
 
   // The flow used for exits, hits and lights is asked for this position accuracy relative to the
   // chord tolerance: integration errors stay well inside the tolerance.
@@ -124,6 +139,12 @@ class MarchingKernel {
     Vec3 h{}, w{};
     std::array<Vec3, 3> jacobian{};
   };
+
+  // Every geodesic from H to the lifts no longer than reach, in closed form (kEveryLightPath).
+  void light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
+                   std::vector<LightPath>& paths) const {
+    for (const Vec4& L : lifts) Flow::connections(head3(H), head3(L), reach, paths);
+  }
 
   // The geodesic from H to the light's copy nearest by the flow's separation estimate, found by
   // Newton's method on the exponential map (from the hint where it is for the same copy, else from

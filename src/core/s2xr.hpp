@@ -9,8 +9,11 @@
 #include <algorithm>
 #include <cmath>
 
+#include <vector>
+
 #include "affine_chart.hpp"
 #include "closed_form.hpp"
+#include "kernel.hpp"
 #include "vec.hpp"
 
 namespace thurston {
@@ -53,6 +56,40 @@ struct S2xRFlow : AffineChart, ClosedForm<S2xRFlow> {
   double separation(const Vec3& q, const Vec3& p) const {
     const double angle = std::atan2(norm3(cross3(q, p)), dot3(q, p));
     return std::hypot(angle, 0.5 * std::log(dot3(p, p) / dot3(q, q)));
+  }
+
+  // Light along every geodesic: from h to the light's copy l (chart points) the cover holds one
+  // geodesic per great-circle arc between their directions, the sphere angle alpha going either
+  // way round and winding (theta + 2 pi n, 2 pi (n + 1) - theta), times the straight w part, so
+  // that r^2 = alpha^2 + dw^2; those no longer than reach. The wavefront is the sphere's circle
+  // times the flat direction: area density r^2 |sin alpha| / alpha. Directions that coincide or
+  // are antipodal (where whole cones of arcs focus) keep only the straight w path.
+  static void connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>& paths) {
+    const double rh = norm3(h), rl = norm3(l), dw = std::log(rl / rh);
+    const Vec3 u = scaled3(1.0 / rh, h), ul = scaled3(1.0 / rl, l);
+    const double cos_theta = dot3(u, ul);
+    Vec3 e = sub3(ul, scaled3(cos_theta, u));
+    const double sin_theta = norm3(e);
+    const auto add = [&](double alpha, const Vec3& towards) {
+      const double r = std::hypot(alpha, dw);
+      if (!(r > 0.0)) return;
+      const Vec3 v = scaled3(rh / r, add3(scaled3(dw, u), scaled3(alpha, towards)));
+      const double stretch = alpha > 0.0 ? std::abs(std::sin(alpha)) / alpha : 1.0;
+      paths.push_back({vector4(v), r, floored_falloff(r * r * stretch)});
+    };
+    constexpr double kAligned = 1e-12;
+    if (!(sin_theta > kAligned)) {
+      if (cos_theta > 0.0 && std::abs(dw) <= reach) add(0.0, e);
+      return;
+    }
+    e = scaled3(1.0 / sin_theta, e);
+    const double theta = std::atan2(sin_theta, cos_theta);
+    const double longest = std::sqrt(std::max(reach * reach - dw * dw, 0.0));  // of alpha
+    if (!(std::abs(dw) <= reach)) return;
+    for (double turns = 0.0; theta + turns <= longest; turns += 2.0 * kPi) {
+      add(theta + turns, e);
+      if (turns + 2.0 * kPi - theta <= longest) add(turns + 2.0 * kPi - theta, scaled3(-1.0, e));
+    }
   }
 
   // Faces: the spheres c2 w + c3 = 0 (c[0] = c[1] = 0), w = log|x|, linear along every geodesic.

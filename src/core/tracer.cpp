@@ -471,22 +471,21 @@ std::size_t Tracer::run_chunks(std::size_t count,
 
 namespace {
 
-// The geodesics from H to a light that illumination() sums. Kernels with a closed form
-// (ProjectiveKernel) give every one within the reach; the marching kernels the one to the light's
-// nearest copy (false where it was not found), whatever the reach.
+// The geodesics from H to a light that illumination() sums. Kernels with closed forms
+// (kEveryLightPath) give every one within the reach; the others the one to the light's nearest
+// copy (false where it was not found), whatever the reach.
 template <class Kernel>
-bool light_paths(const Kernel& kernel, const Vec4& H, const std::vector<Vec4>& lifts, double,
+bool light_paths(const Kernel& kernel, const Vec4& H, const std::vector<Vec4>& lifts, double reach,
                  typename Kernel::LightHint& hint, std::vector<LightPath>& paths) {
-  LightPath path;
-  if (!kernel.light_path(H, lifts, path, hint)) return false;
-  paths.push_back(path);
-  return true;
-}
-
-bool light_paths(const ProjectiveKernel& kernel, const Vec4& H, const std::vector<Vec4>& lifts,
-                 double reach, ProjectiveKernel::LightHint&, std::vector<LightPath>& paths) {
-  kernel.light_paths(H, lifts, reach, paths);
-  return true;
+  if constexpr (Kernel::kEveryLightPath) {
+    kernel.light_paths(H, lifts, reach, paths);
+    return true;
+  } else {
+    LightPath path;
+    if (!kernel.light_path(H, lifts, path, hint)) return false;
+    paths.push_back(path);
+    return true;
+  }
 }
 
 template <class Kernel>

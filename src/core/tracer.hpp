@@ -42,7 +42,7 @@ struct SceneData {
   std::vector<Vec4> light_lifts;  // points of the geometry (normalised by the kernel)
   std::vector<std::int32_t> light_of_lift;
   std::vector<Rgb> light_radiance;
-  double light_reach = kInf;  // light paths longer than this are not summed (projective kernels)
+  double light_reach = kInf;  // light paths longer than this are not summed (kEveryLightPath kernels)
   // Every geodesic returns to its start after this length (S3 with -1 in the group: pi), so a light
   // path longer than it from an opaque surface passes through that surface again: shadowed.
   double geodesic_loop = kInf;
@@ -86,7 +86,7 @@ struct TraceOutputs {
 
 struct TraceStats {
   std::uint64_t chords = 0;
-  std::uint64_t light_failures = 0;  // light paths that were not found (marching kernels)
+  std::uint64_t light_failures = 0;  // light paths that were not found (shooting: Nil, Sol)
   std::uint64_t light_paths = 0;     // geodesics to lights summed (a shadow ray each where facing)
   // Sum over shaded points of the mean radiance times falloff (and fog) along the summed paths,
   // before cosines and shadows: what the reach lets in, against which the part left out is told.

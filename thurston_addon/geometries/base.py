@@ -35,6 +35,12 @@ class Geometry:
     # Whether an isometry M maps chart points affinely, as M on (x, 1): copies of an instanced mesh
     # are then instances themselves (render.py)
     affine_isometries = False
+    # Whether the tracer lights a point along every geodesic to every copy of a light within the
+    # light reach (closed-form connecting geodesics), else from each light's nearest copy (shooting)
+    sums_light_copies = False
+    # The default light reach in circumradii of the domain (render.default_light_reach): more where
+    # the copies within a reach grow slowly
+    light_reach_circumradii = 1.0
 
     def chart_geodesic(self, x, u, t):
         """Chart position and chart velocity at arclength t from chart point x, chart direction u

@@ -9,6 +9,7 @@ class Euclidean(ProjectiveGeometry):
     name = "E3"
     curvature = 0
     affine_isometries = True
+    light_reach_circumradii = 2.0  # the domain's diameter at most: a point's own copy and the ring around it
     form = np.array([1.0, 1.0, 1.0, 0.0])
 
     def cos_sin(self, t):

@@ -51,6 +51,8 @@ class H2xR(Geometry):
     projective = False
     diameter = math.inf
     copy_rings = 1  # hyperbolic rings of copies grow too fast for more
+    sums_light_copies = True  # one geodesic per copy, in closed form
+    light_reach_circumradii = 1.0  # the copies within R grow like exp(R)
     # Far in the cover the disk coordinates grow like e^t, as in H3 (see Hyperbolic).
     reference_depth = Hyperbolic.reference_depth
     # the volume density (1 - r^2)^(-3/2) peaks at the octagon's vertices (r = 0.985): 32 points
@@ -163,6 +165,46 @@ class H2xR(Geometry):
         x_axis = self.tangent_to_model(self.to_chart(A), np.broadcast_to([1.0, 0.0, 0.0], A.shape[:-1] + (3,)))
         V = self.normalize_tangent(A, np.where((r > 0)[..., None], T, x_axis))
         return V, r, np.ones(np.shape(r), bool)
+
+    def plane_distances(self, X, C):
+        """Signed distances from model points X to the chart planes of the covectors C (rows, on
+        (x, y, z, 1); positive on the side c . x > 0): a vertical plane a x + b y + d = 0 is a
+        geodesic of the disk times R, at H^2 distance asinh((a X1 + b X2 + d X0) / sqrt(a^2 + b^2 - d^2));
+        a horizontal one c z + d = 0 at distance (c z + d) / |c|."""
+        X, C = _floats(X), np.asarray(C, float)
+        vertical = C[:, 2] == 0
+        if not np.all(vertical | ((C[:, 0] == 0) & (C[:, 1] == 0))):
+            raise ValueError("H2xR face planes are vertical (a x + b y + d = 0) or horizontal (c z + d = 0)")
+        disk = X[..., DISK] @ C[:, [0, 1, 3]].T / np.sqrt(np.abs(C[:, 0] ** 2 + C[:, 1] ** 2 - C[:, 3] ** 2))
+        z = np.log(X[..., LINE:LINE + 1])
+        lids = (C[:, 2] * z + C[:, 3]) / np.abs(np.where(vertical, 1.0, C[:, 2]))
+        return np.where(vertical, np.arcsinh(disk), lids)
+
+    def domain_distance(self, X, domain):
+        """Distances from model points X (..., 4) to a domain polygon x [z0, z1] (vertical faces and
+        two lids): the hypot of the H^2 distance to the polygon (0 inside it, else to the nearest
+        side: to its line where the foot of the perpendicular lies on the side, else to the nearer
+        end) and the distance of z beyond the lids."""
+        C = domain.covectors()
+        d = self.plane_distances(X, C)
+        vertical = C[:, 2] == 0
+        beyond_lids = np.maximum(np.max(np.where(vertical, -np.inf, d), axis=-1), 0.0)
+        inside = np.all(np.where(vertical, d, -np.inf) <= 0, axis=-1)
+        J = np.array([1.0, 1.0, -1.0])  # the Lorentz form on (X1, X2, X0)
+        Y = _floats(X)[..., DISK]
+        to_side = np.inf
+        for face in (f for f, v in zip(domain.faces, vertical) if v):
+            ends = np.unique(np.round(domain.vertices[face.vertices, :2], 12), axis=0)
+            a, b = ends
+            A, B = (np.r_[p, 1.0] / math.sqrt(1.0 - p @ p) for p in (a, b))
+            n = J * np.cross(A, B)
+            n /= math.sqrt(n @ (J * n))
+            s = Y @ (J * n)  # <Y, n>: sinh of the distance to the side's line
+            foot = Y - s[..., None] * n
+            t = ((foot[..., :2] / foot[..., 2:3] - a) @ (b - a)) / ((b - a) @ (b - a))
+            ends_distance = np.minimum(*(np.arccosh(np.maximum(-(Y @ (J * E)), 1.0)) for E in (A, B)))
+            to_side = np.minimum(to_side, np.where((t >= 0) & (t <= 1), np.arcsinh(np.abs(s)), ends_distance))
+        return np.hypot(np.where(inside, 0.0, to_side), beyond_lids)
 
     def falloff_along(self, P, V, r):
         """1 / (r^2 |det d exp_P(r V)|): the exponential map is H^2's times the identity, whose

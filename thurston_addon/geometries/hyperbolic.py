@@ -10,6 +10,7 @@ class Hyperbolic(ProjectiveGeometry):
     curvature = -1
     form = np.array([1.0, 1.0, 1.0, -1.0])
     copy_rings = 1  # hyperbolic rings of copies grow too fast for more
+    light_reach_circumradii = 1.0  # the copies within R grow like exp(2 R)
     # A reference geodesic goes through the universal cover, where points at distance t have
     # coordinates ~e^t and the float64 pairing matrices satisfy the group's relations only to ~1e-16
     # of their size: two words for one element differ there by ~1e-16 e^(2t), which is 1e-10 near

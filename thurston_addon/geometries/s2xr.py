@@ -32,6 +32,8 @@ class S2xR(AffineGeometry):
     name = "S2xR"
     kernel = "s2xr"
     copy_rings = 1  # a shell's neighbours are its two dilated copies
+    sums_light_copies = True  # a few geodesics per copy (the arcs either way round), in closed form
+    light_reach_circumradii = 2.0  # the copies within R grow like R, their geodesics like R^2
     chart_plane_faces = False  # faces are spheres |x| = const
 
     # --- charts -------------------------------------------------------------------------------
@@ -114,6 +116,16 @@ class S2xR(AffineGeometry):
         direction = np.where((r > 0)[..., None], towards / np.where(r > 0, r, 1.0)[..., None], x_axis)
         V = homogeneous(ra[..., None] * direction, 0.0)
         return V, r, np.ones(np.shape(r), bool)
+
+    def plane_distances(self, X, C):
+        """Signed distances from model points X to the face spheres of the covectors C (rows, on
+        (0, 0, w, 1); positive on the side c . (0, 0, w, 1) > 0): (c2 w + c3) / |c2|."""
+        C = np.asarray(C, float)
+        return (self.plane_coordinates(X) @ C.T) / np.abs(C[:, 2])
+
+    def domain_distance(self, X, domain):
+        """Distances from model points X to a shell domain: of w beyond its spheres."""
+        return np.maximum(np.max(self.plane_distances(X, domain.covectors()), axis=-1), 0.0)
 
     def falloff_along(self, P, V, r):
         """1 / (r^2 |det d exp_P(r V)|): the exponential map is the sphere's times the identity,
