@@ -22,7 +22,7 @@ import blender_helpers as bh  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 THURSTON = Path(sys.executable).with_name("thurston")
-CURVED = ("nil", "sol", "genus2xs1", "s2xs1", "sl2")  # geodesics bend in the chart: traced in chords within a tolerance
+CURVED = ("nil", "sol", "genus2xs1", "s2xs1", "rp3_rp3", "sl2")  # geodesics bend in the chart: traced in chords within a tolerance
 
 
 def _registered():
@@ -106,7 +106,7 @@ def build_scene(space="torus", scale=1.0, rotation=(1.45, 0.08, 0.25)):
 
 # --- 2. renders through every path equal the core's render of the same scene as files ------------------
 @pytest.mark.parametrize("space,scale", [("torus", 1.0), ("poincare", 2.0), ("nil", 1.0), ("sol", 2.0),
-                                         ("genus2xs1", 1.0), ("s2xs1", 0.1), ("sl2", 1.0)])
+                                         ("genus2xs1", 1.0), ("s2xs1", 0.1), ("rp3_rp3", 0.1), ("sl2", 1.0)])
 def test_operators_and_f12_match_core(tmp_path, space, scale):
     sc = build_scene(space, scale)
     toml = bh.write_scene_files(sc, tmp_path, scale)
