@@ -315,9 +315,11 @@ def test_domain_guide_of_sl2_is_the_curved_octagonal_prism():
     assert mid.any() and np.all(np.abs(w[mid]) < chord - 0.01)
 
 
-def test_domain_guide_of_s2xs1_is_its_two_spheres():
-    """The shell 1 <= |x| <= e^(2 pi): the guide's vertices lie on the two spheres, both drawn."""
-    bh.fresh_scene("s2xs1", scale=0.001)
+@pytest.mark.parametrize("space", ["s2xs1", "rp3_rp3"])
+def test_domain_guide_of_a_shell_is_its_two_spheres(space):
+    """The shell 1 <= |x| <= e^(2 pi) (rp3_rp3: the file's shell, not the double cover's the tracer
+    walks): the guide's vertices lie on the two spheres, both drawn."""
+    bh.fresh_scene(space, scale=0.001)
     assert bpy.ops.thurston.domain_guide() == {"FINISHED"}
     obj, pts = guide_points()
     radii = np.linalg.norm(pts, axis=1) / 0.001
