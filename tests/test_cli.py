@@ -77,8 +77,8 @@ def test_spaces_listing(capsys):
     lines = out.strip().splitlines()
     assert len(lines) == len(PRESETS)
     for line in lines:
-        sid, geom = line.split()[:2]
-        assert PRESETS[sid] == geom
+        sid, geom, *description = line.split()
+        assert PRESETS[sid] == geom and len(description) >= 5  # a one-line description of each
     code, out, _ = run(["spaces", "--json"], capsys)
     assert code == 0
     rows = json.loads(out)
