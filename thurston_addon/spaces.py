@@ -339,6 +339,17 @@ class Space:
             M[idx] = maps[worst[idx]] @ M[idx]
         raise SpaceError(f"point {int(idx[0])} cannot be brought into the domain of {self.id!r}")
 
+    def _interior_points(self, rng, n):
+        """Random chart points strictly inside the domain."""
+        g = self.geometry
+        lo, hi = self.domain.vertices.min(axis=0), self.domain.vertices.max(axis=0)
+        out = np.zeros((0, 3))
+        while len(out) < n:
+            x = rng.uniform(lo, hi, (4 * n, 3))
+            x = x[g.in_chart(x)]  # the chart's own points only (the Klein disk's box reaches outside it)
+            out = np.vstack([out, x[self.domain.contains(g.to_model(x), tol=-1e-6)]])
+        return out[:n]
+
     def unfolded(self, x, v=None):
         """Chart points of the tracer's domain (and chart vectors there) as points of the space's
         own domain: themselves, except in a folded space, where those in f(D) go back by f."""
@@ -839,17 +850,6 @@ class CoordinateSpace(Space):
             if abs(self.volume - covolume) > 1e-6 * max(1.0, covolume):
                 raise SpaceError(f"{where}: the domain's volume {self.volume:.9g} is not the covolume {covolume:.9g} "
                                  "the file states")
-
-    def _interior_points(self, rng, n):
-        """Random chart points strictly inside the domain."""
-        g = self.geometry
-        lo, hi = self.domain.vertices.min(axis=0), self.domain.vertices.max(axis=0)
-        out = np.zeros((0, 3))
-        while len(out) < n:
-            x = rng.uniform(lo, hi, (4 * n, 3))
-            x = x[g.in_chart(x)]  # the chart's own points only (the Klein disk's box reaches outside it)
-            out = np.vstack([out, x[self.domain.contains(g.to_model(x), tol=-1e-6)]])
-        return out[:n]
 
 
 class ShellSpace(CoordinateSpace):

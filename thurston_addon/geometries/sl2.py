@@ -114,6 +114,8 @@ def flow_from_origin(b, t):
         alpha = e^{ict} (C - i c S), beta = S a e^{i(a0 - ct)}, phi = 2 Arg(alpha) unwrapped,
     b(t) = (a e^{i(a0 - 2ct)}, c)."""
     b, t = _floats(b), _floats(t)
+    shape = np.broadcast_shapes(b.shape[:-1], t.shape)
+    b, t = np.broadcast_to(b, shape + (3,)), np.broadcast_to(t, shape)
     horizontal, c = b[..., 0] + 1j * b[..., 1], b[..., 2]
     a2 = np.abs(horizontal) ** 2
     s = np.sqrt((a2 - c * c) * t * t / 4 + 0j)
