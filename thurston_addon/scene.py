@@ -54,6 +54,7 @@ class Material:
     color_texture: np.ndarray | str | Path | None = None
     emission_texture: np.ndarray | str | Path | None = None
     name: str = ""
+    one_sided: bool = False  # emits from the front only (the side of its triangles' winding normal)
 
     def __post_init__(self):
         self.color = np.asarray(self.color, dtype=np.float64).reshape(3)
@@ -153,9 +154,54 @@ def checked_instances(value, name: str) -> np.ndarray:
 
 @dataclass
 class PointLight:
+    """A point light; with spot_direction a spot light whose cone is Cycles': light leaving at
+    angle theta from the axis is scaled by smoothstep((cos theta - cos(spot_size / 2)) / ((1 -
+    cos(spot_size / 2)) spot_blend)), 0 outside the cone (blend 0: a sharp edge). In a curved space
+    the axis is a direction at the light, and theta the angle there of each geodesic leaving it."""
     position: np.ndarray  # chart coordinates
     color: np.ndarray = field(default_factory=lambda: np.ones(3))
     power: float = 1.0  # radiant intensity scale: radiance at unit "area distance"
+    spot_direction: np.ndarray | None = None  # chart vector at the light; None: a point light
+    spot_size: float = math.pi  # the cone's full angle, radians, in (0, pi]
+    spot_blend: float = 0.0  # in [0, 1]
+
+    def __post_init__(self):
+        if self.spot_direction is None:
+            return
+        self.spot_direction = np.asarray(self.spot_direction, np.float64).reshape(3)
+        if not (np.all(np.isfinite(self.spot_direction)) and np.linalg.norm(self.spot_direction) > 0):
+            raise SceneError(f"spot light at {np.asarray(self.position).tolist()}: its direction must be a "
+                             f"non-zero vector, got {self.spot_direction.tolist()}")
+        if not 0 < self.spot_size <= math.pi:
+            raise SceneError(f"spot light at {np.asarray(self.position).tolist()}: spot size must be an angle in "
+                             f"(0, pi], got {self.spot_size}")
+        if not 0 <= self.spot_blend <= 1:
+            raise SceneError(f"spot light at {np.asarray(self.position).tolist()}: spot blend must be in [0, 1], "
+                             f"got {self.spot_blend}")
+
+    def cone(self) -> tuple[float, float]:
+        """(cos of the half angle, 1 / ((1 - that) blend)) as the tracer takes it; (-1, inf): no cone."""
+        if self.spot_direction is None:
+            return -1.0, math.inf
+        c = math.cos(self.spot_size / 2)
+        return c, 1 / ((1 - c) * self.spot_blend) if self.spot_blend > 0 and c < 1 else math.inf
+
+
+def flat_light(name: str, centre, u, v, radiance, disc: bool = False, sections: int = 32) -> SceneObject:
+    """An area light as an emissive mesh: the rectangle centre + a u + b v (a, b in [-1, 1]), or
+    with disc the ellipse of those half-axes, emitting `radiance` from its front only (the side of
+    u x v), black (it reflects nothing)."""
+    centre, u, v = (np.asarray(a, np.float64).reshape(3) for a in (centre, u, v))
+    if disc:
+        t = 2 * math.pi * np.arange(sections) / sections
+        rim = centre + np.cos(t)[:, None] * u + np.sin(t)[:, None] * v
+        vertices = np.vstack([centre, rim])
+        triangles = [[0, 1 + k, 1 + (k + 1) % sections] for k in range(sections)]
+    else:
+        vertices = np.array([centre - u - v, centre + u - v, centre + u + v, centre - u + v])
+        triangles = [[0, 1, 2], [0, 2, 3]]
+    material = Material(np.zeros(3), radiance, name=name, one_sided=True)
+    return SceneObject(name, vertices, triangles, material.color, material.emission, materials=[material])
 
 
 @dataclass
