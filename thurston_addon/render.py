@@ -163,11 +163,13 @@ class Result:
 
 
 def light_summary(s: dict) -> str:
+    emitters = (f"; {s['emitter_triangles']} emissive triangles in {s['emitter_copies']} copies, "
+                f"{s['light_samples']} points sampled on them per shaded point" if s["emitter_triangles"] else "")
     if s["light_reach"] is None:
-        return f"light: each light's nearest of {s['light_copies']} copies"
+        return f"light: each light's nearest of {s['light_copies']} copies{emitters}"
     return (f"light: {s['light_copies']} copies within reach {s['light_reach']:.3g} ({s['light_paths_per_point']:.1f} "
             f"geodesics per shaded point), energy beyond the reach up to the distance limit about "
-            f"{s['light_energy_left_out']:.3g} x the summed (estimate)")
+            f"{s['light_energy_left_out']:.3g} x the summed (estimate){emitters}")
 
 
 # --- compiling the scene -------------------------------------------------------------------------------
@@ -953,7 +955,9 @@ def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: fl
     4 pi dr p / vol (the exponential map's Jacobian, which the falloff divides by, is the change of
     variables from the light's directions to the points). Without the limit the sum diverges
     (Olbers) wherever it is not cut at S3's two arcs. Nil, Sol: each light's nearest copy, no estimate."""
-    stats = {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0}
+    stats = {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0,
+             "emitter_triangles": tracer.num_emitter_triangles, "emitter_copies": tracer.num_emitter_copies,
+             "light_samples": settings.light_samples}
     if not sums_light_copies(space):
         return {**stats, "light_reach": None, "light_energy_left_out": None}
     reach = tracer.light_reach

@@ -513,6 +513,15 @@ def load_scene_file(path: str | Path) -> Scene:
         position = [0, 0, 0.3]
         color = [1, 1, 1]
         power = 1.0
+        type = "spot"         # optional: a spot light (point: the default), with
+        direction = [0, 0, -1]  # its axis,
+        spot_size = 45          # its cone's full angle (degrees) and blend, as Blender's
+        spot_blend = 0.15
+        [[light]]
+        type = "area"         # an emissive rectangle or disc (an object, one-sided, black)
+        position = [0, 0, 0.4]; direction = [0, 0, -1]; x_axis = [1, 0, 0]
+        size = [0.2, 0.1]; shape = "rectangle"  # or "disc" (size: its diameters)
+        emission = [4, 4, 4]  # radiance
         [camera]
         position = [0, 0, 0]; forward = [0, 1, 0]; up = [0, 0, 1]; fov = 90
         shift = [0, 0]; clip_start = 0  # lens shift in image widths; clip_end (absent: none)
@@ -564,14 +573,25 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
         scene.objects += objs
     for i, spec in enumerate(data.get("light", [])):
         where = f"{path}: light {i}"
+        kind = spec.get("type", "point")
+        position = _vec(spec.get("position"), f"{where}: position")
+        if kind == "area":
+            scene.objects.append(_area_light(spec, position, where))
+            continue
+        if kind not in ("point", "spot"):
+            raise SceneError(f"{where}: unknown light type {kind!r} (point, spot, area)")
         power = _number(spec, "power", 1.0, where)
         if power < 0:
             raise SceneError(f"{where}: power must be >= 0, got {power:g}")
-        scene.lights.append(PointLight(
-            _vec(spec.get("position"), f"{where}: position"),
-            _vec(spec.get("color", [1, 1, 1]), f"{where}: color"),
-            power,
-        ))
+        spot = {} if kind == "point" else dict(
+            spot_direction=_vec(spec.get("direction"), f"{where}: direction"),
+            spot_size=math.radians(_number(spec, "spot_size", 45.0, where)),
+            spot_blend=_number(spec, "spot_blend", 0.15, where))
+        try:
+            scene.lights.append(PointLight(position, _vec(spec.get("color", [1, 1, 1]), f"{where}: color"), power,
+                                           **spot))
+        except SceneError as exc:
+            raise SceneError(f"{where}: {exc}") from None
     if "camera" in data:
         c = data["camera"]
         scene.camera = Camera(
@@ -584,6 +604,28 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
             clip_end=_number(c, "clip_end", 0.0, f"{path}: camera") if "clip_end" in c else None,
         )
     return scene
+
+
+def _area_light(spec: dict, position, where: str) -> SceneObject:
+    """A TOML area light: a rectangle or disc of `size` (width, height; diameters for a disc) at
+    `position`, emitting `emission` (radiance) towards `direction`, its width along `x_axis`."""
+    direction = _vec(spec.get("direction", [0, 0, -1]), f"{where}: direction")
+    x_axis = _vec(spec.get("x_axis", [1, 0, 0] if abs(direction[0]) < 0.9 * np.linalg.norm(direction) else [0, 1, 0]),
+                  f"{where}: x_axis")
+    size = _vec(spec.get("size", [0.1, 0.1]), f"{where}: size", 2)
+    shape = spec.get("shape", "rectangle")
+    if shape not in ("rectangle", "disc"):
+        raise SceneError(f"{where}: unknown area light shape {shape!r} (rectangle, disc)")
+    emission = _vec(spec.get("emission", [1, 1, 1]), f"{where}: emission")
+    w = direction / max(np.linalg.norm(direction), 1e-300)
+    u = x_axis - (x_axis @ w) * w
+    if not (np.linalg.norm(direction) > 0 and np.linalg.norm(u) > 1e-9 * np.linalg.norm(x_axis)) or np.any(size <= 0):
+        raise SceneError(f"{where}: an area light needs a non-zero direction, an x_axis not along it and a positive size")
+    if np.any(emission < 0):
+        raise SceneError(f"{where}: emission must be >= 0, got {emission.tolist()}")
+    u = u / np.linalg.norm(u) * size[0] / 2
+    v = np.cross(w, u) / np.linalg.norm(u) * size[1] / 2  # u x v along the direction it emits to
+    return flat_light(f"area light {where}", position, u, v, emission, disc=shape == "disc")
 
 
 def primitive(spec: dict, where: str) -> SceneObject:
