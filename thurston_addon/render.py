@@ -635,7 +635,8 @@ def _emitter_arrays(space: Space, scene: Scene, reach: float) -> dict:
                 raise SceneError(f"object {obj.name!r}: {exc}") from None
             used = np.unique(placed.triangles[emitting])
             X = g.normalize_point(g.to_model(placed.vertices[used]) @ M0.T)
-            radius = EMITTER_RADIUS_MARGIN * float(np.max(g.distance(L, X)))
+            # the reach bounds the copies where they are summed (elsewhere the nearest is taken)
+            radius = EMITTER_RADIUS_MARGIN * float(np.max(g.distance(L, X))) if sums_light_copies(space) else 0.0
             corners = np.zeros((len(placed.vertices), 3))
             corners[used] = g.mesh_to_chart(X)
             triangles.append(corners[placed.triangles[emitting]])
