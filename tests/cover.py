@@ -65,3 +65,29 @@ def check_depths(G, space, out, P, V, length, centres, outer, inner, truth=None)
             compared += 1
             hits += 1
     return compared, hits
+
+
+def assert_no_leak_at_the_prism_edges(space, half_height, ball_radius, seed, n=100_000):
+    """n rays from inside a prism domain (an octagon times [-h, h]: genus2xs1, sl2), aimed at its
+    vertices and (half of them) at points of its vertical edges: each stops by distance (empty
+    scene) or hits (a ball at the centre), none escapes or stops otherwise, none ends outside."""
+    import trimesh
+
+    from thurston_addon import render
+    from thurston_addon.scene import Scene, SceneObject
+
+    G = space.geometry
+    rng = np.random.default_rng(seed)
+    V0 = space.domain.vertices
+    target = V0[rng.integers(len(V0), size=n)]
+    target[n // 2:, 2] = rng.uniform(-half_height, half_height, n - n // 2)
+    x = 0.5 * space._interior_points(rng, n)
+    P = G.to_model(x)
+    V = G.normalize_tangent(P, G.tangent_to_model(x, target - x))
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=ball_radius)
+    for scene in (Scene(), Scene(objects=[SceneObject("ball", ball.vertices, ball.faces, (1, 1, 1))])):
+        out = render.make_tracer(space, scene).trace(np.ascontiguousarray(P), np.ascontiguousarray(V), 8.0, 1000,
+                                                    shade=False, tolerance=1e-3)
+        assert np.all((out["stop"] == 0) | (out["stop"] == 1)), np.bincount(out["stop"])
+        assert np.all(np.isfinite(out["end"]))
+        assert space.domain.contains(G.to_model(out["end"]), tol=1e-6).all()

@@ -22,7 +22,7 @@ import blender_helpers as bh  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 THURSTON = Path(sys.executable).with_name("thurston")
-CURVED = ("nil", "sol", "genus2xs1", "s2xs1", "sl2")  # geodesics bend in the chart: traced in chords within a tolerance
+CURVED = ("nil", "sol", "genus2xs1", "s2xs1", "rp3_rp3", "sl2")  # geodesics bend in the chart: traced in chords within a tolerance
 
 
 def _registered():
@@ -106,7 +106,7 @@ def build_scene(space="torus", scale=1.0, rotation=(1.45, 0.08, 0.25)):
 
 # --- 2. renders through every path equal the core's render of the same scene as files ------------------
 @pytest.mark.parametrize("space,scale", [("torus", 1.0), ("poincare", 2.0), ("nil", 1.0), ("sol", 2.0),
-                                         ("genus2xs1", 1.0), ("s2xs1", 0.1), ("sl2", 1.0)])
+                                         ("genus2xs1", 1.0), ("s2xs1", 0.1), ("rp3_rp3", 0.1), ("sl2", 1.0)])
 def test_operators_and_f12_match_core(tmp_path, space, scale):
     sc = build_scene(space, scale)
     toml = bh.write_scene_files(sc, tmp_path, scale)
@@ -315,9 +315,11 @@ def test_domain_guide_of_sl2_is_the_curved_octagonal_prism():
     assert mid.any() and np.all(np.abs(w[mid]) < chord - 0.01)
 
 
-def test_domain_guide_of_s2xs1_is_its_two_spheres():
-    """The shell 1 <= |x| <= e^(2 pi): the guide's vertices lie on the two spheres, both drawn."""
-    bh.fresh_scene("s2xs1", scale=0.001)
+@pytest.mark.parametrize("space", ["s2xs1", "rp3_rp3"])
+def test_domain_guide_of_a_shell_is_its_two_spheres(space):
+    """The shell 1 <= |x| <= e^(2 pi) (rp3_rp3: the file's shell, not the double cover's the tracer
+    walks): the guide's vertices lie on the two spheres, both drawn."""
+    bh.fresh_scene(space, scale=0.001)
     assert bpy.ops.thurston.domain_guide() == {"FINISHED"}
     obj, pts = guide_points()
     radii = np.linalg.norm(pts, axis=1) / 0.001

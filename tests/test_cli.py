@@ -18,7 +18,7 @@ from thurston_addon.scene import default_scene
 
 PRESETS = {"torus": "E3", "half_turn": "E3", "quarter_turn": "E3", "third_turn": "E3", "sixth_turn": "E3",
            "hantzsche_wendt": "E3", "poincare": "S3", "seifert_weber": "H3", "nil": "Nil", "sol": "Sol",
-           "genus2xs1": "H2xR", "s2xs1": "S2xR", "sl2": "SL2"}
+           "genus2xs1": "H2xR", "s2xs1": "S2xR", "rp3_rp3": "S2xR", "sl2": "SL2"}
 
 
 @pytest.fixture(autouse=True)

@@ -15,7 +15,7 @@ import trimesh
 from thurston_addon import render, spaces
 from thurston_addon.geometries import get
 from thurston_addon.scene import Scene, SceneObject
-from cover import check_depths
+from cover import assert_no_leak_at_the_prism_edges, check_depths
 from truth import check_flows_against_dop853, christoffel_from, h2xr_metric, unit_in
 
 G = get("H2xR")
@@ -247,20 +247,5 @@ def test_horizontal_rays_and_points_near_the_boundary_stay_finite_and_inside(spa
 
 
 def test_no_leak_at_the_octagon_vertices(space):
-    """10^5 rays aimed at the prism's vertices and vertical edges, from inside: each stops by
-    distance (empty scene) or hits (a ball at the centre), none escapes or stops otherwise."""
-    rng = np.random.default_rng(9)
-    n = 100_000
-    V0 = space.domain.vertices
-    target = V0[rng.integers(len(V0), size=n)]
-    target[n // 2:, 2] = rng.uniform(-PERIOD / 2, PERIOD / 2, n - n // 2)
-    x = 0.5 * space._interior_points(rng, n)
-    P = G.to_model(x)
-    V = G.normalize_tangent(P, G.tangent_to_model(x, target - x))
-    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
-    for scene in (Scene(), Scene(objects=[SceneObject("ball", ball.vertices, ball.faces, (1, 1, 1))])):
-        out = render.make_tracer(space, scene).trace(np.ascontiguousarray(P), np.ascontiguousarray(V), 8.0, 1000,
-                                                    shade=False, tolerance=1e-3)
-        assert np.all((out["stop"] == 0) | (out["stop"] == 1)), np.bincount(out["stop"])
-        assert np.all(np.isfinite(out["end"]))
-        assert space.domain.contains(G.to_model(out["end"]), tol=1e-6).all()
+    """10^5 rays aimed at the prism's vertices and vertical edges (cover.assert_no_leak_at_the_prism_edges)."""
+    assert_no_leak_at_the_prism_edges(space, PERIOD / 2, 0.2, seed=9)

@@ -290,13 +290,27 @@ def test_genus2_x_circle_sums_every_copy_in_the_cover():
     assert RHO * terms[terms > 0].min() > 50 * rtol * colour.max()  # a missing copy fails it
 
 
-def test_s2_x_circle_sums_every_arc_of_every_copy():
-    """S2xR, s2xs1: from a point to each copy of the light (dilated by e^{2 pi k}) the cover holds one
-    geodesic per great-circle arc between their directions, going either way round and winding:
-    sphere angles theta + 2 pi n and 2 pi (n + 1) - theta, with r^2 = angle^2 + dw^2 and the
-    falloff angle / (r^2 |sin angle|) (the sphere's circle times the flat direction). The sum of
-    cos * p * falloff over those within the reach, against the traced colour."""
-    space = spaces.load("s2xs1")
+def s2xs1_copies(light):
+    """S^2 x S^1's deck group: the dilations by e^{2 pi k}."""
+    return [np.exp(2 * math.pi * k) * light for k in range(-4, 5)]
+
+
+def rp3_rp3_copies(light):
+    """RP^3 # RP^3's: the dilations by e^{4 pi k} (the two reflections composed) and those after the
+    inner sphere's antipodal reflection y -> -y / |y|^2, written out here."""
+    shifted = [np.exp(4 * math.pi * k) * light for k in range(-3, 4)]
+    return shifted + [-q / (q @ q) for q in shifted]
+
+
+@pytest.mark.parametrize("sid, copies", [("s2xs1", s2xs1_copies), ("rp3_rp3", rp3_rp3_copies)])
+def test_s2xr_sums_every_arc_of_every_copy(sid, copies):
+    """S2xR, s2xs1 and rp3_rp3: from a point to each copy of the light in the cover (R^3 minus the
+    origin) the cover holds one geodesic per great-circle arc between their directions, going
+    either way round and winding: sphere angles theta + 2 pi n and 2 pi (n + 1) - theta, with
+    r^2 = angle^2 + dw^2 and the falloff angle / (r^2 |sin angle|) (the sphere's circle times the
+    flat direction). The sum of cos * p * falloff over those within the reach, against the traced
+    colour (in rp3_rp3 the light's reflected copies light the point too)."""
+    space = spaces.load(sid)
     light, power, reach = np.array([14.0, -26.0, 9.0]), 0.8, 13.0
     centre = np.array([0.0, -30.0, 0.0])
     scale = np.linalg.norm(centre)  # the metric is |dx| / |x|: a ball of chart radius 0.02 |x|
@@ -306,15 +320,15 @@ def test_s2_x_circle_sums_every_arc_of_every_copy():
     colour, H, N, out = shade_one(space, scene, centre + [0.0, -0.3 * scale, 0.1 * scale], centre, reach)
     g = space.geometry
     x, n = g.to_chart(H), g.tangent_to_chart(H, N)
-    (dilation,) = space.generators
 
     def angle_and_dw(p, q):
         u, v = p / np.linalg.norm(p), q / np.linalg.norm(q)
         return math.atan2(np.linalg.norm(np.cross(u, v)), u @ v), math.log(np.linalg.norm(q) / np.linalg.norm(p))
 
     terms, energy, arcs = [], 0.0, set()
-    for k in range(-4, 5):
-        q = (np.linalg.matrix_power(dilation, k) @ np.r_[light, 1.0])[:3]
+    cover = copies(light)
+    own = next(i for i, q in enumerate(cover) if np.allclose(q, light))
+    for k, q in enumerate(cover):
         for n_turns in range(4):
             for way in (+1, -1):  # the arc towards q's direction, or the other way round
                 def length(p):
@@ -332,7 +346,9 @@ def test_s2_x_circle_sums_every_arc_of_every_copy():
                 terms.append(max(-central_difference(length, x, n), 0.0) * power * falloff)
     terms = np.array(terms)
     assert len(terms) == out["light_paths"]
-    assert {(0, 0, -1), (0, 1, 1), (0, 1, -1), (1, 0, 1), (-1, 0, 1)} <= arcs  # both ways, winding, other copies
+    assert {(own, 0, -1), (own, 1, 1), (own, 1, -1), (own + 1, 0, 1), (own - 1, 0, 1)} <= arcs  # both ways, winding, other copies
+    if sid == "rp3_rp3":
+        assert any(k >= len(cover) // 2 for k, _, _ in arcs)  # a reflected copy is within the reach
     assert float(out["light_energy"]) == pytest.approx(energy, rel=1e-6)
     rtol = 1e-5  # the colour is float32
     np.testing.assert_allclose(colour, GLOW + RHO * terms.sum(), rtol=rtol)

@@ -15,7 +15,7 @@ import trimesh
 from thurston_addon import render, spaces
 from thurston_addon.geometries import get
 from thurston_addon.scene import Scene, SceneObject
-from cover import check_depths
+from cover import check_depths, first_hits
 from truth import check_flows_against_dop853, christoffel_from, s2xr_metric, unit_in
 
 G = get("S2xR")
@@ -243,3 +243,135 @@ def test_the_default_scene_is_shown_whole():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         render.compile_scene(space, default_scene(space))
+
+
+# --- RP^3 # RP^3: the shell with each sphere glued to itself antipodally ------------------------------
+
+@pytest.fixture(scope="module")
+def folded():
+    return spaces.load("rp3_rp3")
+
+
+def reflected_ball(c, s):
+    """The inner sphere's antipodal reflection y -> -y / |y|^2 of the chart ball |y - c| <= s (not
+    holding the origin), written out: inversions map spheres to spheres, this one to the ball of
+    centre -c / (|c|^2 - s^2) and radius s / (|c|^2 - s^2)."""
+    q = c @ c - s * s
+    return -c / q, s / q
+
+
+def rp3_cover_balls(centres, sizes, inner_ratio):
+    """The balls' copies in the universal cover R^3 minus the origin under RP^3 # RP^3's deck group:
+    the dilations by e^{4 pi k} and the reflections of those (centres, circumscribed and inscribed
+    radii: a mesh between its spheres maps between their images)."""
+    out = []
+    for c, s in zip(centres, sizes):
+        for k in range(-2, 3):
+            d = math.exp(4 * math.pi * k)
+            out.append((d * c, d * s, d * s * inner_ratio))
+            rc, rs = reflected_ball(d * c, d * s)
+            _, ri = reflected_ball(d * c, d * s * inner_ratio)
+            out.append((rc, rs, ri))
+    centres, outer, inner = map(np.array, zip(*out))
+    return centres, outer, inner
+
+
+def test_rp3_rp3_is_the_shell_glued_to_itself(folded):
+    assert folded.radii == (1.0, pytest.approx(math.exp(L)))
+    assert abs(folded.volume - 4 * math.pi * L) < 1e-6 * folded.volume
+    assert folded.inradius == pytest.approx(L / 2)
+    # the tracer's domain is the double cover's: the shell doubled by the inner reflection
+    w = sorted(-f.covector[3] / f.covector[2] for f in folded.domain.faces)
+    np.testing.assert_allclose(w, [-L, L], atol=1e-12)
+    x = np.array([[0.3, -2.0, 5.0], [40.0, 1.0, -7.0]])
+    back, _ = folded.unfolded(-x / np.sum(x * x, axis=1)[:, None])
+    np.testing.assert_allclose(back, x, rtol=1e-12)
+
+
+@pytest.mark.parametrize("change, message", [
+    (("antipodal = true\nface = [0, 0, 1, \"-2*pi\"]", "matrix = [[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 0], [0, 0, 0, 1]]\n"
+      "face = [0, 0, 1, \"-2*pi\"]"), "every generator is 'antipodal = true'"),
+    (("face = [0, 0, -1, 0]", "face = [1, 0, 0, -1]"), "is not a sphere"),
+    (("face = [0, 0, -1, 0]", "face = [0, 0, 1, -1]"), "do not bound a shell"),
+    (("antipodal = true\nface = [0, 0, -1, 0]", "antipodal = true\nmatrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], "
+      "[0, 0, 0, 1]]\nface = [0, 0, -1, 0]"), "has no matrix"),
+])
+def test_bad_folded_shells_are_one_clear_error(tmp_path, change, message):
+    text = spaces.preset_path("rp3_rp3").read_text()
+    assert change[0] in text
+    path = tmp_path / "bad.toml"
+    path.write_text(text.replace(change[0], change[1], 1))
+    with pytest.raises(spaces.SpaceError, match=message):
+        spaces.load(path)
+
+
+def test_rp3_rp3_depth_matches_the_cover_geodesic_first_hit(folded):
+    """The universal cover R^3 minus the origin holds the balls' copies under the deck group (the
+    dilations by e^{4 pi k} and the inner sphere's antipodal reflection of those, written out here):
+    the traced depth is the first entry of the closed-form geodesic into one of them."""
+    sizes = 0.1 * np.linalg.norm(CENTRES, axis=1)
+    scene = Scene(objects=[SceneObject(f"ball{i}", s * MESH.vertices + c, MESH.faces, (0.6, 0.6, 0.6))
+                           for i, (c, s) in enumerate(zip(CENTRES, sizes))])
+    inner_ratio = 1 - 2 * (1 - MESH_INNER)  # the reflected flat triangles dip a little deeper
+    centres, outer, inner = rp3_cover_balls(CENTRES, sizes, inner_ratio)
+    tracer = render.make_tracer(folded, scene)
+    rng = np.random.default_rng(16)
+    n, length, step = 100, 8.0, 0.01
+    x = shell_points(rng, 8 * n, 0.2, L - 0.2)
+    x = x[np.min(np.linalg.norm(x[:, None] - CENTRES[None], axis=-1) - sizes, axis=1) > 0.05 * np.linalg.norm(x, axis=1)][:n]
+    P = G.to_model(x)
+    # a third along the connecting geodesic to a ball's centre, a third to a reflected one's (beyond
+    # the inner sphere), turned a little; the rest at random
+    targets = np.vstack([CENTRES, [reflected_ball(c, s)[0] for c, s in zip(CENTRES, sizes)]])
+    aim = rng.integers(len(CENTRES), size=n) + np.where(np.arange(n) < n // 3, 0, len(CENTRES))
+    V = G.connect(P, G.to_model(targets[aim]))[0]
+    V = V + 0.05 * np.c_[x * rng.normal(size=(n, 3)), np.zeros(n)]
+    V[2 * n // 3:] = G.tangent_to_model(x[2 * n // 3:], rng.normal(size=(n - 2 * n // 3, 3)))
+    V = G.normalize_tangent(P, V)
+    u = G.tangent_to_chart(P, V)
+    out = tracer.trace(np.ascontiguousarray(P), np.ascontiguousarray(V), length, 10000, shade=False, tolerance=1e-6)
+    t = np.arange(0.0, length + step, step)
+
+    def truth(i):
+        path = np.array(G.chart_geodesic(np.broadcast_to(x[i], (len(t), 3)), np.broadcast_to(u[i], (len(t), 3)), t)[0])
+        chart = lambda k, s: G.chart_geodesic(x[i], u[i], s)[0]
+        return first_hits(t, path, path[1:], chart, centres, outer, inner)
+
+    compared, hits = check_depths(G, folded, out, P, V, length, centres, outer, inner, truth=truth)
+    assert compared >= 70 and hits >= 20, (compared, hits)
+    beyond = (out["stop"] == 0) & (np.sum(out["position"] ** 2, axis=1) < 1)
+    assert beyond.sum() >= 10  # hits in the double cover's other half: on the balls' reflected copies
+
+
+def reduce_rp3(x):
+    """A point of the universal cover into the shell 1 <= |x| <= e^L by the deck group, written
+    out: w = log|x| modulo 2 L by the dilations, then the outer reflection where w > L."""
+    r = np.linalg.norm(x, axis=-1)
+    w = np.log(r) % (2 * L)
+    u = x / r[..., None]
+    flip = w > L
+    w = np.where(flip, 2 * L - w, w)
+    return np.where(flip[..., None], -u, u) * np.exp(w)[..., None]
+
+
+def test_rp3_rp3_long_rays_end_where_the_cover_geodesic_ends(folded):
+    """About 100 crossings of the double cover's spheres: the traced end, brought into the file's
+    shell, is the cover geodesic's end reduced by the deck group (radial rays: known exactly)."""
+    tracer = render.make_tracer(folded, Scene())
+    rng = np.random.default_rng(17)
+    n = 30
+    x = shell_points(rng, n, 0.2, L - 0.2)
+    u = rng.normal(size=(n, 3))
+    u[:5] = x[:5]
+    P = G.to_model(x)
+    V = G.normalize_tangent(P, G.tangent_to_model(x, u))
+    b = np.sum(G.tangent_to_chart(P, V) * x, axis=1) / np.sum(x * x, axis=1)
+    length = 100 * 2 * L / np.abs(b)
+    for i in range(n):
+        out = tracer.trace(np.ascontiguousarray(P[i:i + 1]), np.ascontiguousarray(V[i:i + 1]), float(length[i]), 100000,
+                           shade=False, tolerance=1e-6)
+        assert out["stop"][0] == 1 and out["crossings"][0] >= 99
+        Y, _ = G.geodesic(np.asarray(P[i], np.longdouble), np.asarray(V[i], np.longdouble), np.longdouble(length[i]))
+        want = np.asarray(reduce_rp3(np.asarray(G.to_chart(Y), np.longdouble)), float)
+        got, _ = folded.unfolded(out["end"])
+        assert np.linalg.norm(got[0] - want) < 1e-7 * np.linalg.norm(want), (i, got[0], want)

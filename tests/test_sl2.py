@@ -14,7 +14,7 @@ import trimesh
 from thurston_addon import render, spaces
 from thurston_addon.geometries import sl2
 from thurston_addon.scene import PointLight, Scene, SceneObject
-from cover import check_depths, first_hits
+from cover import assert_no_leak_at_the_prism_edges, check_depths, first_hits
 from truth import check_flows_against_dop853, christoffel_from, unit_in
 
 G = sl2.SL2()
@@ -395,23 +395,8 @@ def test_rays_near_the_rim_after_many_crossings_stay_finite_and_inside(space):
 
 
 def test_no_leak_at_the_octagon_vertices(space):
-    """10^5 rays aimed at the prism's vertices and vertical edges, from inside: each stops by
-    distance (empty scene) or hits (a ball at the centre), none escapes or stops otherwise."""
-    rng = np.random.default_rng(16)
-    n = 100_000
-    V0 = space.domain.vertices
-    target = V0[rng.integers(len(V0), size=n)]
-    target[n // 2:, 2] = rng.uniform(-math.pi, math.pi, n - n // 2)
-    x = space._interior_points(rng, n) * [0.5, 0.5, 0.5]
-    P = G.to_model(x)
-    V = G.normalize_tangent(P, G.tangent_to_model(x, target - x))
-    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.15)
-    for scene in (Scene(), Scene(objects=[SceneObject("ball", ball.vertices, ball.faces, (1, 1, 1))])):
-        out = render.make_tracer(space, scene).trace(np.ascontiguousarray(P), np.ascontiguousarray(V), 8.0, 1000,
-                                                    shade=False, tolerance=1e-3)
-        assert np.all((out["stop"] == 0) | (out["stop"] == 1)), np.bincount(out["stop"])
-        assert np.all(np.isfinite(out["end"]))
-        assert space.domain.contains(G.to_model(out["end"]), tol=1e-6).all()
+    """10^5 rays aimed at the prism's vertices and vertical edges (cover.assert_no_leak_at_the_prism_edges)."""
+    assert_no_leak_at_the_prism_edges(space, math.pi, 0.15, seed=16)
 
 
 def test_lambert_colour_is_base_power_cos_falloff(space):

@@ -271,7 +271,7 @@ def poincare_toml(twist):
 # --- every preset -----------------------------------------------------------------------------------
 
 def test_preset_ids():
-    assert sorted(spaces.preset_ids()) == sorted(PRESETS + COORDINATE + ["genus2xs1", "s2xs1", "sl2"])  # test_h2xr.py, test_s2xr.py, test_sl2.py
+    assert sorted(spaces.preset_ids()) == sorted(PRESETS + COORDINATE + ["genus2xs1", "s2xs1", "rp3_rp3", "sl2"])  # test_h2xr.py, test_s2xr.py, test_sl2.py
 
 
 def test_density_helper_is_sqrt_det():

@@ -141,6 +141,8 @@ def cmd_trace(args):
                           space.max_crossings if args.max_crossings is None else args.max_crossings,
                           *settings.tolerances(space, render.REFERENCE_PIXEL_ANGLE),
                           shade=False, progress=Progress(f"trace {len(rays)} rays"))
+    result["position"], normal = space.unfolded(result["position"], result["normal"])  # a folded space's own domain
+    result["normal"] = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     tmp = out.with_name(f".{out.name}.partial.npz")
     np.savez(tmp, **{name: result[key] for name, key in TRACE_OUTPUTS.items()})
     tmp.replace(out)

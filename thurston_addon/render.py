@@ -7,7 +7,7 @@ import math
 import os
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -32,7 +32,7 @@ QUALITY = {"draft": Quality(1, 1.0), "preview": Quality(2, 0.5), "standard": Qua
 # across 90 degrees).
 REFERENCE_PIXEL_ANGLE = math.radians(90.0) / 640
 # The bound stays positive at the camera: distances are counted from this fraction of the
-# domain's extent behind it.
+# domain's metric extent behind it.
 NEAR_FRACTION = 0.05
 RETRACE_FACTOR = 100  # the measured error: sampled rays traced again at tolerance / this
 SHADING = ("lambert", "normal", "position", "depth", "crossings", "object")
@@ -82,7 +82,7 @@ class Settings:
     # geodesics to lights longer than this are not summed (E3, S3, H3); None: default_light_reach
     light_reach: float | None = None
     threads: int = 0
-    tolerance: float | None = None  # chord tolerance in chart units; None: the quality's bound
+    tolerance: float | None = None  # chord tolerance in chart units (S2xR: metric); None: the quality's bound
     light_samples: int = 4  # points sampled on the emissive meshes per shaded point (each sample)
     transparent: bool = False  # alpha: the share of a pixel's samples that hit something (else 1)
     # (x, y, w, h): render only this window of the width x height image, x, y its top-left pixel
@@ -132,13 +132,14 @@ class Settings:
                               f"got {self.tolerance}")
 
     def tolerances(self, space: Space, pixel_angle: float) -> tuple[float, float]:
-        """(tolerance at distance 0, growth per unit of distance) of the chords, chart units: the
-        given tolerance, or the quality's fraction of the pixel footprint pixel_angle * d at
-        distance d (counted from NEAR_FRACTION of the domain's extent behind the camera)."""
+        """(tolerance at distance 0, growth per unit of distance) of the chords, chart units (S2xR:
+        metric, which its walk scales to the chart): the given tolerance, or the quality's fraction
+        of the pixel footprint pixel_angle * d at distance d (counted from NEAR_FRACTION of the
+        domain's metric extent behind the camera)."""
         if self.tolerance is not None:
             return self.tolerance, 0.0
         slope = QUALITY[self.quality].footprint_fraction * pixel_angle
-        return slope * NEAR_FRACTION * space.extent, slope
+        return slope * NEAR_FRACTION * space.metric_extent, slope
 
 def _whole(n) -> bool:
     return isinstance(n, (int, np.integer)) and not isinstance(n, bool)
@@ -292,6 +293,15 @@ def _own_normals(obj, kept):
         return obj.corner_normals[kept]
     P = obj.vertices[obj.triangles[kept]]
     return np.repeat(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])[:, None, :], 3, axis=1)
+
+
+def _folded(obj, fold):
+    """A flat object's image under a space's fold: its vertices moved by it, its corner normals by
+    its differential (the folds are conformal, so normals stay normal), its triangles and surfaces
+    kept (the folds preserve orientation)."""
+    normals = None if obj.corner_normals is None else _unit(fold.vectors(
+        obj.vertices[obj.triangles], obj.corner_normals))
+    return replace(obj, vertices=fold.points(obj.vertices), corner_normals=normals)
 
 
 def _unit(n):
@@ -505,6 +515,8 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
         raise RenderError(f"{space.name}: an infinite group needs a finite light reach")
     flat, meshes = [], []  # flat: (object index, source object, Y, kept, M); meshes: (index, chart maps)
     for index, obj in enumerate(scene.objects):
+        # a folded space's double cover holds the object's image under the fold too (flattened)
+        mirrored = [] if space.fold is None else [_folded(obj.placed(), space.fold)]
         if obj.instances is not None:
             try:
                 maps, flattened, missing, beyond = _instance_copies(space, obj, C)
@@ -518,16 +530,16 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
             if beyond:
                 warnings.warn(f"object {obj.name!r}: {beyond} of its {len(obj.instances)} instances reach beyond the "
                               f"copies of the domain around them: parts of them are missing", stacklevel=2)
-            continue
-        if not np.all(g.in_chart(obj.vertices)):
-            raise SceneError(f"object {obj.name!r} has vertices outside the chart of {g.name} (the Klein chart is the open unit ball)")
-        copies, covered = _object_copies(space, obj, C)
-        flat += [(index, obj, *copy) for copy in copies]
-        if not copies:
-            warnings.warn(f"object {obj.name!r} lies outside the domain and its neighbouring copies: not shown", stacklevel=2)
-        elif not covered.all():
-            warnings.warn(f"object {obj.name!r} reaches beyond the copies of the domain around it: "
-                          f"{int((~covered).sum())} of its vertices are farther out and parts of it are missing", stacklevel=2)
+        for placed in ([] if obj.instances is not None else [obj]) + mirrored:
+            if not np.all(g.in_chart(placed.vertices)):
+                raise SceneError(f"object {obj.name!r} has vertices outside the chart of {g.name} (the Klein chart is the open unit ball)")
+            copies, covered = _object_copies(space, placed, C)
+            flat += [(index, placed, *copy) for copy in copies]
+            if not copies and placed is obj:
+                warnings.warn(f"object {obj.name!r} lies outside the domain and its neighbouring copies: not shown", stacklevel=2)
+            elif not covered.all():
+                warnings.warn(f"object {obj.name!r} reaches beyond the copies of the domain around it: "
+                              f"{int((~covered).sum())} of its vertices are farther out and parts of it are missing", stacklevel=2)
     # The triangles: the flat copies (mesh 0, placed by the identity), then each instanced mesh.
     verts, tris, owner = [], [], []
     surfaces = _Surfaces(scene.objects)
@@ -568,10 +580,15 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
             raise SceneError(f"light {i} at {light.position} is outside the chart of {g.name}")
         if not (math.isfinite(light.power) and light.power >= 0):
             raise SceneError(f"light {i}: power must be a finite number >= 0, got {light.power}")
-        copies, light_axes = _light_lifts(space, light, i, light_reach)
-        lifts += copies
-        axes += light_axes
-        of_lift += [i] * len(copies)
+        # a folded space's double cover holds the light's image under the fold too
+        images = [(light.position, light.spot_direction)] + ([] if space.fold is None else [(
+            space.fold.points(light.position),
+            None if light.spot_direction is None else space.fold.vectors(light.position, light.spot_direction))])
+        for position, direction in images:
+            copies, light_axes = _light_lifts(space, position, direction, i, light_reach)
+            lifts += copies
+            axes += light_axes
+            of_lift += [i] * len(copies)
         radiance.append(np.asarray(light.color, float) * light.power)
     return dict(
         geometry=g.name, face_covectors=np.ascontiguousarray(space.domain.covectors()),
@@ -586,18 +603,18 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
     )
 
 
-def _light_lifts(space: Space, light, index: int, reach: float):
-    """A point light's copies that the tracer lights with (model points, light_copies), and the
-    unit axis at each where it is a spot light (else zero)."""
+def _light_lifts(space: Space, position, direction, index: int, reach: float):
+    """The copies of light `index` at `position` that the tracer lights with (model points,
+    light_copies), and the unit axis at each where it is a spot light along `direction` (else zero)."""
     g = space.geometry
     try:  # its copies are taken around the domain, so start from the copy inside
-        L, _, M0 = space.bring_inside(g.to_model(light.position))
+        L, _, M0 = space.bring_inside(g.to_model(position))
     except SpaceError as exc:
         raise SceneError(f"light {index}: {exc}") from None
     elements = light_copies(space, L, reach)
     axis = np.zeros(4)
-    if light.spot_direction is not None:
-        axis = g.normalize_tangent(L, M0 @ g.tangent_to_model(light.position, light.spot_direction))
+    if direction is not None:
+        axis = g.normalize_tangent(L, M0 @ g.tangent_to_model(position, direction))
     return [g.normalize_point(M @ L) for M in elements], [M @ axis for M in elements]
 
 
@@ -613,7 +630,8 @@ EMITTER_RADIUS_MARGIN = 1.25  # chart triangles of curved charts bulge a little 
 
 
 def _emitter_arrays(space: Space, scene: Scene, reach: float) -> dict:
-    """The emissive triangles as lights: per emissive object (each placement of an instanced one)
+    """The emissive triangles as lights: per emissive object (each placement of an instanced one,
+    and in a folded space each one's image under the fold)
     its emitting triangles in one copy, the one that brings its first vertex into the domain (their
     group), and the group elements of the copies of it that can come within `reach` of the domain:
     the copies of that vertex within reach + the group's radius about it (light_copies), a point's
@@ -628,7 +646,9 @@ def _emitter_arrays(space: Space, scene: Scene, reach: float) -> dict:
         emitting = np.flatnonzero(np.any(glow[of_triangle] > 0, axis=1))
         if not len(emitting):
             continue
-        for placed in ([obj] if obj.instances is None else [obj.placed(A[None]) for A in obj.instances]):
+        placements = [obj] if obj.instances is None else [obj.placed(A[None]) for A in obj.instances]
+        # a folded space's double cover holds each placement's image under the fold too
+        for placed in placements + ([] if space.fold is None else [_folded(p, space.fold) for p in placements]):
             try:
                 L, _, M0 = space.bring_inside(g.to_model(placed.vertices[placed.triangles[emitting[0], 0]]))
             except SpaceError as exc:
@@ -901,13 +921,14 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
             del color
         del out
     seconds = time.perf_counter() - t0
+    position, normal = space.unfolded(first["position"], first["normal"])  # a folded space's hits in its own domain
     passes = {
         "color": (color_sum / len(offsets)).reshape(h, w, 3).astype(np.float32),
         # the colour of a miss is 0, so the colour is premultiplied by this alpha
         "alpha": (hit_sum / len(offsets) if settings.transparent else np.ones(w * h)).reshape(h, w).astype(np.float32),
         "depth": (first["depth"] + first_start).reshape(h, w),
-        "normal": first["normal"].reshape(h, w, 3),
-        "position": first["position"].reshape(h, w, 3),
+        "normal": _unit(normal).reshape(h, w, 3),
+        "position": position.reshape(h, w, 3),
         "object": first["object"].reshape(h, w),
         "crossings": first["crossings"].reshape(h, w),
         "stop": first["stop"].reshape(h, w),
@@ -1030,7 +1051,7 @@ def retrace_error(space: Space, tracer, origins, directions, out, sample, limits
     ends = np.array([trace(path, P[i:i + 1], D[i:i + 1], depth[k], max_crossings, *fine, shade=False)["end"][0]
                      for k, i in enumerate(paths)])
     error = _image_distance(space, g.to_model(out["position"][sample][paths]), g.to_model(ends))
-    footprint = pixel_angle * (depth + NEAR_FRACTION * space.extent)
+    footprint = pixel_angle * (depth + NEAR_FRACTION * space.metric_extent)
     return float(error.max()), float((error / footprint).max()), changed
 
 

@@ -149,10 +149,23 @@ class Domain:
         return np.all(X @ c.T <= tol * scale, axis=-1)
 
 
+@dataclass
+class Fold:
+    """An isometry f = f^-1 that a space's group holds beside its matrices, where no 4x4 linear
+    model of the geometry holds it with them (S2xR's antipodal reflections): the space is traced
+    through its double cover, whose domain is D and f(D), with the scene and the lights doubled by f
+    (render.compile_scene); what is seen in f(D) is reported at its image in D."""
+    points: Callable  # chart points -> their images
+    vectors: Callable  # (chart points, chart vectors there) -> the vectors' images
+    mirrored: Callable  # chart points of the double cover's domain -> whether they lie in f(D)
+
+
 class Space:
     """What every space has: a geometry, generators, defaults, a fundamental domain with face
     pairings, and the walk of points into it. How the domain comes about is the subclass's:
     DirichletSpace computes it from the generators, CoordinateSpace takes it from the file."""
+
+    fold: Fold | None = None  # a folded space's fold; the tracer's domain is then its double cover's
 
     def __init__(self, data: dict, source: str):
         self.source = source
@@ -252,6 +265,12 @@ class Space:
         """The domain's largest extent along a chart axis."""
         return float(np.ptp(self.domain.vertices, axis=0).max())
 
+    @property
+    def metric_extent(self) -> float:
+        """The domain's size in the metric (the chart's extent where the chart is about isometric):
+        the scale of the tolerances and footprints near the camera (render.Settings.tolerances)."""
+        return self.extent
+
     @cached_property
     def face_feet(self) -> np.ndarray:
         """The chart points of the faces nearest the chart origin in the plane chart (the feet of
@@ -319,6 +338,18 @@ class Space:
             X[idx] = g.normalize_point(np.einsum("nij,nj->ni", maps[worst[idx]], X[idx]))
             M[idx] = maps[worst[idx]] @ M[idx]
         raise SpaceError(f"point {int(idx[0])} cannot be brought into the domain of {self.id!r}")
+
+    def unfolded(self, x, v=None):
+        """Chart points of the tracer's domain (and chart vectors there) as points of the space's
+        own domain: themselves, except in a folded space, where those in f(D) go back by f."""
+        x = np.array(x, float, copy=True)
+        v = None if v is None else np.array(v, float, copy=True)
+        if self.fold is not None:
+            m = self.fold.mirrored(x)
+            if v is not None:
+                v[m] = self.fold.vectors(x[m], v[m])
+            x[m] = self.fold.points(x[m])
+        return x, v
 
     def summary(self) -> dict:
         return {
@@ -866,6 +897,11 @@ class ShellSpace(CoordinateSpace):
         """About a point of the middle sphere: hypot(pi, half the shell's width)."""
         return math.hypot(math.pi, self.inradius)
 
+    @property
+    def metric_extent(self) -> float:
+        """The shell's metric diameter: the line's extent and half a great circle."""
+        return math.hypot(math.log(self.radii[1] / self.radii[0]), math.pi)
+
     @cached_property
     def chart_inradius(self) -> float:
         """The radius of the largest chart ball inside the shell."""
@@ -915,6 +951,82 @@ class ShellSpace(CoordinateSpace):
         return V, [], faces.tolist()
 
 
+class FoldedShellSpace(ShellSpace):
+    """A shell each of whose two spheres is glued to itself by the antipodal reflection in it,
+    x -> -R^2 x / |x|^2 (S2xR: RP^3 # RP^3), written `antipodal = true` in a generator's place of a
+    matrix, with its sphere as the face. No 4x4 linear model holds those reflections beside the
+    dilations, so the space is traced through its double cover (a Fold): the shell doubled by the
+    inner reflection, w in [2 a - b, b] for the file's a <= w <= b, its spheres paired by the
+    dilation e^(2 (b - a)) that the two reflections compose to. The file's shell is the space's
+    domain for everything a user sees (guide, outline, volume, inradius); `domain` is the cover's,
+    which the tracer walks. Validated on load beyond the cover's checks: the reflections pull the
+    metric back onto itself, and random points and their images under words in the reflections
+    reduce to one point of the file's shell."""
+
+    def __init__(self, data: dict, source: str):
+        g = _geometry(data, source)
+        faces = []
+        for i, gen in enumerate(data.get("generator") or []):
+            name = gen.get("name", f"g{i}") if isinstance(gen, dict) else f"g{i}"
+            where = f"{source}: generator {name!r}"
+            if not isinstance(gen, dict) or gen.get("antipodal") is not True:
+                raise SpaceError(f"{where}: in a shell whose spheres are glued to themselves every generator is "
+                                 "'antipodal = true' with its sphere as the face")
+            if "matrix" in gen:
+                raise SpaceError(f"{where}: an antipodal reflection has no matrix (no 4x4 linear map is one); "
+                                 "give only its face")
+            c = _vector(gen.get("face"), 4, f"{where} face")
+            if c[0] != 0 or c[1] != 0 or c[2] == 0:
+                raise SpaceError(f"{where}: the face {c.tolist()} is not a sphere |x| = const "
+                                 f"({g.name} faces are [0, 0, c, d]: the sphere c log|x| + d = 0)")
+            faces.append((-c[3] / c[2], c[2] > 0))  # (log of the sphere's radius, whether the shell is inside it)
+        if len(faces) != 2:
+            raise SpaceError(f"{source}: a shell glued to itself has two antipodal reflections, one in each sphere; "
+                             f"got {len(faces)}")
+        (a, a_outer), (b, b_outer) = sorted(faces)
+        if not (b > a and b_outer and not a_outer):
+            raise SpaceError(f"{source}: the two reflections' faces do not bound a shell (the inner sphere's face is "
+                             "[0, 0, -1, log R_in], the outer's [0, 0, 1, -log R_out], R_in < R_out)")
+        self.folded_radii = (math.exp(a), math.exp(b))
+        self.fold = Fold(points=lambda x: geometries.s2xr.antipodal_reflection(x, self.folded_radii[0]),
+                         vectors=lambda x, v: geometries.s2xr.antipodal_reflection_tangent(x, v, self.folded_radii[0]),
+                         mirrored=lambda x: np.sum(np.asarray(x) ** 2, axis=-1) < self.folded_radii[0] ** 2)
+        period = 2 * (b - a)
+        cover = dict(data, generator=[{
+            "name": "reflections",  # the outer reflection after the inner: the dilation by e^period
+            "matrix": np.diag([math.exp(period)] * 3 + [1.0]).tolist(), "face": [0, 0, 1, -b]}])
+        super().__init__(cover, source)
+
+    def _face_domain(self, covectors, elements) -> Domain:
+        domain = super()._face_domain(covectors, elements)
+        self.radii = self.folded_radii  # the file's shell, for what a user sees
+        return domain
+
+    def _validate(self, data: dict):
+        super()._validate(data)
+        g = self.geometry
+        rng = np.random.default_rng(20261202)
+        u = rng.normal(size=(32, 3))
+        x = u / np.linalg.norm(u, axis=1)[:, None] * np.exp(rng.uniform(*np.log(self.radii), 32))[:, None]
+        reflections = [lambda p, r=r: geometries.s2xr.antipodal_reflection(p, r) for r in self.radii]
+        for r in self.radii:  # each pulls the metric back onto itself
+            p, e = x[:4], np.eye(3)
+            J = np.stack([geometries.s2xr.antipodal_reflection_tangent(p, np.broadcast_to(v, p.shape), r) for v in e], -1)
+            image = geometries.s2xr.antipodal_reflection(p, r)
+            pulled = np.einsum("nki,nkl,nlj->nij", J, g.metric(image), J)
+            want = g.metric(p)
+            if not np.allclose(pulled, want, rtol=0, atol=1e-9 * np.abs(want).max()):
+                raise SpaceError(f"{self.source}: the antipodal reflection in |x| = {r:g} is not an isometry of {g.name}")
+        for _ in range(6):  # words in the reflections reduce to the point itself
+            y = x.copy()
+            for k in rng.integers(0, 2, 5):
+                y = reflections[k](y)
+            back, _ = self.unfolded(g.to_chart(self.move_inside(g.to_model(y))[0]))
+            if not np.allclose(back, x, rtol=1e-8, atol=1e-8):
+                raise SpaceError(f"{self.source}: points and their images under the reflections reduce to different "
+                                 "points of the shell: the faces do not bound its fundamental domain")
+
+
 def from_data(data: dict, source: str) -> Space:
     """The space a file's fields describe: a coordinate domain where the generators name their
     faces (a shell where the geometry's faces are spheres), else the Dirichlet domain of the
@@ -923,7 +1035,10 @@ def from_data(data: dict, source: str) -> Space:
     given = isinstance(gens, list) and any(isinstance(g, dict) and "face" in g for g in gens)
     if not given:
         return DirichletSpace(data, source)
-    return (CoordinateSpace if _geometry(data, source).chart_plane_faces else ShellSpace)(data, source)
+    if _geometry(data, source).chart_plane_faces:
+        return CoordinateSpace(data, source)
+    folded = any(isinstance(g, dict) and "antipodal" in g for g in gens)
+    return (FoldedShellSpace if folded else ShellSpace)(data, source)
 
 
 def preset_dirs() -> list[Path]:

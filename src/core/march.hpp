@@ -29,6 +29,8 @@
 //                                       a bound of the chart acceleration |x''| over [0, h];
 //   double growth_rate() const          nearby geodesics separate at most like e^(rate t);
 //   double max_step() const             the longest step, which keeps the bounds over it tight;
+//   static double chart_scale(x)        the chart length of a unit of the walk's tolerance about x
+//                                       (ChartPlanes: 1; S2xR, whose chart scales with |x|: |x| / e);
 //   double dot(const Vec3& x, const Vec3& a, const Vec3& b) const   the metric at x;
 //   Vec3 raise(const Vec3& x, const Vec3& covector) const           g^-1 at x;
 //   double volume_density(const Vec3& x) const                     sqrt det g;
@@ -316,7 +318,7 @@ class MarchingKernel<Flow>::Walk {
     if (!ok_ || !(remaining > 0.0)) return Advance::kLimit;
     const Domain& domain = context_.domain;
     const double hmax = std::min(remaining, flow_.max_step());
-    const double tolerance = context_.tolerance_at(distance_);
+    const double tolerance = context_.tolerance_at(distance_) * Flow::chart_scale(x_);
     const double accuracy = kFlowAccuracy * tolerance;
 
     // Leaving now: numerically on a face and heading out (carries rays across edges and vertices).

@@ -96,6 +96,9 @@ struct S2xRFlow : AffineChart, ClosedForm<S2xRFlow> {
   static double side(const Vec4& c, const Vec3& x) { return c[2] * 0.5 * std::log(dot3(x, x)) + c[3]; }
   static Vec3 side_gradient(const Vec4& c, const Vec3& x) { return scaled3(c[2] / dot3(x, x), x); }
   static double side_acceleration_bound(const Vec4&, double) { return 0.0; }
+  // The tolerance is metric: a unit of it is |x| of chart length at x, at least |x| / e over a step
+  // (max_step 1), so chords are the same wherever the shell is (its chart spans a factor e^L).
+  static double chart_scale(const Vec3& x) { return std::sqrt(dot3(x, x)) * 0.36787944117144233; }
 };
 
 }  // namespace thurston

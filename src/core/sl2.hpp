@@ -80,6 +80,7 @@ struct SL2Flow : ClosedForm<SL2Flow> {
   // Sectional curvatures lie in [-7/4, 1/4]: nearby geodesics separate at most like e^(sqrt(7/4) t).
   double growth_rate() const { return 1.3228756555322954; }
   double max_step() const { return 1.0; }
+  static double chart_scale(const Vec3&) { return 1.0; }  // the chart is about isometric over the domain
 
   double dot(const Vec3& p, const Vec3& a, const Vec3& b) const {
     const double lam = 2.0 / (1.0 - p[0] * p[0] - p[1] * p[1]);

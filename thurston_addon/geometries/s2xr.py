@@ -7,7 +7,8 @@ used here, rotations times dilations x -> e^c R x (R in O(3)), are then the line
 diag(e^c R, 1), words are matrix products and chart-affine. The inversions x -> -x / |x|^2 (the
 reflections w -> -w) are isometries too, but no 4-dimensional model makes them linear together with
 the dilations: the line's isometry group R x| Z2 is not abelian, and commuting with O(3) (acting
-irreducibly on three slots) leaves it one slot (it needs two, as (e^w, e^-w)); they are not offered.
+irreducibly on three slots) leaves it one slot (it needs two, as (e^w, e^-w)). The antipodal ones
+(antipodal_reflection) are applied to chart points directly, for the folded shells of spaces.py.
 Faces are spheres |x| = e^w0: `plane_coordinates` gives (0, 0, w, 1), in which they are the planes
 w = w0, and w is linear in arclength along every geodesic.
 Geodesics (log-spirals in a plane through the origin), connecting geodesics and the falloff are
@@ -21,6 +22,21 @@ import numpy as np
 
 from .affine import AffineGeometry, homogeneous
 from .base import _floats
+
+
+def antipodal_reflection(x, radius):
+    """x -> -R^2 x / |x|^2: u -> -u, w -> 2 log R - w, an isometry that preserves orientation (the
+    antipodal map and the inversion each reverse it) and fixes no point (the sphere |x| = R goes to
+    itself antipodally)."""
+    x = _floats(x)
+    return -radius**2 * x / np.sum(x * x, axis=-1)[..., None]
+
+
+def antipodal_reflection_tangent(x, v, radius):
+    """Its differential at x: -R^2 (v - 2 x (x . v) / |x|^2) / |x|^2, conformal (normals stay normal)."""
+    x, v = _floats(x), _floats(v)
+    r2 = np.sum(x * x, axis=-1)[..., None]
+    return -radius**2 * (v - 2 * x * np.sum(x * v, axis=-1)[..., None] / r2) / r2
 
 
 def _sin_over(a, t):
