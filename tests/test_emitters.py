@@ -187,3 +187,34 @@ def test_spot_cone_and_blend_against_the_closed_form():
             total += (n @ v / r) * power / r**2 * attenuation
     assert 0 < blending < cone < copies
     np.testing.assert_allclose(out["color"][0], glow + RHO * total, rtol=1e-4)
+
+
+@pytest.mark.parametrize("spec, message", [
+    ('type = "sun"', "unknown light type 'sun'"),
+    ('type = "spot"\ndirection = [0, 0, 0]', "direction must be a non-zero vector"),
+    ('type = "spot"\ndirection = [0, 0, -1]\nspot_blend = 2', "spot blend must be in"),
+    ('type = "spot"\ndirection = [0, 0, -1]\nspot_size = 200', "spot size must be an angle"),
+    ('type = "area"\ndirection = [0, 0, -1]\nx_axis = [0, 0, 1]', "x_axis not along it"),
+    ('type = "area"\nsize = [0.1, 0]', "positive size"),
+])
+def test_bad_lights_in_a_scene_file_are_one_clear_error(tmp_path, spec, message):
+    from thurston_addon.scene import SceneError, load_scene_file
+
+    path = tmp_path / "scene.toml"
+    path.write_text(f"[[light]]\nposition = [0, 0, 0.2]\n{spec}\n")
+    with pytest.raises(SceneError, match=message):
+        load_scene_file(path)
+
+
+def test_an_area_light_in_a_scene_file_is_a_one_sided_emitter_facing_its_direction(tmp_path):
+    from thurston_addon.scene import load_scene_file
+
+    path = tmp_path / "scene.toml"
+    path.write_text('[[light]]\ntype = "area"\nposition = [0.1, 0, 0.2]\ndirection = [0, 0, -2]\n'
+                    'size = [0.2, 0.1]\nemission = [3, 3, 3]\n')
+    (lamp,) = load_scene_file(path).objects
+    P = lamp.vertices[lamp.triangles]
+    normals = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+    np.testing.assert_allclose(normals / np.linalg.norm(normals, axis=1)[:, None], [[0, 0, -1]] * 2)
+    np.testing.assert_allclose(np.ptp(lamp.vertices, axis=0), [0.2, 0.1, 0.0])
+    assert lamp.materials[0].one_sided and lamp.emission.tolist() == [3, 3, 3]

@@ -1,6 +1,7 @@
 """Scene description, independent of Blender: meshes with materials (a base colour and an
-emission, each optionally an image texture through the mesh's UVs) and optional corner normals,
-point lights and a camera, all in chart coordinates of the space's fundamental domain.
+emission, each optionally an image texture through the mesh's UVs; emissive meshes are lights)
+and optional corner normals, point and spot lights (area lights are emissive meshes: flat_light)
+and a camera, all in chart coordinates of the space's fundamental domain.
 
 Filled from mesh files (OBJ, PLY, STL, GLB/glTF via trimesh), from a scene file (TOML: objects,
 lights, camera), from Blender's depsgraph (the add-on), or built as the default scene of a space.

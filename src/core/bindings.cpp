@@ -597,7 +597,8 @@ Sol, reduced into the domain by the maps of the faces it lies outside of).
 vertices: float64 (NV,3) chart coordinates (with instances: the meshes' coordinates);
 triangles: int32 (NT,3); triangle_object: int32 (NT,).
 object_color, object_emission: float32 (NO,3), each object's one material where triangle_material
-is not given. Triangles of emissive materials cast no shadows.
+is not given. Triangles of emissive materials cast no shadows on the point lights' light (they do
+on the emitters').
 light_lifts: float64 (K,4) points (copies of the point lights in the universal cover);
 light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3). E3, S3, H3,
 H2xR and S2xR sum every geodesic from a shaded point to each lift no longer than light_reach
