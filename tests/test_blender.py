@@ -2,6 +2,7 @@
 engine, export from the depsgraph, the domain guide, the panorama, errors and background batch
 renders. Pixels are compared with independent truths: the core (`thurston render`) fed with mesh
 files written here from the Blender data, closed-form distances, and Blender's own conventions."""
+import functools
 import math
 import shutil
 import subprocess
@@ -108,6 +109,11 @@ def build_scene(space="torus", scale=1.0, rotation=(1.45, 0.08, 0.25)):
 @pytest.mark.parametrize("space,scale", [("torus", 1.0), ("poincare", 2.0), ("nil", 1.0), ("sol", 2.0),
                                          ("genus2xs1", 1.0), ("s2xs1", 0.1), ("rp3_rp3", 0.1), ("sl2", 1.0)])
 def test_operators_and_f12_match_core(tmp_path, space, scale):
+    """Every path renders what the core renders from the same scene written as files. The emissive
+    box lights the others by sampled points whose shadow rays can graze edges that the two exports
+    (OBJ text, Blender's floats) place 1e-7 apart: rp3_rp3's tiny scene flips 27 of 3888 values,
+    by up to 1e-3; a wrong export differs far more."""
+    near = functools.partial(close, tol=2e-3)
     sc = build_scene(space, scale)
     toml = bh.write_scene_files(sc, tmp_path, scale)
     truth = cli_render(tmp_path, toml, space, "truth")
@@ -116,10 +122,10 @@ def test_operators_and_f12_match_core(tmp_path, space, scale):
     assert 0.3 < np.isfinite(truth["Z"]).mean()
 
     assert bpy.ops.thurston.render_view() == {"FINISHED"}
-    close(bh.image_pixels(bpy.data.images["Thurston View"])[..., :3], color)
+    near(bh.image_pixels(bpy.data.images["Thurston View"])[..., :3], color)
 
     chans = bh.f12(sc, tmp_path / "f12.exr")
-    close(bh.rgb(chans, "ViewLayer.Combined."), color)
+    near(bh.rgb(chans, "ViewLayer.Combined."), color)
     st = sc.thurston.stats
     assert st.valid and st.chords_per_ray > 0 and st.bound
     if space in CURVED:  # the quality's bound: a fraction of the pixel footprint
@@ -128,14 +134,14 @@ def test_operators_and_f12_match_core(tmp_path, space, scale):
     # preview: same size here (48 px < 320), quality 'preview'
     prev = bh.rgb(cli_render(tmp_path, toml, space, "prev", quality="preview"))
     assert bpy.ops.thurston.preview() == {"FINISHED"}
-    close(bh.image_pixels(bpy.data.images["Thurston Preview"])[..., :3], prev)
+    near(bh.image_pixels(bpy.data.images["Thurston Preview"])[..., :3], prev)
 
     # panorama: Blender's equirect image centre looks along world +X, up +Z
     sc.thurston.panorama_width = 32
     pano = bh.rgb(cli_render(tmp_path, toml, space, "pano", size=(32, 16), projection="equirect",
                              extra=["--camera-forward=1,0,0", "--camera-up=0,0,1"]))
     assert bpy.ops.thurston.bake_panorama() == {"FINISHED"}
-    close(bh.image_pixels(bpy.data.images["Thurston Panorama"])[..., :3], pano)
+    near(bh.image_pixels(bpy.data.images["Thurston Panorama"])[..., :3], pano)
 
 
 def same_points(a, b, tol=1e-6):

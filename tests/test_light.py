@@ -1,7 +1,7 @@
 """Direct light along every geodesic (E3, S3, H3, H2xR, S2xR) against closed forms: the sum over the
 copies of a point light (in S3 over both arcs to each, in S2xR over every arc round the sphere) of
 cos * power * falloff, where nothing shadows (the shaded object is emissive, so it casts no
-shadow, and there is nothing else), every path shadowed where the light is shut in, and the
+shadow on point lights' light, and there is nothing else), every path shadowed where the light is shut in, and the
 render's light statistics."""
 from __future__ import annotations
 
@@ -373,4 +373,6 @@ def test_a_shut_in_light_is_shadowed_along_every_geodesic(sid, light, centre, la
     origin = np.array(centre) + np.array([0.0, -0.3, 0.1]) * (np.linalg.norm(centre) if sid == "s2xs1" else 1.0)
     colour, _, _, out = shade_one(space, scene, origin, centre, 4.5 if sid == "genus2xs1" else 13.0)
     assert out["light_paths"] > 5
-    np.testing.assert_array_equal(colour, np.float32(GLOW))
+    # the ball's faint glow is a light too: its copies add 4e-5 (H2xR) to 3e-3 (S2xR, whose
+    # spheres focus them) of it; the lamp unshadowed would add over 100 times the glow
+    np.testing.assert_allclose(colour, GLOW, rtol=1e-2)

@@ -102,6 +102,9 @@ class ThurstonSettings(bpy.types.PropertyGroup):
     light_reach: bpy.props.FloatProperty(name="Light Reach", default=0.0, min=0.0,
                                          description="E3, S3, H3: each light lights along every geodesic up to this "
                                                      "long, one per copy of the light (0: the space's default)")
+    light_samples: bpy.props.IntProperty(name="Light Samples", default=render.Settings.light_samples, min=1, max=4096,
+                                         description="Points sampled on the emissive meshes and area lights per "
+                                                     "shaded point and sample")
     tolerance: bpy.props.FloatProperty(name="Tolerance", default=0.0, min=0.0, precision=6, step=0.001,
                                        description="Where geodesics bend (Nil, Sol): how far the traced chords may stray "
                                                    "from the true geodesic, in Blender units (0: the quality's bound, a "

@@ -83,6 +83,7 @@ class Settings:
     light_reach: float | None = None
     threads: int = 0
     tolerance: float | None = None  # chord tolerance in chart units (S2xR: metric); None: the quality's bound
+    light_samples: int = 4  # points sampled on the emissive meshes per shaded point (each sample)
     transparent: bool = False  # alpha: the share of a pixel's samples that hit something (else 1)
     # (x, y, w, h): render only this window of the width x height image, x, y its top-left pixel
     # (rows top-down); None: the whole image
@@ -122,6 +123,8 @@ class Settings:
             raise RenderError(f"fog distance must be a positive number (None: no fog), got {self.fog}")
         if self.light_reach is not None and not self.light_reach >= 0:
             raise RenderError(f"light reach must be a distance >= 0 (None: the space's default), got {self.light_reach}")
+        if not (_whole(self.light_samples) and 1 <= self.light_samples <= 4096):
+            raise RenderError(f"light samples must be a whole number between 1 and 4096, got {self.light_samples}")
         if not (_whole(self.threads) and 0 <= self.threads <= 2**31 - 1):
             raise RenderError(f"threads must be a whole number >= 0 (0: all cores), got {self.threads}")
         if self.tolerance is not None and not (self.tolerance > 0 and math.isfinite(self.tolerance)):
@@ -161,11 +164,13 @@ class Result:
 
 
 def light_summary(s: dict) -> str:
+    emitters = (f"; {s['emitter_triangles']} emissive triangles in {s['emitter_copies']} copies, "
+                f"{s['light_samples']} points sampled on them per shaded point" if s["emitter_triangles"] else "")
     if s["light_reach"] is None:
-        return f"light: each light's nearest of {s['light_copies']} copies"
+        return f"light: each light's nearest of {s['light_copies']} copies{emitters}"
     return (f"light: {s['light_copies']} copies within reach {s['light_reach']:.3g} ({s['light_paths_per_point']:.1f} "
             f"geodesics per shaded point), energy beyond the reach up to the distance limit about "
-            f"{s['light_energy_left_out']:.3g} x the summed (estimate)")
+            f"{s['light_energy_left_out']:.3g} x the summed (estimate){emitters}")
 
 
 # --- compiling the scene -------------------------------------------------------------------------------
@@ -255,6 +260,7 @@ class _Surfaces:
             material_emission=np.array([m.emission for m in self.materials], np.float32).reshape(-1, 3),
             material_color_texture=np.array([texture_index(m.color_texture) for m in self.materials], np.int32),
             material_emission_texture=np.array([texture_index(m.emission_texture) for m in self.materials], np.int32),
+            material_one_sided=np.array([m.one_sided for m in self.materials], np.int32),
             textures=[np.ascontiguousarray(t, np.float32) for t in self.textures.values()],
         )
         if self.with_uvs:
@@ -375,28 +381,32 @@ def light_reach_for(space: Space, settings: Settings) -> float:
     return min(reach, settings.max_distance or space.max_distance)
 
 
-def light_copies(space: Space, L, reach: float) -> list[np.ndarray]:
-    """The copies g L of the light L (a model point in the domain D) that can lie within `reach` of
-    D: in E3 and H3 those in tiles gD within reach of D (light_tiles) with every face plane of D
-    within reach, in the coordinate domains of H2xR and S2xR those within reach (cover_copies)."""
+def light_copies(space: Space, L, reach: float) -> np.ndarray:
+    """The elements g (N,4,4) whose copies g L of the light L (a model point in the domain D) the
+    tracer lights with: where it sums every copy, those that can lie within `reach` of D (in E3 and
+    H3 those in tiles gD within reach of D (light_tiles) with every face plane of D within reach,
+    in the coordinate domains of H2xR and S2xR those within reach (cover_copies), in S3 all);
+    elsewhere (Nil, Sol, SL2) those around the domain, among which it takes the nearest."""
     g = space.geometry
+    if not sums_light_copies(space):
+        return np.array(space.light_elements())
     if space.group_order is not None:  # finite (S3): all of it
-        return [M @ L for M in space.elements_within(g.diameter + 1e-6)]
+        return np.array(space.elements_within(g.diameter + 1e-6))
     if not g.projective:
         return cover_copies(space, L, reach)
-    copies = (g.normalize_point(M @ L) for M in light_tiles(space, reach))
-    return [Y for Y in copies if np.max(space.face_distances(Y)) <= reach + 1e-9]
+    tiles = light_tiles(space, reach)
+    return tiles[[np.max(space.face_distances(g.normalize_point(M @ L))) <= reach + 1e-9 for M in tiles]]
 
 
-def cover_copies(space: Space, L, reach: float) -> list[np.ndarray]:
-    """The copies g L of the light L (a model point in the domain D) within reach of D (the
-    geometry's domain_distance), by a breadth-first walk from L over g L -> s g L (s a face's
-    element), level by level in numpy, through the copies within reach + rho of D (rho =
-    space.farthest_distance(L)). None is missed: the geodesic from L to a copy g L within reach
-    passes through a chain of face-neighbouring tiles D, t1 D, t1 t2 D, ..., g D (g = t1 ... tk),
-    and the walk reaches g L through the copies of the suffixes, tj ... tk L = (t1 ... tj-1)^-1 g L,
-    each as near D as g L is to the tile t1 ... tj-1 D, which the geodesic crosses: within its
-    length d(L, g L) <= reach + rho. Cached per light and reach."""
+def cover_copies(space: Space, L, reach: float) -> np.ndarray:
+    """The elements g (N,4,4) of the copies g L of the light L (a model point in the domain D)
+    within reach of D (the geometry's domain_distance), by a breadth-first walk from L over
+    g L -> s g L (s a face's element), level by level in numpy, through the copies within
+    reach + rho of D (rho = space.farthest_distance(L)). None is missed: the geodesic from L to a
+    copy g L within reach passes through a chain of face-neighbouring tiles D, t1 D, t1 t2 D, ...,
+    g D (g = t1 ... tk), and the walk reaches g L through the copies of the suffixes,
+    tj ... tk L = (t1 ... tj-1)^-1 g L, each as near D as g L is to the tile t1 ... tj-1 D, which
+    the geodesic crosses: within its length d(L, g L) <= reach + rho. Cached per light and reach."""
     def key(Y):  # relative: far copies have large model vectors, known to ~1e-16 of their size
         return tuple(np.round(Y / np.linalg.norm(Y), 8))
 
@@ -411,22 +421,22 @@ def cover_copies(space: Space, L, reach: float) -> list[np.ndarray]:
 COVER_COPIES_CACHED = 64  # lights and reaches whose copies a space keeps
 
 
-def _walk_cover_copies(space: Space, L, reach: float, key) -> list[np.ndarray]:
+def _walk_cover_copies(space: Space, L, reach: float, key) -> np.ndarray:
     g = space.geometry
     rho = space.farthest_distance(L)
     steps = np.array([f.element for f in space.domain.faces])
 
-    found = {key(L): L}
-    kept = [L]
-    frontier = L[None]
+    found = {key(L)}
+    kept = [np.eye(4)]
+    frontier = np.eye(4)[None]
     while len(frontier):
         candidates = {}
-        for Y in g.normalize_point(np.einsum("sij,nj->nsi", steps, frontier).reshape(-1, 4)):
-            candidates.setdefault(key(Y), Y)
-        new = np.array([Y for k, Y in candidates.items() if k not in found]).reshape(-1, 4)
-        distance = g.domain_distance(new, space.domain)
+        for M in np.einsum("sij,njk->nsik", steps, frontier).reshape(-1, 4, 4):
+            candidates.setdefault(key(g.normalize_point(M @ L)), M)
+        new = np.array([M for k, M in candidates.items() if k not in found]).reshape(-1, 4, 4)
+        distance = g.domain_distance(g.normalize_point(new @ L), space.domain)
         walk = distance <= reach + rho + 1e-9
-        found.update((key(Y), Y) for Y in new[walk])
+        found.update(key(g.normalize_point(M @ L)) for M in new[walk])
         kept += list(new[walk & (distance <= reach + 1e-9)])
         frontier = new[walk]
         if len(found) > LIGHT_TILE_LIMIT:
@@ -434,8 +444,9 @@ def _walk_cover_copies(space: Space, L, reach: float, key) -> list[np.ndarray]:
                               "light; choose a smaller light reach")
     # a copy whose key rounded two ways would light twice: keep one of each point
     kept = np.array(kept)
-    near = g.distance(kept[:, None], kept[None]) < 1e-6
-    return list(kept[~np.any(np.triu(near, 1), axis=0)])
+    Y = g.normalize_point(kept @ L)
+    near = g.distance(Y[:, None], Y[None]) < 1e-6
+    return kept[~np.any(np.triu(near, 1), axis=0)]
 
 
 LIGHT_TILE_LIMIT = 20000  # tiles a light reach may need (an H3 reach of a few domain sizes has more)
@@ -563,20 +574,20 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
     O = np.concatenate(owner) if owner else np.zeros(0, np.int32)
     colors = np.array([o.color for o in scene.objects], np.float32).reshape(-1, 3)
     emission = np.array([o.emission for o in scene.objects], np.float32).reshape(-1, 3)
-    lifts, of_lift, radiance = [], [], []
+    lifts, axes, of_lift, radiance = [], [], [], []
     for i, light in enumerate(scene.lights):
         if not np.all(g.in_chart(light.position)):
             raise SceneError(f"light {i} at {light.position} is outside the chart of {g.name}")
         if not (math.isfinite(light.power) and light.power >= 0):
             raise SceneError(f"light {i}: power must be a finite number >= 0, got {light.power}")
-        for position in [light.position] + ([] if space.fold is None else [space.fold.points(light.position)]):
-            try:  # its copies are taken around the domain, so start from the copy inside
-                L, _, _ = space.bring_inside(g.to_model(position))
-            except SpaceError as exc:
-                raise SceneError(f"light {i}: {exc}") from None
-            copies = light_copies(space, L, light_reach) if sums_light_copies(space) else \
-                [M @ L for M in space.light_elements()]
+        # a folded space's double cover holds the light's image under the fold too
+        images = [(light.position, light.spot_direction)] + ([] if space.fold is None else [(
+            space.fold.points(light.position),
+            None if light.spot_direction is None else space.fold.vectors(light.position, light.spot_direction))])
+        for position, direction in images:
+            copies, light_axes = _light_lifts(space, position, direction, i, light_reach)
             lifts += copies
+            axes += light_axes
             of_lift += [i] * len(copies)
         radiance.append(np.asarray(light.color, float) * light.power)
     return dict(
@@ -587,8 +598,81 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
         **surfaces.arrays(len(T)), **instancing,
         light_lifts=np.array(lifts, np.float64).reshape(-1, 4), light_of_lift=np.array(of_lift, np.int32),
         light_radiance=np.array(radiance, np.float32).reshape(-1, 3), light_reach=light_reach,
-        geodesic_loop=geodesic_loop(space),
+        geodesic_loop=geodesic_loop(space), **_spot_arrays(scene.lights, axes),
+        **_emitter_arrays(space, scene, light_reach),
     )
+
+
+def _light_lifts(space: Space, position, direction, index: int, reach: float):
+    """The copies of light `index` at `position` that the tracer lights with (model points,
+    light_copies), and the unit axis at each where it is a spot light along `direction` (else zero)."""
+    g = space.geometry
+    try:  # its copies are taken around the domain, so start from the copy inside
+        L, _, M0 = space.bring_inside(g.to_model(position))
+    except SpaceError as exc:
+        raise SceneError(f"light {index}: {exc}") from None
+    elements = light_copies(space, L, reach)
+    axis = np.zeros(4)
+    if direction is not None:
+        axis = g.normalize_tangent(L, M0 @ g.tangent_to_model(position, direction))
+    return [g.normalize_point(M @ L) for M in elements], [M @ axis for M in elements]
+
+
+def _spot_arrays(lights, axes) -> dict:
+    """The tracer's cones (Cycles' smoothstep, scene.PointLight.cone) and axes where a light is a spot."""
+    if not any(light.spot_direction is not None for light in lights):
+        return {}
+    return dict(light_cone=np.array([light.cone() for light in lights], np.float64).reshape(-1, 2),
+                light_axis=np.array(axes, np.float64).reshape(-1, 4))
+
+
+EMITTER_RADIUS_MARGIN = 1.25  # chart triangles of curved charts bulge a little beyond their corners' distances
+
+
+def _emitter_arrays(space: Space, scene: Scene, reach: float) -> dict:
+    """The emissive triangles as lights: per emissive object (each placement of an instanced one,
+    and in a folded space each one's image under the fold)
+    its emitting triangles in one copy, the one that brings its first vertex into the domain (their
+    group), and the group elements of the copies of it that can come within `reach` of the domain:
+    the copies of that vertex within reach + the group's radius about it (light_copies), a point's
+    copies lighting the domain as a point light's do. Radiance: the material's emission times its
+    texture's mean (emission textures light as their average colour)."""
+    g = space.geometry
+    triangles, radiance, one_sided, group, copies, copy_group = [], [], [], [], [], []
+    for index, obj in enumerate(scene.objects):
+        materials, of_triangle = obj.surface_materials()
+        glow = np.array([m.emission * (1.0 if m.emission_texture is None else
+                                       m.emission_texture[..., :3].reshape(-1, 3).mean(axis=0)) for m in materials])
+        emitting = np.flatnonzero(np.any(glow[of_triangle] > 0, axis=1))
+        if not len(emitting):
+            continue
+        placements = [obj] if obj.instances is None else [obj.placed(A[None]) for A in obj.instances]
+        # a folded space's double cover holds each placement's image under the fold too
+        for placed in placements + ([] if space.fold is None else [_folded(p, space.fold) for p in placements]):
+            try:
+                L, _, M0 = space.bring_inside(g.to_model(placed.vertices[placed.triangles[emitting[0], 0]]))
+            except SpaceError as exc:
+                raise SceneError(f"object {obj.name!r}: {exc}") from None
+            used = np.unique(placed.triangles[emitting])
+            X = g.normalize_point(g.to_model(placed.vertices[used]) @ M0.T)
+            # the reach bounds the copies where they are summed (elsewhere the nearest is taken)
+            radius = EMITTER_RADIUS_MARGIN * float(np.max(g.distance(L, X))) if sums_light_copies(space) else 0.0
+            corners = np.zeros((len(placed.vertices), 3))
+            corners[used] = g.mesh_to_chart(X)
+            triangles.append(corners[placed.triangles[emitting]])
+            radiance.append(glow[of_triangle[emitting]])
+            one_sided.append(np.array([materials[m].one_sided for m in of_triangle[emitting]], np.int32))
+            group.append(np.full(len(emitting), len(copies), np.int32))
+            elements = light_copies(space, L, reach + radius)
+            copy_group.append(np.full(len(elements), len(copies), np.int32))
+            copies.append(elements)
+    if not triangles:
+        return {}
+    return dict(emitter_triangles=np.ascontiguousarray(np.concatenate(triangles), np.float64),
+                emitter_radiance=np.ascontiguousarray(np.concatenate(radiance), np.float32),
+                emitter_one_sided=np.concatenate(one_sided), emitter_group=np.concatenate(group),
+                emitter_copies=np.ascontiguousarray(np.concatenate(copies), np.float64),
+                emitter_copy_group=np.concatenate(copy_group))
 
 
 def make_tracer(space: Space, scene: Scene, threads: int = 0, light_reach: float | None = None):
@@ -604,7 +688,7 @@ def make_tracer(space: Space, scene: Scene, threads: int = 0, light_reach: float
 
 
 def trace(tracer, origins, directions, max_distance, max_crossings, tolerance=1e-3, tolerance_per_distance=0.0,
-          shade=True, progress=None, fog=None):
+          shade=True, progress=None, fog=None, light_samples=1, seed=0):
     """tracer.trace, with what the core rejects (ValueError) raised as RenderError. Exceptions
     from the progress callback pass through unchanged (they are the caller's, not the input's)."""
     raised = []
@@ -619,7 +703,8 @@ def trace(tracer, origins, directions, max_distance, max_crossings, tolerance=1e
     try:
         return tracer.trace(origins, directions, max_distance, max_crossings, shade=shade,
                             progress=None if progress is None else report, tolerance=tolerance,
-                            tolerance_per_distance=tolerance_per_distance, fog=fog or math.inf)
+                            tolerance_per_distance=tolerance_per_distance, fog=fog or math.inf,
+                            light_samples=light_samples, seed=seed)
     except ValueError as exc:
         if raised:
             raise
@@ -811,14 +896,15 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         limits = (float(np.max(end - start)), max_crossings, *tolerances)
         base = k * pixels
         report = None if progress is None else (lambda done, _n, base=base: progress(base + done, total))
-        out = trace(tracer, origins, directions, *limits, shade=shaded, progress=report, fog=settings.fog)
+        out = trace(tracer, origins, directions, *limits, shade=shaded, progress=report, fog=settings.fog,
+                    light_samples=settings.light_samples, seed=k)
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
         _miss_beyond(out, end - start)
         chords += int(out["chords"])
         light_failures += int(out["light_failures"])
-        light_paths += int(out["light_paths"])
-        light_energy += float(out["light_energy"])
+        light_paths += int(out["light_paths"]) + int(out["emitter_paths"])
+        light_energy += float(out["light_energy"]) + float(out["emitter_energy"])
         shaded_points += int(np.sum(out["stop"] == 0)) if shaded else 0
         if jitter == CENTRE:
             first, first_start, first_limits = out, start, limits
@@ -891,7 +977,9 @@ def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: fl
     4 pi dr p / vol (the exponential map's Jacobian, which the falloff divides by, is the change of
     variables from the light's directions to the points). Without the limit the sum diverges
     (Olbers) wherever it is not cut at S3's two arcs. Nil, Sol: each light's nearest copy, no estimate."""
-    stats = {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0}
+    stats = {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0,
+             "emitter_triangles": tracer.num_emitter_triangles, "emitter_copies": tracer.num_emitter_copies,
+             "light_samples": settings.light_samples}
     if not sums_light_copies(space):
         return {**stats, "light_reach": None, "light_energy_left_out": None}
     reach = tracer.light_reach

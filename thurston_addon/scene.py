@@ -1,6 +1,7 @@
 """Scene description, independent of Blender: meshes with materials (a base colour and an
-emission, each optionally an image texture through the mesh's UVs) and optional corner normals,
-point lights and a camera, all in chart coordinates of the space's fundamental domain.
+emission, each optionally an image texture through the mesh's UVs; emissive meshes are lights)
+and optional corner normals, point and spot lights (area lights are emissive meshes: flat_light)
+and a camera, all in chart coordinates of the space's fundamental domain.
 
 Filled from mesh files (OBJ, PLY, STL, GLB/glTF via trimesh), from a scene file (TOML: objects,
 lights, camera), from Blender's depsgraph (the add-on), or built as the default scene of a space.
@@ -54,6 +55,7 @@ class Material:
     color_texture: np.ndarray | str | Path | None = None
     emission_texture: np.ndarray | str | Path | None = None
     name: str = ""
+    one_sided: bool = False  # emits from the front only (the side of its triangles' winding normal)
 
     def __post_init__(self):
         self.color = np.asarray(self.color, dtype=np.float64).reshape(3)
@@ -153,9 +155,54 @@ def checked_instances(value, name: str) -> np.ndarray:
 
 @dataclass
 class PointLight:
+    """A point light; with spot_direction a spot light whose cone is Cycles': light leaving at
+    angle theta from the axis is scaled by smoothstep((cos theta - cos(spot_size / 2)) / ((1 -
+    cos(spot_size / 2)) spot_blend)), 0 outside the cone (blend 0: a sharp edge). In a curved space
+    the axis is a direction at the light, and theta the angle there of each geodesic leaving it."""
     position: np.ndarray  # chart coordinates
     color: np.ndarray = field(default_factory=lambda: np.ones(3))
     power: float = 1.0  # radiant intensity scale: radiance at unit "area distance"
+    spot_direction: np.ndarray | None = None  # chart vector at the light; None: a point light
+    spot_size: float = math.pi  # the cone's full angle, radians, in (0, pi]
+    spot_blend: float = 0.0  # in [0, 1]
+
+    def __post_init__(self):
+        if self.spot_direction is None:
+            return
+        self.spot_direction = np.asarray(self.spot_direction, np.float64).reshape(3)
+        if not (np.all(np.isfinite(self.spot_direction)) and np.linalg.norm(self.spot_direction) > 0):
+            raise SceneError(f"spot light at {np.asarray(self.position).tolist()}: its direction must be a "
+                             f"non-zero vector, got {self.spot_direction.tolist()}")
+        if not 0 < self.spot_size <= math.pi:
+            raise SceneError(f"spot light at {np.asarray(self.position).tolist()}: spot size must be an angle in "
+                             f"(0, pi], got {self.spot_size}")
+        if not 0 <= self.spot_blend <= 1:
+            raise SceneError(f"spot light at {np.asarray(self.position).tolist()}: spot blend must be in [0, 1], "
+                             f"got {self.spot_blend}")
+
+    def cone(self) -> tuple[float, float]:
+        """(cos of the half angle, 1 / ((1 - that) blend)) as the tracer takes it; (-1, inf): no cone."""
+        if self.spot_direction is None:
+            return -1.0, math.inf
+        c = math.cos(self.spot_size / 2)
+        return c, 1 / ((1 - c) * self.spot_blend) if self.spot_blend > 0 and c < 1 else math.inf
+
+
+def flat_light(name: str, centre, u, v, radiance, disc: bool = False, sections: int = 32) -> SceneObject:
+    """An area light as an emissive mesh: the rectangle centre + a u + b v (a, b in [-1, 1]), or
+    with disc the ellipse of those half-axes, emitting `radiance` from its front only (the side of
+    u x v), black (it reflects nothing)."""
+    centre, u, v = (np.asarray(a, np.float64).reshape(3) for a in (centre, u, v))
+    if disc:
+        t = 2 * math.pi * np.arange(sections) / sections
+        rim = centre + np.cos(t)[:, None] * u + np.sin(t)[:, None] * v
+        vertices = np.vstack([centre, rim])
+        triangles = [[0, 1 + k, 1 + (k + 1) % sections] for k in range(sections)]
+    else:
+        vertices = np.array([centre - u - v, centre + u - v, centre + u + v, centre - u + v])
+        triangles = [[0, 1, 2], [0, 2, 3]]
+    material = Material(np.zeros(3), radiance, name=name, one_sided=True)
+    return SceneObject(name, vertices, triangles, material.color, material.emission, materials=[material])
 
 
 @dataclass
@@ -467,6 +514,15 @@ def load_scene_file(path: str | Path) -> Scene:
         position = [0, 0, 0.3]
         color = [1, 1, 1]
         power = 1.0
+        type = "spot"         # optional: a spot light (point: the default), with
+        direction = [0, 0, -1]  # its axis,
+        spot_size = 45          # its cone's full angle (degrees) and blend, as Blender's
+        spot_blend = 0.15
+        [[light]]
+        type = "area"         # an emissive rectangle or disc (an object, one-sided, black)
+        position = [0, 0, 0.4]; direction = [0, 0, -1]; x_axis = [1, 0, 0]
+        size = [0.2, 0.1]; shape = "rectangle"  # or "disc" (size: its diameters)
+        emission = [4, 4, 4]  # radiance
         [camera]
         position = [0, 0, 0]; forward = [0, 1, 0]; up = [0, 0, 1]; fov = 90
         shift = [0, 0]; clip_start = 0  # lens shift in image widths; clip_end (absent: none)
@@ -518,14 +574,25 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
         scene.objects += objs
     for i, spec in enumerate(data.get("light", [])):
         where = f"{path}: light {i}"
+        kind = spec.get("type", "point")
+        position = _vec(spec.get("position"), f"{where}: position")
+        if kind == "area":
+            scene.objects.append(_area_light(spec, position, where))
+            continue
+        if kind not in ("point", "spot"):
+            raise SceneError(f"{where}: unknown light type {kind!r} (point, spot, area)")
         power = _number(spec, "power", 1.0, where)
         if power < 0:
             raise SceneError(f"{where}: power must be >= 0, got {power:g}")
-        scene.lights.append(PointLight(
-            _vec(spec.get("position"), f"{where}: position"),
-            _vec(spec.get("color", [1, 1, 1]), f"{where}: color"),
-            power,
-        ))
+        spot = {} if kind == "point" else dict(
+            spot_direction=_vec(spec.get("direction"), f"{where}: direction"),
+            spot_size=math.radians(_number(spec, "spot_size", 45.0, where)),
+            spot_blend=_number(spec, "spot_blend", 0.15, where))
+        try:
+            scene.lights.append(PointLight(position, _vec(spec.get("color", [1, 1, 1]), f"{where}: color"), power,
+                                           **spot))
+        except SceneError as exc:
+            raise SceneError(f"{where}: {exc}") from None
     if "camera" in data:
         c = data["camera"]
         scene.camera = Camera(
@@ -538,6 +605,28 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
             clip_end=_number(c, "clip_end", 0.0, f"{path}: camera") if "clip_end" in c else None,
         )
     return scene
+
+
+def _area_light(spec: dict, position, where: str) -> SceneObject:
+    """A TOML area light: a rectangle or disc of `size` (width, height; diameters for a disc) at
+    `position`, emitting `emission` (radiance) towards `direction`, its width along `x_axis`."""
+    direction = _vec(spec.get("direction", [0, 0, -1]), f"{where}: direction")
+    x_axis = _vec(spec.get("x_axis", [1, 0, 0] if abs(direction[0]) < 0.9 * np.linalg.norm(direction) else [0, 1, 0]),
+                  f"{where}: x_axis")
+    size = _vec(spec.get("size", [0.1, 0.1]), f"{where}: size", 2)
+    shape = spec.get("shape", "rectangle")
+    if shape not in ("rectangle", "disc"):
+        raise SceneError(f"{where}: unknown area light shape {shape!r} (rectangle, disc)")
+    emission = _vec(spec.get("emission", [1, 1, 1]), f"{where}: emission")
+    w = direction / max(np.linalg.norm(direction), 1e-300)
+    u = x_axis - (x_axis @ w) * w
+    if not (np.linalg.norm(direction) > 0 and np.linalg.norm(u) > 1e-9 * np.linalg.norm(x_axis)) or np.any(size <= 0):
+        raise SceneError(f"{where}: an area light needs a non-zero direction, an x_axis not along it and a positive size")
+    if np.any(emission < 0):
+        raise SceneError(f"{where}: emission must be >= 0, got {emission.tolist()}")
+    u = u / np.linalg.norm(u) * size[0] / 2
+    v = np.cross(w, u) / np.linalg.norm(u) * size[1] / 2  # u x v along the direction it emits to
+    return flat_light(f"area light {where}", position, u, v, emission, disc=shape == "disc")
 
 
 def primitive(spec: dict, where: str) -> SceneObject:

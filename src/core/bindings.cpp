@@ -109,8 +109,15 @@ void require_finite(const std::vector<std::array<T, C>>& rows, const char* name)
 // The optional surface arguments of the constructor, as given.
 struct SurfaceArrays {
   OptionalArray corner_normals, corner_uvs, triangle_material, material_color, material_emission,
-      material_color_texture, material_emission_texture;
+      material_color_texture, material_emission_texture, material_one_sided;
   std::vector<Array> textures;
+};
+
+// The optional light arguments of the constructor besides the point lights' lifts: spot cones
+// and emitters, as given.
+struct LightArrays {
+  OptionalArray light_cone, light_axis, emitter_triangles, emitter_radiance, emitter_one_sided,
+      emitter_group, emitter_copies, emitter_copy_group;
 };
 
 // Per-corner float32 (NT,3,C) rows, finite; empty where not given.
@@ -192,8 +199,13 @@ Surfaces make_surfaces(const SurfaceArrays& given, std::int64_t NT) {
   };
   const auto color_texture = texture_of(given.material_color_texture, "material_color_texture");
   const auto emission_texture = texture_of(given.material_emission_texture, "material_emission_texture");
+  std::vector<std::int32_t> one_sided(NM, 0);
+  if (given.material_one_sided) {
+    check<std::int32_t>(*given.material_one_sided, "material_one_sided", {NM}, "(NM,) with NM = len(material_color)");
+    one_sided = indices(*given.material_one_sided, 2, "material_one_sided", "2 (0: both sides, 1: front)");
+  }
   for (std::int64_t m = 0; m < NM; ++m)
-    s.materials.push_back({colors[m], emissions[m], color_texture[m], emission_texture[m]});
+    s.materials.push_back({colors[m], emissions[m], color_texture[m], emission_texture[m], one_sided[m] == 1});
   s.corner_normals = corner_rows<3>(given.corner_normals, NT, "corner_normals");
   s.corner_uvs = corner_rows<2>(given.corner_uvs, NT, "corner_uvs");
   if (s.corner_uvs.empty())
@@ -344,7 +356,7 @@ SceneData make_scene(const std::string& geometry, const Array& face_covectors, c
     scene.surfaces.corner_normals = corner_rows<3>(surfaces.corner_normals, NT, "corner_normals");
     scene.surfaces.corner_uvs = corner_rows<2>(surfaces.corner_uvs, NT, "corner_uvs");
     if (surfaces.material_color || surfaces.material_emission || surfaces.material_color_texture ||
-        surfaces.material_emission_texture || !surfaces.textures.empty())
+        surfaces.material_emission_texture || surfaces.material_one_sided || !surfaces.textures.empty())
       throw nb::value_error("material arrays and textures need triangle_material (the material of each triangle)");
   }
 
@@ -361,6 +373,76 @@ SceneData make_scene(const std::string& geometry, const Array& face_covectors, c
       throw nb::value_error(("light_lifts row " + std::to_string(i) + " is not a point of " +
                              geometry).c_str());
   return scene;
+}
+
+// Spot cones (with each spot light's axis at each of its lifts) and the emitters.
+void make_lights(const LightArrays& given, const std::string& geometry, const Array& light_lifts,
+                 SceneData& scene) {
+  const std::int64_t NL = scene.light_radiance.size(), K = scene.light_lifts.size();
+  if (given.light_cone || given.light_axis) {
+    if (!given.light_cone || !given.light_axis) throw nb::value_error("light_cone and light_axis go together");
+    check<double>(*given.light_cone, "light_cone", {NL, 2}, "(NL,2) with NL = len(light_radiance)");
+    check<double>(*given.light_axis, "light_axis", {K, 4}, "(K,4) with K = len(light_lifts)");
+    for (const auto& c : rows<double, 2>(*given.light_cone)) {
+      if (!(c[0] >= -1.0 && c[0] <= 1.0) || !(c[1] > 0.0))
+        throw nb::value_error("light_cone rows must be (cos of the half angle in [-1, 1], smoothness > 0)");
+      scene.light_cone.push_back({c[0], c[1]});
+    }
+    const auto lifts = rows<double, 4>(light_lifts), axes = rows<double, 4>(*given.light_axis);
+    for (std::int64_t k = 0; k < K; ++k) {
+      Vec4 X = lifts[k], V = axes[k];
+      if (scene.light_cone[scene.light_of_lift[k]].active() && !normalise_direction(geometry, X, V))
+        throw nb::value_error(("light_axis row " + std::to_string(k) + " is no direction at its lift").c_str());
+      scene.light_axis.push_back(V);
+    }
+  }
+  const bool any = given.emitter_triangles || given.emitter_radiance || given.emitter_one_sided ||
+                   given.emitter_group || given.emitter_copies || given.emitter_copy_group;
+  if (!any) return;
+  if (!given.emitter_triangles || !given.emitter_radiance || !given.emitter_one_sided ||
+      !given.emitter_group || !given.emitter_copies || !given.emitter_copy_group)
+    throw nb::value_error("emitter_triangles, emitter_radiance, emitter_one_sided, emitter_group, "
+                          "emitter_copies and emitter_copy_group go together");
+  Emitters& e = scene.emitters;
+  check<double>(*given.emitter_triangles, "emitter_triangles", {-1, 3, 3}, "(E,3,3)");
+  const std::int64_t E = given.emitter_triangles->shape(0);
+  check<float>(*given.emitter_radiance, "emitter_radiance", {E, 3}, "(E,3) with E = len(emitter_triangles)");
+  check<std::int32_t>(*given.emitter_one_sided, "emitter_one_sided", {E}, "(E,) with E = len(emitter_triangles)");
+  check<std::int32_t>(*given.emitter_group, "emitter_group", {E}, "(E,) with E = len(emitter_triangles)");
+  check<double>(*given.emitter_copies, "emitter_copies", {-1, 4, 4}, "(C,4,4)");
+  const std::int64_t C = given.emitter_copies->shape(0);
+  check<std::int32_t>(*given.emitter_copy_group, "emitter_copy_group", {C}, "(C,) with C = len(emitter_copies)");
+  const Array& t = *given.emitter_triangles;
+  const auto* tp = static_cast<const double*>(t.data());
+  for (std::int64_t i = 0; i < E; ++i) {
+    std::array<Vec3, 3> tri;
+    for (int k = 0; k < 3; ++k)
+      for (int a = 0; a < 3; ++a) tri[k][a] = tp[i * t.stride(0) + k * t.stride(1) + a * t.stride(2)];
+    for (const Vec3& x : tri)
+      if (!std::isfinite(x[0] + x[1] + x[2]))
+        throw nb::value_error(("emitter_triangles row " + std::to_string(i) + " contains NaN or inf").c_str());
+    if (!(norm3(cross3(sub3(tri[1], tri[0]), sub3(tri[2], tri[0]))) > 0.0))
+      throw nb::value_error(("emitter_triangles row " + std::to_string(i) + " has no area").c_str());
+    e.triangles.push_back(tri);
+  }
+  e.radiance = rows<float, 3>(*given.emitter_radiance);
+  require_finite(e.radiance, "emitter_radiance");
+  for (const Rgb& r : e.radiance)
+    if (r[0] < 0.0f || r[1] < 0.0f || r[2] < 0.0f) throw nb::value_error("emitter_radiance must be >= 0");
+  for (std::int32_t one : indices(*given.emitter_one_sided, 2, "emitter_one_sided", "2 (0: both sides, 1: front)"))
+    e.one_sided.push_back(std::uint8_t(one));
+  const std::int64_t groups = C;  // every group has a copy, so there are at most C
+  e.group = indices(*given.emitter_group, groups, "emitter_group", "C");
+  e.copy_group = indices(*given.emitter_copy_group, std::max<std::int64_t>(groups, 1), "emitter_copy_group", "C");
+  const Array& m = *given.emitter_copies;
+  const auto* mp = static_cast<const double*>(m.data());
+  for (std::int64_t c = 0; c < C; ++c) {
+    Mat4 M;
+    for (int r = 0; r < 4; ++r)
+      for (int k = 0; k < 4; ++k) M[4 * r + k] = mp[c * m.stride(0) + r * m.stride(1) + k * m.stride(2)];
+    e.copies.push_back(M);
+  }
+  require_finite(e.copies, "emitter_copies");
 }
 
 // A numpy array that owns `data` (allocated with new[]).
@@ -388,7 +470,9 @@ void check_rays(const Array& a, const Array& b, const char* a_name, const char* 
 
 nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directions, double max_distance,
                int max_crossings, bool shade, nb::object progress, bool record_segments,
-               double tolerance, double tolerance_per_distance, bool skip_empty, double fog) {
+               double tolerance, double tolerance_per_distance, bool skip_empty, double fog,
+               int light_samples, std::uint64_t seed) {
+  if (light_samples < 1) throw nb::value_error("light_samples must be >= 1");
   check_rays(origins, directions, "origins", "directions", 4, "ray");
   if (!(fog > 0.0)) throw nb::value_error("fog must be a positive distance (inf: none)");
   if (std::isnan(max_distance) || max_distance < 0.0)
@@ -410,7 +494,7 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
                          object.get(), crossings.get(), stop.get(),   distance.get(),
                          chords.get(), error.get(), end.get()};
   const TraceOptions options{max_distance, max_crossings, shade, record_segments, tolerance,
-                             tolerance_per_distance, skip_empty, fog};
+                             tolerance_per_distance, skip_empty, fog, light_samples, seed};
 
   // The callback runs on this thread with the GIL re-acquired; its exception is kept until the
   // workers have stopped.
@@ -459,6 +543,10 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
   result["light_paths"] = to_numpy(std::move(paths), {});
   std::unique_ptr<double[]> energy(new double[1]{stats.light_energy});
   result["light_energy"] = to_numpy(std::move(energy), {});
+  std::unique_ptr<std::int64_t[]> emitter_paths(new std::int64_t[1]{std::int64_t(stats.emitter_paths)});
+  result["emitter_paths"] = to_numpy(std::move(emitter_paths), {});
+  std::unique_ptr<double[]> emitter_energy(new double[1]{stats.emitter_energy});
+  result["emitter_energy"] = to_numpy(std::move(emitter_energy), {});
   if (record_segments) {
     std::size_t s = 0;
     for (const auto& chunk : stats.segments) s += chunk.size() / 6;
@@ -509,7 +597,8 @@ Sol, reduced into the domain by the maps of the faces it lies outside of).
 vertices: float64 (NV,3) chart coordinates (with instances: the meshes' coordinates);
 triangles: int32 (NT,3); triangle_object: int32 (NT,).
 object_color, object_emission: float32 (NO,3), each object's one material where triangle_material
-is not given. Triangles of emissive materials cast no shadows.
+is not given. Triangles of emissive materials cast no shadows on the point lights' light (they do
+on the emitters').
 light_lifts: float64 (K,4) points (copies of the point lights in the universal cover);
 light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3). E3, S3, H3,
 H2xR and S2xR sum every geodesic from a shaded point to each lift no longer than light_reach
@@ -517,6 +606,18 @@ H2xR and S2xR sum every geodesic from a shaded point to each lift no longer than
 winding); Nil, Sol and SL2 the one to each light's nearest lift.
 geodesic_loop (keyword): the length after which every geodesic returns to its start (S3 with -1 in
 the group: pi); light paths longer than it from an opaque surface are shadowed by that surface.
+Spot lights (keywords, together): light_cone float64 (NL,2) per light (cos of the cone's half
+angle, smoothness 1 / ((1 - cos) blend)), light leaving at angle theta from the axis scaled by
+smoothstep((cos theta - cos) * smoothness) as in Cycles (cos -1: no cone); light_axis float64
+(K,4) the unit axis (a model tangent vector) at each lift of a light with a cone.
+Emitters (keywords, together), sampled as lights at every shaded point (trace's light_samples
+points each): emitter_triangles float64 (E,3,3) chart triangles of one copy of each emitter,
+emitter_radiance float32 (E,3), emitter_one_sided int32 (E,) (1: emits from the side of its
+winding normal only), emitter_group int32 (E,) and emitter_copies float64 (C,4,4) the group
+elements (model maps) whose copies of their group (emitter_copy_group int32 (C,)) light, each
+along every geodesic as a point light does.
+material_one_sided (keyword): int32 (NM,), 1 where a material's emission is seen from the front
+only.
 threads: worker threads, 0 for one per hardware thread.
 Optional surfaces (keywords):
 corner_normals: float32 (NT,3,3) per triangle corner, the chart covector of the surface's normal
@@ -550,6 +651,8 @@ is the geodesic integrated to 1/20 of that (its separation from the true geodesi
 with the divergence of nearby geodesics, is in `error`); with
 skip_empty they step through empty space (no triangle near, by a coarse occupancy grid) to the
 next face without any Embree query (False: chords everywhere, for measuring the saving).
+light_samples points are sampled on the emitters per shaded point, with random numbers from
+`seed` and the ray's index (the same for any thread count).
 progress(done, total) is called about every 0.1 s (and at the start and end); returning False
 stops the trace like cancel(). Returns a dict of:
 color float32 (N,3), depth float64 (N,) (inf: no hit), position float64 (N,3) chart point of the
@@ -562,7 +665,9 @@ hit), end float64 (N,3) the chart point where the ray stopped (the hit, the poin
 or crossing limit, inside the domain; NaN where there is none), chords int64 () Embree queries of primary rays in all, light_failures int64 () light
 paths that were not found (marching geometries), light_paths int64 () geodesics to lights summed
 at the shaded points, light_energy float64 () their mean radiance times falloff (times fog: light
-falls to 1/e over `fog` of its path) summed before cosines and shadows, and with record_segments segment_starts /
+falls to 1/e over `fog` of its path) summed before cosines and shadows, emitter_paths int64 ()
+and emitter_energy float64 () the same for the emitters' samples (their energy: mean radiance
+times the emitter's cosine times falloff over the sampling density), and with record_segments segment_starts /
 segment_ends float64 (S,3), the chart endpoints of the queries.)";
 
 nb::tuple flow_rows(const std::string& geometry, const Array& points, const Array& velocities,
@@ -614,20 +719,27 @@ NB_MODULE(thurston_core, m) {
              OptionalArray material_emission_texture, std::vector<Array> textures,
              OptionalArray mesh_first_triangle, OptionalArray instance_mesh,
              OptionalArray instance_transform, OptionalArray instance_object, double light_reach,
-             double geodesic_loop) {
+             double geodesic_loop, OptionalArray material_one_sided, OptionalArray light_cone,
+             OptionalArray light_axis, OptionalArray emitter_triangles, OptionalArray emitter_radiance,
+             OptionalArray emitter_one_sided, OptionalArray emitter_group, OptionalArray emitter_copies,
+             OptionalArray emitter_copy_group) {
             if (threads < 0) throw nb::value_error("threads must be >= 0 (0: all hardware threads)");
             if (!(light_reach >= 0.0))
               throw nb::value_error("light_reach must be a distance >= 0 (inf: every lift)");
             if (!(geodesic_loop > 0.0)) throw nb::value_error("geodesic_loop must be > 0 (inf: none)");
             const SurfaceArrays surfaces{corner_normals, corner_uvs, triangle_material,
                                          material_color, material_emission, material_color_texture,
-                                         material_emission_texture, std::move(textures)};
+                                         material_emission_texture, material_one_sided,
+                                         std::move(textures)};
             const InstanceArrays instances{mesh_first_triangle, instance_mesh, instance_transform,
                                            instance_object};
             SceneData scene = make_scene(geometry, face_covectors, face_maps, vertices, triangles,
                                          triangle_object, object_color, object_emission,
                                          light_lifts, light_of_lift, light_radiance, surfaces,
                                          instances);
+            make_lights({light_cone, light_axis, emitter_triangles, emitter_radiance, emitter_one_sided,
+                         emitter_group, emitter_copies, emitter_copy_group},
+                        geometry, light_lifts, scene);
             scene.light_reach = light_reach;
             scene.geodesic_loop = geodesic_loop;
             new (self) TracerHandle{make_tracer(geometry, std::move(scene), unsigned(threads)), geometry};
@@ -649,7 +761,15 @@ NB_MODULE(thurston_core, m) {
                   "instance_mesh: numpy.ndarray | None = None, "
                   "instance_transform: numpy.ndarray | None = None, "
                   "instance_object: numpy.ndarray | None = None, "
-                  "light_reach: float = float('inf'), geodesic_loop: float = float('inf')) -> None"),
+                  "light_reach: float = float('inf'), geodesic_loop: float = float('inf'), "
+                  "material_one_sided: numpy.ndarray | None = None, "
+                  "light_cone: numpy.ndarray | None = None, light_axis: numpy.ndarray | None = None, "
+                  "emitter_triangles: numpy.ndarray | None = None, "
+                  "emitter_radiance: numpy.ndarray | None = None, "
+                  "emitter_one_sided: numpy.ndarray | None = None, "
+                  "emitter_group: numpy.ndarray | None = None, "
+                  "emitter_copies: numpy.ndarray | None = None, "
+                  "emitter_copy_group: numpy.ndarray | None = None) -> None"),
           nb::arg("geometry"), nb::arg("face_covectors").noconvert(),
           nb::arg("face_maps").noconvert(), nb::arg("vertices").noconvert(),
           nb::arg("triangles").noconvert(), nb::arg("triangle_object").noconvert(),
@@ -668,20 +788,30 @@ NB_MODULE(thurston_core, m) {
           nb::arg("instance_mesh").noconvert().none() = nb::none(),
           nb::arg("instance_transform").noconvert().none() = nb::none(),
           nb::arg("instance_object").noconvert().none() = nb::none(),
-          nb::arg("light_reach") = kInf, nb::arg("geodesic_loop") = kInf)
+          nb::arg("light_reach") = kInf, nb::arg("geodesic_loop") = kInf,
+          nb::arg("material_one_sided").noconvert().none() = nb::none(),
+          nb::arg("light_cone").noconvert().none() = nb::none(),
+          nb::arg("light_axis").noconvert().none() = nb::none(),
+          nb::arg("emitter_triangles").noconvert().none() = nb::none(),
+          nb::arg("emitter_radiance").noconvert().none() = nb::none(),
+          nb::arg("emitter_one_sided").noconvert().none() = nb::none(),
+          nb::arg("emitter_group").noconvert().none() = nb::none(),
+          nb::arg("emitter_copies").noconvert().none() = nb::none(),
+          nb::arg("emitter_copy_group").noconvert().none() = nb::none())
       .def("trace", &trace,
            nb::sig("def trace(self, origins: numpy.ndarray, directions: numpy.ndarray, "
                    "max_distance: float, max_crossings: int, shade: bool = True, "
                    "progress: collections.abc.Callable[[int, int], bool | None] | None = None, "
                    "record_segments: bool = False, tolerance: float = 1e-3, "
                    "tolerance_per_distance: float = 0.0, skip_empty: bool = True, "
-                   "fog: float = float('inf')) -> "
+                   "fog: float = float('inf'), light_samples: int = 1, seed: int = 0) -> "
                    "dict[str, numpy.ndarray]"),
            nb::arg("origins").noconvert(), nb::arg("directions").noconvert(),
            nb::arg("max_distance"), nb::arg("max_crossings"), nb::arg("shade") = true,
            nb::arg("progress").none() = nb::none(), nb::arg("record_segments") = false,
            nb::arg("tolerance") = 1e-3, nb::arg("tolerance_per_distance") = 0.0,
-           nb::arg("skip_empty") = true, nb::arg("fog") = kInf, kTraceDoc)
+           nb::arg("skip_empty") = true, nb::arg("fog") = kInf, nb::arg("light_samples") = 1,
+           nb::arg("seed") = 0, kTraceDoc)
       .def("cancel", [](TracerHandle& t) { t.tracer->cancel(); },
            "Stops a running trace(); callable from any Python thread.")
       .def("query_segments", &query_segments,
@@ -699,6 +829,8 @@ NB_MODULE(thurston_core, m) {
       .def_prop_ro("num_light_lifts", [](const TracerHandle& t) { return t.tracer->num_light_lifts(); })
       .def_prop_ro("light_power", [](const TracerHandle& t) { return t.tracer->light_power(); },
                    "The sum over lights of their radiance's mean over RGB.")
+      .def_prop_ro("num_emitter_triangles", [](const TracerHandle& t) { return t.tracer->num_emitter_triangles(); })
+      .def_prop_ro("num_emitter_copies", [](const TracerHandle& t) { return t.tracer->num_emitter_copies(); })
       .def_prop_ro("num_threads", [](const TracerHandle& t) { return t.tracer->num_threads(); })
       .def_prop_ro("num_triangles", [](const TracerHandle& t) { return t.tracer->num_triangles(); },
                    "The meshes' own triangles (each stored once).")

@@ -23,7 +23,13 @@
 //   bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath&, LightHint&)
 //       the geodesic to the light's nearest copy among the lifts (found by shooting: the marching
 //       kernels of Nil and Sol); the hint carries what one point's search leaves for the next (per
-//       thread).
+//       thread);
+//   Vec4 arrival(const Vec4& H, const LightPath&)   the unit tangent at the path's far end that
+//       points back along it (towards H): the direction in which the light leaves;
+//   Vec4 chart_point(const Vec3& x), Vec4 chart_tangent(const Vec4& X, const Vec3& e)   the point
+//       of a chart point, and the tangent vector at it of a chart direction (for emitter samples);
+//   void move(const Mat4& M, Vec4& X, Vec4& V)    an isometry (a group element) applied to a point
+//       and a tangent vector there.
 // Points and tangent vectors are 4-vectors: model vectors in the projective kernel, (x, 1) and
 // (v, 0) in chart coordinates in the others; face maps act on them linearly.
 #pragma once
@@ -125,11 +131,13 @@ struct Hit {
 };
 
 // The geodesic from a surface point to a light: unit direction at the surface point, length and
-// the light's falloff along it (the inverse area density of the geodesic sphere about the light).
+// the light's falloff along it (the inverse area density of the geodesic sphere about the light),
+// and the index of the lift (copy of the light) it reaches.
 struct LightPath {
   Vec4 direction;
   double distance;
   double falloff;
+  std::int32_t lift = -1;
 };
 
 // Falloff floored so that lights touching a surface stay finite.

@@ -145,7 +145,26 @@ class MarchingKernel {
   // Every geodesic from H to the lifts no longer than reach, in closed form (kEveryLightPath).
   void light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
                    std::vector<LightPath>& paths) const {
-    for (const Vec4& L : lifts) Flow::connections(head3(H), head3(L), reach, paths);
+    for (std::size_t i = 0; i < lifts.size(); ++i) {
+      const std::size_t first = paths.size();
+      Flow::connections(head3(H), head3(lifts[i]), reach, paths);
+      for (std::size_t p = first; p < paths.size(); ++p) paths[p].lift = std::int32_t(i);
+    }
+  }
+  // The path flowed to its end (to the flow's accuracy for light directions, 1e-9).
+  Vec4 arrival(const Vec4& H, const LightPath& path) const {
+    Vec3 x, v;
+    double error;
+    flow_.flow(head3(H), head3(path.direction), path.distance, 1e-9, x, v, error);
+    return vector4(scaled3(-1.0, v));
+  }
+  static Vec4 chart_point(const Vec3& x) { return point4(x); }
+  static Vec4 chart_tangent(const Vec4&, const Vec3& e) { return vector4(e); }
+  void move(const Mat4& M, Vec4& X, Vec4& V) const {
+    Vec3 x = head3(X), v = head3(V);
+    Flow::map(M, x, v);
+    X = point4(x);
+    V = vector4(v);
   }
 
   // The geodesic from H to the light's copy nearest by the flow's separation estimate, found by
@@ -173,6 +192,7 @@ class MarchingKernel {
       return false;
     hint.lift = nearest;
     hint.h = h;
+    path.lift = std::int32_t(nearest - lifts.data());
     const Vec3& w = hint.w;
     const double r = std::sqrt(flow_.dot(h, w, w));
     path.direction = vector4(scaled3(1.0 / r, w));

@@ -231,14 +231,37 @@ struct ProjectiveKernel {
   static constexpr bool kEveryLightPath = true;
   void light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
                    std::vector<LightPath>& paths) const {
-    for (const Vec4& L : lifts) {
+    for (std::size_t i = 0; i < lifts.size(); ++i) {
+      const Vec4& L = lifts[i];
       const double r = distance(H, L);
       Vec4 direction = toward(H, L);
       if (r > reach || !normalise(direction)) continue;
-      paths.push_back({direction, r, falloff(r)});
+      paths.push_back({direction, r, falloff(r), std::int32_t(i)});
       const double long_arc = 2.0 * kPi - r;
-      if (k > 0 && long_arc <= reach) paths.push_back({scaled(-1.0, direction), long_arc, falloff(long_arc)});
+      if (k > 0 && long_arc <= reach)
+        paths.push_back({scaled(-1.0, direction), long_arc, falloff(long_arc), std::int32_t(i)});
     }
+  }
+  Vec4 arrival(const Vec4& H, const LightPath& path) const {
+    Vec4 X, Xv;
+    advance(H, path.direction, turn(path.distance), X, Xv);
+    return scaled(-1.0, Xv);
+  }
+  Vec4 chart_point(const Vec3& x) const { return model(x); }
+  // The model point of x + e t is s (x + e t, 1) up to the part along X itself, s = X[3].
+  Vec4 chart_tangent(const Vec4& X, const Vec3& e) const {
+    return scaled(X[3], tangent_part(X, {e[0], e[1], e[2], 0.0}));
+  }
+  void move(const Mat4& M, Vec4& X, Vec4& V) const {
+    Vec4 Y{}, U{};
+    for (int r = 0; r < 4; ++r)
+      for (int c = 0; c < 4; ++c) {
+        Y[r] += M[4 * r + c] * X[c];
+        U[r] += M[4 * r + c] * V[c];
+      }
+    X = Y;
+    V = U;
+    renormalise(X, V);
   }
 
   // The exit from the domain along the geodesic (P, V): the face through which it leaves first

@@ -45,6 +45,7 @@ struct Texture {
 struct Material {
   Rgb color{}, emission{};
   std::int32_t color_texture = -1, emission_texture = -1;
+  bool one_sided = false;  // emits from the front only (the side of the triangle's winding normal)
 
   bool emits() const { return emission[0] > 0.0f || emission[1] > 0.0f || emission[2] > 0.0f; }
 };

@@ -145,6 +145,8 @@ Tracer::Tracer(SceneData& scene, unsigned threads, bool occupancy)
       mesh_first_(std::move(scene.mesh_first)),
       surfaces_(std::move(scene.surfaces)),
       light_radiance_(std::move(scene.light_radiance)),
+      light_cone_(std::move(scene.light_cone)),
+      emitters_(std::move(scene.emitters)),
       light_reach_(scene.light_reach),
       geodesic_loop_(scene.geodesic_loop),
       pool_(threads) {
@@ -175,8 +177,23 @@ Tracer::Tracer(SceneData& scene, unsigned threads, bool occupancy)
   bound_instances(occupancy);
 
   light_lifts_.resize(light_radiance_.size());
-  for (std::size_t k = 0; k < scene.light_lifts.size(); ++k)
-    light_lifts_[scene.light_of_lift[k]].push_back(scene.light_lifts[k]);
+  light_axes_.resize(light_radiance_.size());
+  light_cone_.resize(light_radiance_.size());
+  for (std::size_t k = 0; k < scene.light_lifts.size(); ++k) {
+    const std::int32_t l = scene.light_of_lift[k];
+    light_lifts_[l].push_back(scene.light_lifts[k]);
+    if (light_cone_[l].active()) light_axes_[l].push_back(scene.light_axis[k]);
+  }
+  double area = 0.0;
+  for (const auto& t : emitters_.triangles) {
+    area += 0.5 * norm3(cross3(sub3(t[1], t[0]), sub3(t[2], t[0])));
+    emitter_area_sum_.push_back(area);
+  }
+  std::int32_t groups = 0;
+  for (const std::int32_t g : emitters_.group) groups = std::max(groups, g + 1);
+  emitter_copies_.resize(groups);
+  for (std::size_t c = 0; c < emitters_.copies.size(); ++c)
+    emitter_copies_[emitters_.copy_group[c]].push_back(emitters_.copies[c]);
 
   device_.reset(rtcNewDevice(nullptr));
   if (!device_) throw std::runtime_error("Embree could not create a device");
@@ -384,7 +401,17 @@ std::size_t Tracer::num_light_lifts() const {
 double Tracer::light_power() const {
   double p = 0.0;
   for (const Rgb& radiance : light_radiance_) p += mean_rgb(radiance);
+  for (std::size_t t = 0; t < emitters_.triangles.size(); ++t) {
+    const double area = emitter_area_sum_[t] - (t ? emitter_area_sum_[t - 1] : 0.0);
+    p += mean_rgb(emitters_.radiance[t]) * area / (4.0 * kPi);
+  }
   return p;
+}
+
+std::size_t Tracer::pick_emitter(double u) const {
+  const double target = u * emitter_area_sum_.back();
+  const auto it = std::upper_bound(emitter_area_sum_.begin(), emitter_area_sum_.end(), target);
+  return std::min(std::size_t(it - emitter_area_sum_.begin()), emitter_area_sum_.size() - 1);
 }
 
 TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<double> directions,
@@ -394,8 +421,9 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   const std::size_t chunks = (count + kChunk - 1) / kChunk;
   // Kept by chunk, so that the recording does not depend on the thread count.
   std::vector<std::vector<double>> chunk_segments(options.record_segments ? chunks : 0);
-  std::atomic<std::uint64_t> chords{0}, light_failures{0}, light_paths{0};
-  std::vector<double> chunk_energy(chunks, 0.0);  // summed in chunk order: the same for any threads
+  std::atomic<std::uint64_t> chords{0}, light_failures{0}, light_paths{0}, emitter_paths{0};
+  // summed in chunk order: the same for any threads
+  std::vector<double> chunk_energy(chunks, 0.0), chunk_emitter_energy(chunks, 0.0);
   const std::size_t traced = run_chunks(
       count,
       [&](std::size_t chunk, std::size_t begin, std::size_t end) {
@@ -405,7 +433,9 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
         chords.fetch_add(local.chords);
         light_failures.fetch_add(local.light_failures);
         light_paths.fetch_add(local.light_paths);
+        emitter_paths.fetch_add(local.emitter_paths);
         chunk_energy[chunk] = local.light_energy;
+        chunk_emitter_energy[chunk] = local.emitter_energy;
       },
       poll, true);
   for (std::size_t i = traced; i < count; ++i) write_miss(out, i, kCancelled, 0, 0.0, 0);
@@ -413,7 +443,9 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   stats.chords = chords.load();
   stats.light_failures = light_failures.load();
   stats.light_paths = light_paths.load();
+  stats.emitter_paths = emitter_paths.load();
   for (const double e : chunk_energy) stats.light_energy += e;
+  for (const double e : chunk_emitter_energy) stats.emitter_energy += e;
   stats.segments = std::move(chunk_segments);
   return stats;
 }
@@ -488,6 +520,22 @@ bool light_paths(const Kernel& kernel, const Vec4& H, const std::vector<Vec4>& l
   }
 }
 
+// The random numbers of one ray: splitmix64 from the trace's seed and the ray's index, so that a
+// ray's samples depend on neither the threads nor the chunks.
+class Random {
+ public:
+  Random(std::uint64_t seed, std::uint64_t ray) : state_(mix(seed * 0x9E3779B97F4A7C15ull + ray)) {}
+  double uniform() { return double(mix(state_ += 0x9E3779B97F4A7C15ull) >> 11) * 0x1.0p-53; }
+
+ private:
+  static std::uint64_t mix(std::uint64_t z) {
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    return z ^ (z >> 31);
+  }
+  std::uint64_t state_;
+};
+
 template <class Kernel>
 class KernelTracer final : public Tracer {
  public:
@@ -496,10 +544,12 @@ class KernelTracer final : public Tracer {
 
  private:
   using Chord = typename Kernel::Chord;
-  // Per chunk: the kernel's hint per light, and the buffer of one point's light paths.
+  // Per chunk: the kernel's hint per light, and the buffers of one point's light paths and of an
+  // emitter sample's copies (points and their unit normals).
   struct LightHints {
     std::vector<typename Kernel::LightHint> kernel;
     std::vector<LightPath> paths;
+    std::vector<Vec4> lifts, normals;
   };
 
   void trace_range(std::size_t begin, std::size_t end, Strided2<double> origins,
@@ -508,17 +558,19 @@ class KernelTracer final : public Tracer {
                    TraceStats& stats) const override {
     const WalkContext context = this->context(options);
     // rays of a chunk are neighbouring pixels
-    LightHints hints{std::vector<typename Kernel::LightHint>(light_lifts_.size()), {}};
+    LightHints hints{std::vector<typename Kernel::LightHint>(light_lifts_.size()), {}, {}, {}};
     for (std::size_t i = begin; i < end; ++i) {
       const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
       const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
-      trace_ray(i, o, d, context, options, out, segments, stats, hints);
+      Random random(options.seed, i);
+      trace_ray(i, o, d, context, options, out, segments, stats, hints, random);
     }
   }
 
   void trace_ray(std::size_t i, const Vec4& origin, const Vec4& direction,
                  const WalkContext& context, const TraceOptions& options, const TraceOutputs& out,
-                 std::vector<double>* segments, TraceStats& stats, LightHints& hints) const {
+                 std::vector<double>* segments, TraceStats& stats, LightHints& hints,
+                 Random& random) const {
     Vec4 P = origin, V = direction;
     if (!kernel_.start(P, V)) {  // no point or no direction: the ray goes nowhere
       write_miss(out, i, kDistanceLimit, 0, 0.0, 0);
@@ -562,6 +614,7 @@ class KernelTracer final : public Tracer {
     Vec4 N = kernel_.plane_normal(h.X, plane);
     if (!kernel_.normalise(h.X, N)) N = scaled(-1.0, h.V);  // degenerate triangle
     const double incidence = kernel_.dot(h.X, N, h.V);
+    const bool front = incidence < 0.0;  // the ray meets the side the winding normal points to
     if (incidence > 0.0) N = scaled(-1.0, N);
     // A path within `error` of the true geodesic meets the surface within error / cos of it.
     const double path_error = end.error + kRoundingPerCrossing * (1 + end.crossings);
@@ -577,15 +630,15 @@ class KernelTracer final : public Tracer {
     const std::int32_t object = placed->object + triangle_object_[prim];
     Rgb base, emission;
     surfaces_.look_up(prim, weights, base, emission);
+    const Material& material = surfaces_.materials[surfaces_.triangle_material[prim]];
+    if (material.one_sided && !front) emission = {0.0f, 0.0f, 0.0f};
     Rgb light{1.0f, 1.0f, 1.0f};
     if (options.shade) {
       // Shadow rays need the accuracy of the point they shade, which the pixel sees at its depth.
       WalkContext shadows = context;
       shadows.tolerance = context.tolerance_at(out.depth[i]);
       shadows.tolerance_per_distance = 0.0;
-      const bool opaque = !surfaces_.materials[surfaces_.triangle_material[prim]].emits();
-      light = illumination(shadows, h.X, S, opaque, options.max_crossings, options.light_fog, stats,
-                           hints);
+      light = illumination(shadows, h.X, S, !material.emits(), options, stats, hints, random);
     }
     for (int a = 0; a < 3; ++a) {
       out.position[3 * i + a] = out.end[3 * i + a] = h.x[a];
@@ -609,9 +662,11 @@ class KernelTracer final : public Tracer {
   }
 
   // Sum over lights and over the geodesics from the surface point H (normal N) to each of them of
-  // radiance * cos * falloff * fog * visibility, each geodesic with its own shadow ray.
+  // radiance * cos * falloff * fog * cone * visibility, each geodesic with its own shadow ray;
+  // then the emitters' light, from options.light_samples points sampled on them.
   Rgb illumination(const WalkContext& context, const Vec4& H, const Vec4& N, bool opaque,
-                   int max_crossings, double fog, TraceStats& stats, LightHints& hints) const {
+                   const TraceOptions& options, TraceStats& stats, LightHints& hints,
+                   Random& random) const {
     Rgb sum{0.0f, 0.0f, 0.0f};
     std::vector<LightPath>& paths = hints.paths;
     for (std::size_t l = 0; l < light_lifts_.size(); ++l) {
@@ -621,30 +676,95 @@ class KernelTracer final : public Tracer {
         continue;
       }
       const Rgb& radiance = light_radiance_[l];
+      const SpotCone& cone = light_cone_[l];
       const double mean_radiance = mean_rgb(radiance);
       for (const LightPath& path : paths) {
-        const double weight = path.falloff * std::exp(-path.distance / fog);
+        double weight = path.falloff * std::exp(-path.distance / options.light_fog);
+        if (cone.active())
+          weight *= cone.attenuation(kernel_.dot(light_lifts_[l][path.lift], light_axes_[l][path.lift],
+                                                 kernel_.arrival(H, path)));
         ++stats.light_paths;
         stats.light_energy += weight * mean_radiance;
         const double cosine = kernel_.dot(H, N, path.direction);
-        if (!(cosine > 0.0) || (opaque && path.distance > geodesic_loop_) ||
-            !visible(context, H, path.direction, path.distance, max_crossings))
+        if (!(cosine > 0.0) || !(weight > 0.0) || (opaque && path.distance > geodesic_loop_) ||
+            !visible(context, occluders_, H, path.direction, path.distance * (1.0 - 1e-6),
+                     options.max_crossings))
           continue;
         for (int a = 0; a < 3; ++a) sum[a] += float(cosine * weight * radiance[a]);
       }
     }
+    if (!emitters_.triangles.empty())
+      for (int s = 0; s < options.light_samples; ++s)
+        sample_emitters(context, H, N, opaque, options, stats, hints, random, sum);
     return sum;
   }
 
-  // Whether the geodesic from the surface point H along dir reaches distance r unobstructed. A
-  // shadow ray that runs out of crossings found no blocker and counts as visible.
-  bool visible(const WalkContext& context, const Vec4& H, const Vec4& dir, double r,
-               int max_crossings) const {
+  // One point y sampled on the emitters (a triangle with probability its share of their chart
+  // area, y uniform on it in the chart) lights H along the geodesics to its copies as a point
+  // light of radiance Le cos' / pi per unit area would: the estimate of
+  // (1 / pi) integral Le cos cos' falloff dA is Le cos cos' falloff dA/dA_chart A_chart / pi, over
+  // light_samples (cos' at the emitter's copy, towards H: one-sided emitters light only their front,
+  // the others both sides). The shadow rays meet every triangle, emitters too (so that a closed
+  // emitter's far side is hidden by its near side), and stop just short of the sample.
+  void sample_emitters(const WalkContext& context, const Vec4& H, const Vec4& N, bool opaque,
+                       const TraceOptions& options, TraceStats& stats, LightHints& hints,
+                       Random& random, Rgb& sum) const {
+    const std::size_t t = pick_emitter(random.uniform());
+    const std::array<Vec3, 3>& p = emitters_.triangles[t];
+    const double root = std::sqrt(random.uniform()), v = random.uniform();
+    const Vec3 e1 = sub3(p[1], p[0]), e2 = sub3(p[2], p[0]), n = cross3(e1, e2);
+    const Vec3 y = add3(p[0], add3(scaled3(root * (1.0 - v), e1), scaled3(root * v, e2)));
+    const Vec4 Y = kernel_.chart_point(y);
+    Vec4 normal = kernel_.plane_normal(Y, {n[0], n[1], n[2], -dot3(n, p[0])});
+    if (!kernel_.normalise(Y, normal)) return;
+    const Vec4 a = kernel_.chart_tangent(Y, e1), b = kernel_.chart_tangent(Y, e2);
+    const double ab = kernel_.dot(Y, a, b);
+    const double area_density =
+        std::sqrt(std::max(kernel_.dot(Y, a, a) * kernel_.dot(Y, b, b) - ab * ab, 0.0)) / norm3(n);
+    const double scale = area_density * emitter_area_sum_.back() / (kPi * options.light_samples);
+    std::vector<Vec4>&lifts = hints.lifts, &normals = hints.normals;
+    lifts.clear();
+    normals.clear();
+    for (const Mat4& M : emitter_copies_[emitters_.group[t]]) {
+      Vec4 X = Y, U = normal;
+      kernel_.move(M, X, U);
+      lifts.push_back(X);
+      normals.push_back(U);
+    }
+    std::vector<LightPath>& paths = hints.paths;
+    paths.clear();
+    typename Kernel::LightHint cold{};  // every sample is a new point: nothing to start from
+    if (!light_paths(kernel_, H, lifts, light_reach_, cold, paths)) {
+      ++stats.light_failures;
+      return;
+    }
+    const Rgb& radiance = emitters_.radiance[t];
+    const double mean_radiance = mean_rgb(radiance);
+    for (const LightPath& path : paths) {
+      const double towards = kernel_.dot(lifts[path.lift], normals[path.lift], kernel_.arrival(H, path));
+      const double emitted = emitters_.one_sided[t] ? towards : std::abs(towards);
+      const double weight = path.falloff * std::exp(-path.distance / options.light_fog) * scale;
+      ++stats.emitter_paths;
+      stats.emitter_energy += weight * std::max(emitted, 0.0) * mean_radiance;
+      const double cosine = kernel_.dot(H, N, path.direction);
+      const double short_of = path.distance * (1.0 - 1e-6) - 1e-5 * scale_;
+      if (!(cosine > 0.0) || !(emitted > 0.0) || (opaque && path.distance > geodesic_loop_) ||
+          !visible(context, scene_.get(), H, path.direction, short_of, options.max_crossings))
+        continue;
+      for (int c = 0; c < 3; ++c) sum[c] += float(cosine * emitted * weight * radiance[c]);
+    }
+  }
+
+  // Whether the geodesic from the surface point H along dir reaches distance r unobstructed by
+  // the triangles of `blockers`. A shadow ray that runs out of crossings found no blocker and
+  // counts as visible.
+  bool visible(const WalkContext& context, RTCScene blockers, const Vec4& H, const Vec4& dir,
+               double r, int max_crossings) const {
     const auto query = [&](const Chord& chord, float tnear) {
-      return embree::occluded(occluders_, chord_ray(chord.x0, chord.x1, tnear));
+      return embree::occluded(blockers, chord_ray(chord.x0, chord.x1, tnear));
     };
     // Embree's float vertices are only good to about 1e-7 of the scene's scale.
-    return kernel_.walk(context, H, dir, r * (1.0 - 1e-6), max_crossings, 1e-5 * scale_, query,
+    return kernel_.walk(context, H, dir, r, max_crossings, 1e-5 * scale_, query,
                         [](const auto&) {}).stop != kHit;
   }
 
@@ -675,11 +795,19 @@ bool normalise_affine(int, Vec4& X) {
   return finite4(X);
 }
 
+template <class Flow>
+bool start_marching(int, Vec4& X, Vec4& V) {
+  return MarchingKernel<Flow>().start(X, V);
+}
+
+bool start_projective(int k, Vec4& X, Vec4& V) { return ProjectiveKernel{k}.start(X, V); }
+
 struct Geometry {
   const char* name;
   int curvature;  // projective kernels; unused by the others
   std::unique_ptr<Tracer> (*make)(int curvature, SceneData scene, unsigned threads);
   bool (*normalise)(int curvature, Vec4& X);
+  bool (*start)(int curvature, Vec4& X, Vec4& V);
   bool (*flow)(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt);
 };
 
@@ -702,14 +830,17 @@ bool flow_of(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, 
 }
 
 const Geometry kGeometries[] = {
-    {"E3", 0, make_projective, normalise_projective, nullptr},
-    {"S3", 1, make_projective, normalise_projective, nullptr},
-    {"H3", -1, make_projective, normalise_projective, nullptr},
-    {"Nil", 0, make_marching<NilFlow>, normalise_affine, flow_of<NilFlow>},
-    {"Sol", 0, make_marching<SolFlow>, normalise_affine, flow_of<SolFlow>},
-    {"H2xR", 0, make_marching<H2xRFlow>, H2xRFlow::normalise_lift, flow_of<H2xRFlow>},
-    {"S2xR", 0, make_marching<S2xRFlow>, normalise_affine, flow_of<S2xRFlow>},
-    {"SL2", 0, make_marching<SL2Flow>, SL2Flow::normalise_lift, flow_of<SL2Flow>},
+    {"E3", 0, make_projective, normalise_projective, start_projective, nullptr},
+    {"S3", 1, make_projective, normalise_projective, start_projective, nullptr},
+    {"H3", -1, make_projective, normalise_projective, start_projective, nullptr},
+    {"Nil", 0, make_marching<NilFlow>, normalise_affine, start_marching<NilFlow>, flow_of<NilFlow>},
+    {"Sol", 0, make_marching<SolFlow>, normalise_affine, start_marching<SolFlow>, flow_of<SolFlow>},
+    {"H2xR", 0, make_marching<H2xRFlow>, H2xRFlow::normalise_lift, start_marching<H2xRFlow>,
+     flow_of<H2xRFlow>},
+    {"S2xR", 0, make_marching<S2xRFlow>, normalise_affine, start_marching<S2xRFlow>,
+     flow_of<S2xRFlow>},
+    {"SL2", 0, make_marching<SL2Flow>, SL2Flow::normalise_lift, start_marching<SL2Flow>,
+     flow_of<SL2Flow>},
 };
 
 const Geometry& find(const std::string& name) {
@@ -735,6 +866,11 @@ bool has_geometry(const std::string& name) {
 bool normalise_point(const std::string& geometry, Vec4& X) {
   const Geometry& g = find(geometry);
   return g.normalise(g.curvature, X);
+}
+
+bool normalise_direction(const std::string& geometry, Vec4& X, Vec4& V) {
+  const Geometry& g = find(geometry);
+  return g.start(g.curvature, X, V);
 }
 
 std::unique_ptr<Tracer> make_tracer(const std::string& geometry, SceneData scene, unsigned threads) {

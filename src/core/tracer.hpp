@@ -28,6 +28,31 @@ struct Instance {
   Affine to_chart;
 };
 
+// A spot light's cone, as Cycles shapes it: the light leaving at angle theta from the axis is
+// scaled by smoothstep((cos theta - cos_half) * smooth), smooth = 1 / ((1 - cos_half) blend), and
+// is 0 outside the cone (blend 0: smooth = inf, a sharp edge). cos_half <= -1: no cone.
+struct SpotCone {
+  double cos_half = -1.0, smooth = kInf;
+  bool active() const { return cos_half > -1.0; }
+  double attenuation(double cos_theta) const {
+    const double f = (cos_theta - cos_half) * smooth;
+    if (!(f > 0.0)) return 0.0;
+    return f >= 1.0 ? 1.0 : f * f * (3.0 - 2.0 * f);
+  }
+};
+
+// Emissive triangles sampled as lights (next-event estimation): chart triangles of one copy of
+// each emitter (a group), with their radiance and whether they emit from their front only (the
+// side of cross(p1 - p0, p2 - p0)); every copy M of a group lights as the group's own triangles do.
+struct Emitters {
+  std::vector<std::array<Vec3, 3>> triangles;
+  std::vector<Rgb> radiance;
+  std::vector<std::uint8_t> one_sided;
+  std::vector<std::int32_t> group;
+  std::vector<Mat4> copies;  // the group elements (model maps), each of copy_group's group
+  std::vector<std::int32_t> copy_group;
+};
+
 // Validated scene description; see the Python docstring of Tracer for the meaning of each field.
 // The triangles are the meshes' (prototypes), one after the other; what is seen are the instances.
 struct SceneData {
@@ -42,6 +67,9 @@ struct SceneData {
   std::vector<Vec4> light_lifts;  // points of the geometry (normalised by the kernel)
   std::vector<std::int32_t> light_of_lift;
   std::vector<Rgb> light_radiance;
+  std::vector<SpotCone> light_cone;  // per light (empty: no spot lights)
+  std::vector<Vec4> light_axis;      // per lift of a spot light: its unit axis there (else zero)
+  Emitters emitters;
   double light_reach = kInf;  // light paths longer than this are not summed (kEveryLightPath kernels)
   // Every geodesic returns to its start after this length (S3 with -1 in the group: pi), so a light
   // path longer than it from an opaque surface passes through that surface again: shadowed.
@@ -67,6 +95,8 @@ struct TraceOptions {
   double tolerance_per_distance;  // ... and its growth per unit of distance
   bool skip_empty;                // empty-space steps and the occupancy grid (WalkContext)
   double light_fog;               // distance over which light falls to 1/e along its path (inf: none)
+  int light_samples;              // points sampled on the emitters per shaded point
+  std::uint64_t seed;             // of the samples' random numbers (a ray's depend on it and its index)
 };
 
 // Caller-allocated per-ray outputs (N rows each).
@@ -91,6 +121,10 @@ struct TraceStats {
   // Sum over shaded points of the mean radiance times falloff (and fog) along the summed paths,
   // before cosines and shadows: what the reach lets in, against which the part left out is told.
   double light_energy = 0.0;
+  // The same for the emitters' samples: geodesics to sampled points' copies, and their mean
+  // radiance times cos' (at the emitter) times falloff (and fog) over the sampling density.
+  std::uint64_t emitter_paths = 0;
+  double emitter_energy = 0.0;
   // Recorded chords by chunk of rays, in ray order: 6 doubles each, start xyz and end xyz.
   std::vector<std::vector<double>> segments;
 };
@@ -112,7 +146,12 @@ class Tracer {
   std::size_t num_instanced_triangles() const;  // what the instances place in all
   double light_reach() const { return light_reach_; }
   std::size_t num_light_lifts() const;
-  double light_power() const;  // the sum over lights of their radiance's mean over RGB
+  // The sum over lights of their radiance's mean over RGB, and over the emitters of
+  // mean radiance * chart area / 4 pi (a far emitter of radiance Le and area A lights as a point
+  // light of power Le A / 4 pi, averaged over its orientations).
+  double light_power() const;
+  std::size_t num_emitter_triangles() const { return emitters_.triangles.size(); }
+  std::size_t num_emitter_copies() const { return emitters_.copies.size(); }
 
   TraceStats trace(std::size_t count, Strided2<double> origins, Strided2<double> directions,
                    const TraceOptions& options, const TraceOutputs& out, const Poll& poll);
@@ -159,6 +198,14 @@ class Tracer {
   Surfaces surfaces_;
   std::vector<std::vector<Vec4>> light_lifts_;  // per light
   std::vector<Rgb> light_radiance_;
+  std::vector<SpotCone> light_cone_;            // per light
+  std::vector<std::vector<Vec4>> light_axes_;   // per light and lift, where it has a cone
+  // The emitters: their triangles, a cumulative table of their chart areas (a triangle is picked
+  // with probability its share), and each group's copies.
+  Emitters emitters_;
+  std::vector<double> emitter_area_sum_;
+  std::vector<std::vector<Mat4>> emitter_copies_;
+  std::size_t pick_emitter(double u) const;
   double light_reach_;
   double geodesic_loop_;
   double scale_ = 0.0;              // largest extent or coordinate magnitude of the scene
@@ -210,6 +257,9 @@ std::vector<std::string> geometry_names();
 bool has_geometry(const std::string& name);
 // Brings a light's position onto the geometry's model (false: not a point of it).
 bool normalise_point(const std::string& geometry, Vec4& X);
+// Brings a point and a tangent vector there onto the geometry's model, the vector of unit length
+// (false: no point, or no direction).
+bool normalise_direction(const std::string& geometry, Vec4& X, Vec4& V);
 std::unique_ptr<Tracer> make_tracer(const std::string& geometry, SceneData scene, unsigned threads);
 // The geometry's flow from chart points x with unit chart velocities v over arclength t, as the
 // tracer follows it (asked for `accuracy`); false for geometries without one (the projective

@@ -54,7 +54,7 @@ def render_settings(settings, width: int, height: int, projection: str = "perspe
         max_distance=settings.max_distance / settings.scale or None,
         max_crossings=None if settings.max_crossings < 0 else settings.max_crossings,
         fog=settings.fog / settings.scale or None, light_reach=settings.light_reach / settings.scale or None,
-        threads=settings.threads,
+        light_samples=settings.light_samples, threads=settings.threads,
         tolerance=settings.tolerance / settings.scale or None)
 
 
@@ -121,14 +121,14 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
             placements[key][1].append(surfaces.chart_map(inst, scale))
         elif obj.type == "LIGHT":
             light = obj.data
-            if light.type != "POINT":
-                skipped.setdefault(f"{light.type.lower()} lights (only point lights)", []).append(original.name)
+            if light.type == "SUN":
+                skipped.setdefault(SUN_NOTE, []).append(original.name)
                 continue
-            pos = np.array(inst.matrix_world.translation, float) / scale
-            # Blender's power (W) radiates over 4 pi sr, and a Lambert surface of albedo rho sends
-            # rho / pi of its irradiance back (as Cycles does); chart distances are world / scale
-            intensity = light.energy * 2.0 ** getattr(light, "exposure", 0.0) / (4 * math.pi**2) / scale**2
-            scene.lights.append(scenes.PointLight(pos, np.array(light.color[:3], float), intensity))
+            light_object = export_light(light, np.array(inst.matrix_world, float), scale)
+            if isinstance(light_object, scenes.SceneObject):
+                scene.objects.append(light_object)
+            else:
+                scene.lights.append(light_object)
         elif obj.type not in ("CAMERA", "EMPTY"):
             skipped.setdefault(f"{obj.type.lower()} objects (only meshes)", []).append(original.name)
     if meshes is not None:
@@ -148,6 +148,36 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
         shown = ", ".join(sorted(set(names))[:5]) + (" ..." if len(set(names)) > 5 else "")
         notes.append(checks.Note(checks.DROPPED, f"skipped {what}: {shown}"))
     return scene
+
+
+# A sun is light from infinitely far away; a closed space has no such distance (every far light is
+# a copy of a near one), so it is left out, and said so.
+SUN_NOTE = "sun lights (a closed space has no infinity for parallel light to come from: use a point, spot or area light)"
+
+
+def export_light(light, world: np.ndarray, scale: float):
+    """A point or spot light (scene.PointLight) or an area light (an emissive mesh, scene.flat_light)
+    as Cycles lights them, in chart units (world / scale). Point and spot: Blender's power (W)
+    radiates over 4 pi sr, and a Lambert surface of albedo rho sends rho / pi of its irradiance back;
+    a spot is that point light within Cycles' cone (spot size and blend; its axis the light's -Z).
+    Area: a Lambertian emitter of power `strength` from one side, radiance strength / (pi area) as
+    Cycles renders it (tests/test_blender_lights.py; strength / pi where not normalized), area =
+    size x size_y (times pi / 4 for a disk or ellipse) scaled by the object, emitted towards -Z."""
+    color = np.array(light.color[:3], float)
+    strength = light.energy * 2.0 ** getattr(light, "exposure", 0.0)
+    position = world[:3, 3] / scale
+    if light.type in ("POINT", "SPOT"):
+        spot = {} if light.type == "POINT" else dict(spot_direction=-world[:3, 2], spot_size=light.spot_size,
+                                                     spot_blend=light.spot_blend)
+        return scenes.PointLight(position, color, strength / (4 * math.pi**2) / scale**2, **spot)
+    width = light.size
+    height = light.size_y if light.shape in ("RECTANGLE", "ELLIPSE") else light.size
+    disc = light.shape in ("DISK", "ELLIPSE")
+    u, v = world[:3, 0] * width / 2, -world[:3, 1] * height / 2  # u x v along -Z: the side it lights
+    area = 4 * np.linalg.norm(np.cross(u, v)) * (math.pi / 4 if disc else 1.0)
+    normalized = getattr(light, "normalize", True)
+    radiance = color * strength / math.pi / (area if normalized else 1.0)
+    return scenes.flat_light(light.name, position, u / scale, v / scale, radiance, disc=disc)
 
 
 def export_camera(bscene, depsgraph, scale: float, width: int, height: int, camera_object=None) -> scenes.Camera:

@@ -73,6 +73,7 @@ class THURSTON_PT_render(_UnderThurston, bpy.types.Panel):
         col.prop(s, "shading")
         col.prop(s, "fog")
         col.prop(s, "light_reach")
+        col.prop(s, "light_samples")
         col.prop(s, "threads")
         col.prop(s, "passes")
         col.prop(s, "save_path")
