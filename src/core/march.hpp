@@ -98,6 +98,8 @@ class MarchingKernel {
 
   // Every geodesic to every copy within the reach (light_paths), else the nearest copy's (light_path).
   static constexpr bool kEveryLightPath = HasConnections<Flow>::value;
+  // Chords are not the curve: a refined hit may lie on a neighbour of the chord's triangle.
+  static constexpr bool kChordsBend = true;
 
   // The flow used for exits, hits and lights is asked for this position accuracy relative to the
   // chord tolerance: integration errors stay well inside the tolerance.
@@ -424,6 +426,12 @@ class MarchingKernel<Flow>::Walk {
     Vec3 x, v;
     segment_.at(t, x, v);
     return {t, point4(x), vector4(v), x};
+  }
+  // The chart chord between the last chord's curve points at arclengths t0 <= t1 from its start.
+  void curve_chord(double t0, double t1, Vec3& a, Vec3& b) const {
+    Vec3 v;
+    segment_.at(t0, a, v);
+    segment_.at(t1, b, v);
   }
   double distance() const { return distance_; }
   double end_distance() const { return distance_; }

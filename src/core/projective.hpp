@@ -228,6 +228,7 @@ struct ProjectiveKernel {
   // leaving in the opposite direction (the same falloff, sin^2 being symmetric). A lift on H (or
   // antipodal to it in S3) has no direction and is skipped. Nothing to remember between points.
   struct LightHint {};
+  static constexpr bool kChordsBend = false;  // each chord is the geodesic itself
   static constexpr bool kEveryLightPath = true;
   void light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
                    std::vector<LightPath>& paths) const {

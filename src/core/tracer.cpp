@@ -591,11 +591,32 @@ class KernelTracer final : public Tracer {
     const Placement* placed = nullptr;
     std::size_t prim = 0;
     Vec4 plane{};
-    const auto refine = [&](const auto& hit) {
-      placed = &instances_[first.instance];
-      prim = triangle_of(first);
+    const auto locate = [&](const embree::FirstHit& found) {
+      placed = &instances_[found.instance];
+      prim = triangle_of(found);
       plane = placed->from_chart.pull_back(triangle_planes_[prim]);
+    };
+    const auto refine = [&](const auto& hit) {
+      locate(first);
       h = hit.refine(plane, first.u);
+      if constexpr (Kernel::kChordsBend) {
+        // The chord's triangle need not be the curve's: where the curve meets its plane outside
+        // it, the curve met a neighbour. Look again along the curve, a few chord margins either
+        // way of that point, and refine on what is found there.
+        const auto& chord = hit.chord();
+        for (int again = 0; again < 4 && outside_triangle(prim, *placed, h.x); ++again) {
+          const double speed = std::max(norm3(head3(h.V)), 1e-300);
+          const double reach = 4.0 * chord.margin / speed + 1e-9 * chord.length;
+          const double t0 = std::max(0.0, h.s - reach), t1 = std::min(chord.length, h.s + reach);
+          Vec3 a, b;
+          hit.curve_chord(t0, t1, a, b);
+          const embree::FirstHit near = embree::intersect(scene_.get(), chord_ray(a, b, 0.0f));
+          if (near.prim < 0) break;
+          first = near;
+          locate(first);
+          h = hit.refine(plane, (t0 + double(near.u) * (t1 - t0)) / chord.length);
+        }
+      }
     };
     const WalkEnd end = kernel_.walk(context, P, V, options.max_distance, options.max_crossings, 0.0,
                                      query, refine);

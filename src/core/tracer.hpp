@@ -187,6 +187,14 @@ class Tracer {
   std::size_t triangle_of(const embree::FirstHit& hit) const {
     return mesh_first_[instances_[hit.instance].mesh] + std::size_t(hit.prim);
   }
+  // Whether the chart point x lies outside the triangle (its barycentric weights, in the mesh's
+  // coordinates, below -1e-9).
+  bool outside_triangle(std::size_t prim, const Placement& placed, const Vec3& x) const {
+    const auto& tri = triangles_[prim];
+    const Vec3 w = Surfaces::barycentric(vertices_[tri[0]], vertices_[tri[1]], vertices_[tri[2]],
+                                         placed.from_chart.point(x));
+    return std::min({w[0], w[1], w[2]}) < -1e-9;
+  }
 
   Domain domain_;
   std::vector<Vec3> vertices_;
