@@ -614,7 +614,7 @@ class KernelTracer final : public Tracer {
           if (near.prim < 0) break;
           first = near;
           locate(first);
-          h = hit.refine(plane, (t0 + double(near.u) * (t1 - t0)) / chord.length);
+          h = hit.refine_between(plane, t0, t1, near.u);
         }
       }
     };
