@@ -517,7 +517,8 @@ H2xR and S2xR sum every geodesic from a shaded point to each lift no longer than
 winding); Nil, Sol and SL2 the one to each light's nearest lift.
 geodesic_loop (keyword): the length after which every geodesic returns to its start (S3 with -1 in
 the group: pi); light paths longer than it from an opaque surface are shadowed by that surface.
-threads: worker threads, 0 for one per hardware thread.
+threads: worker threads, 0 for one per hardware thread (ThreadStartError where the system cannot
+start them all).
 Optional surfaces (keywords):
 corner_normals: float32 (NT,3,3) per triangle corner, the chart covector of the surface's normal
 (the chart plane's normal for a flat triangle); the shading normal at a hit is the metric normal
@@ -592,6 +593,7 @@ nb::tuple flow_rows(const std::string& geometry, const Array& points, const Arra
 NB_MODULE(thurston_core, m) {
   m.doc() = "C++ core of Thurston: the ray tracer through fundamental domains (Embree).";
   m.attr("EMBREE_VERSION") = RTC_VERSION_STRING;
+  nb::exception<ThreadStartError>(m, "ThreadStartError", PyExc_RuntimeError);
 
   m.attr("GEOMETRIES") = geometry_names();
   m.def("geodesic_flow", &flow_rows, nb::arg("geometry"), nb::arg("points").noconvert(),
