@@ -138,9 +138,14 @@ def check_image_file(file: Path, path: Path, shape: tuple[int, int, int] | None 
     (width, height, channels) where given; else OutputError naming `path`."""
     import OpenImageIO as oiio
 
+    def failed(reason: str) -> OutputError:
+        full = os.statvfs(file.parent).f_bavail == 0
+        return OutputError(f"cannot write {str(path)!r}: {'No space left on device: ' if full else ''}the written "
+                           f"file does not read back whole ({reason.strip().replace(str(file), str(path))})")
+
     image = oiio.ImageInput.open(str(file))
     if image is None:
-        raise OutputError(f"cannot write {str(path)!r}: the written file does not read back ({oiio.geterror()})")
+        raise failed(oiio.geterror())
     try:
         spec = image.spec()
         found = (spec.width, spec.height, spec.nchannels)
@@ -149,5 +154,4 @@ def check_image_file(file: Path, path: Path, shape: tuple[int, int, int] | None 
     finally:
         image.close()
     if pixels is None or error or shape not in (None, found):
-        raise OutputError(f"cannot write {str(path)!r}: the written file does not read back whole "
-                          f"({error or f'width, height, channels {found}, not {shape}'})")
+        raise failed(error or f"width, height, channels {found}, not {shape}")
