@@ -63,6 +63,7 @@ WalkEnd walk_chords(Walk& w, const WalkContext& context, double length, int max_
                     double first_skip, Query&& query, OnHit&& on_hit) {
   int crossings = 0;
   for (bool first = true;; first = false) {
+    if (context.stopped()) return {kCancelled, 0.0, 0, 0.0};
     const Advance advance = w.next();
     if (w.has_chord()) {
       const auto& chord = w.chord();

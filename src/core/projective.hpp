@@ -450,6 +450,7 @@ WalkEnd ProjectiveKernel::walk(const WalkContext& context, Vec4 P, Vec4 V, doubl
   Odometer odometer;
   int crossings = 0;
   for (bool first = true;; first = false) {
+    if (context.stopped()) return {kCancelled, 0.0, 0, 0.0};
     Exit exit = find_exit(context.domain, P, V);
     // Whether the walk crosses the exit face within its length: an estimated turn decides from
     // the odometer's bound while that is clear of the length, else from the exact numbers.

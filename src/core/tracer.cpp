@@ -474,11 +474,11 @@ std::size_t Tracer::run_chunks(std::size_t count,
                                const Poll& poll, bool cancellable) {
   const std::size_t chunks = (count + kChunk - 1) / kChunk;
   std::atomic<std::size_t> next{0}, done{0};
-  std::atomic<bool> stop{false};
-  if (poll && !poll(0)) stop = true;
+  std::atomic<bool>& stop = run_stop_;
+  stop = poll && !poll(0);
   const std::function<void()> task = [&] {
     try {
-      while (!stop.load() && !(cancellable && cancel_.load())) {
+      while (!stop.load()) {
         const std::size_t chunk = next.fetch_add(1);
         if (chunk >= chunks) break;
         const std::size_t begin = chunk * kChunk, end = std::min(count, begin + kChunk);
@@ -491,8 +491,10 @@ std::size_t Tracer::run_chunks(std::size_t count,
     }
   };
   pool_.start(task);
-  while (!pool_.wait_for(kPollInterval))
+  while (!pool_.wait_for(kPollInterval)) {
+    if (cancellable && cancel_.load()) stop = true;
     if (poll && !stop.load() && !poll(done.load())) stop = true;
+  }
   if (pool_.error()) std::rethrow_exception(pool_.error());
   if (poll && !stop.load()) poll(done.load());  // the final count
   // Chunks are handed out in order and every chunk taken is finished.
@@ -660,6 +662,10 @@ class KernelTracer final : public Tracer {
       shadows.tolerance = context.tolerance_at(out.depth[i]);
       shadows.tolerance_per_distance = 0.0;
       light = illumination(shadows, h.X, S, !material.emits(), options, stats, hints, random);
+      if (context.stopped()) {  // a shadow walk may have been cut short: the light is not known
+        write_miss(out, i, kCancelled, 0, 0.0, chords);
+        return;
+      }
     }
     for (int a = 0; a < 3; ++a) {
       out.position[3 * i + a] = out.end[3 * i + a] = h.x[a];

@@ -172,8 +172,10 @@ class Tracer {
                            TraceStats& stats) const = 0;
 
   WalkContext context(const TraceOptions& options) const {
-    return {domain_, hit_lo_, hit_hi_, occupancy_, options.tolerance, options.tolerance_per_distance,
-            options.skip_empty};
+    return {domain_,           hit_lo_,
+            hit_hi_,           occupancy_,
+            options.tolerance, options.tolerance_per_distance,
+            options.skip_empty, run_stop_};
   }
 
   // An instance as the walk uses it: besides the placement, the inverse map, which pulls chart
@@ -258,6 +260,9 @@ class Tracer {
   std::mutex run_mutex_;
   std::atomic<std::thread::id> runner_{};
   std::atomic<bool> cancel_{false};
+  // Set to stop the run in progress (cancel, a progress callback's false, a worker's exception);
+  // the workers look at it between chunks and the walks on every step.
+  std::atomic<bool> run_stop_{false};
 };
 
 // The geometries by name ("E3", "S3", "H3", "Nil", "Sol"), for the bindings.
