@@ -50,7 +50,8 @@ def ball_scene(space, rng, count=4):
         r = 0.1 * np.linalg.norm(x) if g.name == "S2xR" else 0.16 * space.chart_inradius
         if any(np.linalg.norm(x - c) < 1.5 * (r + q) for c, q in zip(centres, radii)):
             continue
-        if space.domain.contains(g.to_model(x + 1.35 * r * sphere.vertices), tol=-1e-9).all():
+        pushed = x + 1.35 * r * sphere.vertices
+        if g.in_chart(pushed).all() and space.domain.contains(g.to_model(pushed), tol=-1e-9).all():
             centres.append(x)
             radii.append(r)
             if len(centres) == count:
