@@ -170,7 +170,7 @@ class Result:
 
 
 def illumination_summary(s: dict) -> str:
-    bounces = (f"path tracing, up to {s['bounces']} bounces ({s['bounce_paths_per_point']:.2f} bounce geodesics per "
+    bounces = (f"path tracing, bounce limit {s['bounces']} ({s['bounce_paths_per_point']:.2f} bounce geodesics per "
                f"camera hit)" if s["bounces"] else "direct light only")
     noise = ("noise: one sample per pixel, not estimated" if s["noise"] is None else
              f"noise {s['noise']:.2e} (RMS standard error of the pixel means, from {s['samples_per_pixel']} samples)")
