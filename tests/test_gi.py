@@ -154,6 +154,23 @@ def test_bad_bounces_are_one_clear_error(bounces):
         render.Settings(bounces=bounces).check()
 
 
+@pytest.mark.parametrize("seed", [-1, 0.5, 2**63])
+def test_bad_seeds_are_one_clear_error(seed):
+    with pytest.raises(render.RenderError, match="seed must be a whole number >= 0"):
+        render.Settings(seed=seed).check()
+
+
+def test_seed_offsets_the_samples_random_numbers():
+    """The same seed, the same image (any threads); another seed, other light samples and bounces."""
+    space = spaces.load("torus")
+    scene = default_scene(space)
+    def image(seed):
+        return render.render(space, scene, render.Settings(width=16, height=9, samples=2, bounces=1, seed=seed,
+                                                           threads=2)).passes["color"]
+    assert np.array_equal(image(3), image(3))
+    assert not np.array_equal(image(3), image(4))
+
+
 def test_cli_bounces(tmp_path, capsys):
     out = tmp_path / "gi.exr"
     assert cli.main(["render", "--space", "torus", "--size", "16x9", "--samples", "2", "--bounces", "1",

@@ -86,6 +86,7 @@ class Settings:
     tolerance: float | None = None  # chord tolerance in chart units (S2xR: metric); None: the quality's bound
     light_samples: int = 4  # points sampled on the emissive meshes per shaded point (each sample)
     bounces: int = 0  # diffuse bounces after each camera hit (path tracing); 0: direct light only
+    seed: int = 0  # sample k's random numbers (light samples, bounces) come from seed + k
     transparent: bool = False  # alpha: the share of a pixel's samples that hit something (else 1)
     # (x, y, w, h): render only this window of the width x height image, x, y its top-left pixel
     # (rows top-down); None: the whole image
@@ -130,6 +131,8 @@ class Settings:
         if not (_whole(self.bounces) and 0 <= self.bounces <= MAX_BOUNCES):
             raise RenderError(f"bounces must be a whole number between 0 (direct light only) and {MAX_BOUNCES}, "
                               f"got {self.bounces}")
+        if not (_whole(self.seed) and 0 <= self.seed < 2**63):
+            raise RenderError(f"seed must be a whole number >= 0, got {self.seed}")
         if not (_whole(self.threads) and 0 <= self.threads <= 2**31 - 1):
             raise RenderError(f"threads must be a whole number >= 0 (0: all cores), got {self.threads}")
         if self.tolerance is not None and not (self.tolerance > 0 and math.isfinite(self.tolerance)):
@@ -912,7 +915,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         base = k * pixels
         report = None if progress is None else (lambda done, _n, base=base: progress(base + done, total))
         out = trace(tracer, origins, directions, *limits, shade=shaded, progress=report, fog=settings.fog,
-                    light_samples=settings.light_samples, seed=k, bounces=settings.bounces)
+                    light_samples=settings.light_samples, seed=settings.seed + k, bounces=settings.bounces)
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
         _miss_beyond(out, end - start)
