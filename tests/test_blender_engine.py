@@ -17,6 +17,7 @@ import thurston_addon  # noqa: E402
 from thurston_addon import checks, engine  # noqa: E402
 
 import blender_helpers as bh  # noqa: E402
+from outputs import PREVIOUS, error_line, fill, listing, tmpfs  # noqa: E402
 
 THURSTON = Path(sys.executable).with_name("thurston")
 
@@ -182,6 +183,29 @@ def test_render_blend_prints_notes_and_fails_on_a_failed_frame(tmp_path):
     assert run.returncode != 0
     assert "frame 1" in run.stderr and "camera" in run.stderr and "Traceback" not in run.stderr
     assert not (tmp_path / "broken_0001.exr").exists()
+
+
+@pytest.mark.parametrize("suffix", ("exr", "png"))
+def test_render_blend_on_a_full_disk_keeps_the_previous_frame(tmp_path, suffix):
+    """Blender writes render-blend's frames (save_render) into a temporary file that is read back
+    before it replaces the frame: on a full disk (where Blender's writer fails silently) the run
+    fails with one error naming the frame's file, whose previous bytes stay, and no temporary file
+    is left."""
+    bh.fresh_scene("torus", size=(64, 48))
+    bh.box("B", 0.1, (0, 0.3, 0))
+    bh.camera((0, 0, 0))
+    blend = tmp_path / "full.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    with tmpfs(tmp_path / "disk", "256k") as disk:
+        frame = disk / f"full_0001.{suffix}"
+        frame.write_bytes(PREVIOUS)
+        fill(disk)
+        run = subprocess.run([str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(disk),
+                              "--format", suffix, "--overwrite"], capture_output=True, text=True, timeout=120)
+        assert run.returncode == 2, run.stderr
+        assert error_line(run.stderr).startswith(f"thurston: error: cannot write {str(frame)!r}: No space left on "
+                                                 "device: the written file does not read back whole")
+        assert frame.read_bytes() == PREVIOUS and listing(disk) == ["filler", frame.name]
 
 
 # --- view layers and instances -------------------------------------------------------------------------------

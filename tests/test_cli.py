@@ -16,6 +16,8 @@ import trimesh
 from thurston_addon import cli, render, spaces
 from thurston_addon.scene import default_scene
 
+from outputs import error_line
+
 PRESETS = {"torus": "E3", "half_turn": "E3", "quarter_turn": "E3", "third_turn": "E3", "sixth_turn": "E3",
            "hantzsche_wendt": "E3", "poincare": "S3", "seifert_weber": "H3", "nil": "Nil", "sol": "Sol",
            "genus2xs1": "H2xR", "s2xs1": "S2xR", "rp3_rp3": "S2xR", "sl2": "SL2"}
@@ -31,13 +33,6 @@ def run(argv, capsys):
     code = cli.main([str(a) for a in argv])
     out, err = capsys.readouterr()
     return code, out, err
-
-
-def error_line(err):
-    lines = [ln for ln in err.splitlines() if ln.startswith("thurston: error:")]
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    return lines[0]
 
 
 def read_image(path):
@@ -492,29 +487,6 @@ def test_huge_size_is_refused_with_a_message(tmp_path, capsys):
     assert code == 2, err
     assert "40000x40000" in error_line(err)
     assert not out.exists()
-
-
-def test_failed_image_write_leaves_no_partial_file(tmp_path):
-    """A write that OpenImageIO refuses (an ICO larger than 256 x 256) raises OutputError and leaves
-    neither the output nor its temporary file, even one a crashed earlier write left behind; a
-    directory that happens to have the temporary name is not removed."""
-    from thurston_addon import images
-
-    passes = {"color": np.zeros((300, 300, 3), np.float32)}
-    stale = tmp_path / ".old.ico.partial.ico"
-    stale.write_bytes(b"left by a crashed write")
-    for name in ("new.ico", "old.ico"):
-        with pytest.raises(images.OutputError, match="256"):
-            images.write(tmp_path / name, passes)
-    assert sorted(p.name for p in tmp_path.iterdir()) == []
-    blocker = tmp_path / ".x.png.partial.png"
-    blocker.mkdir()
-    with pytest.raises(images.OutputError):
-        images.write(tmp_path / "x.png", {"color": np.zeros((4, 4, 3), np.float32)})
-    assert blocker.is_dir() and not (tmp_path / "x.png").exists()
-    # and a write that works leaves only its output
-    images.write(tmp_path / "y.png", {"color": np.zeros((4, 4, 3), np.float32)})
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".x.png.partial.png", "y.png"]
 
 
 def test_render_warns_what_makes_the_image_dark(tmp_path, capsys):

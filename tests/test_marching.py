@@ -668,10 +668,13 @@ def test_depth_matches_first_hit_of_the_reference_geodesic(space_of, sid):
 
 @pytest.mark.parametrize("sid", ["nil", "sol"])
 def test_tolerance_trades_chords_for_error(space_of, sid):
-    """The same rays at tolerance 1e-2 and 1e-6: the measured hit-position error (against the
-    reference's first hit) falls by orders of magnitude, the Embree queries rise, and the per-ray
-    estimate `error` bounds the measured error of every ray that hits the reference's object at
-    both tolerances (and so does 2 tolerance / cos of incidence)."""
+    """The same rays at tolerance 1e-2 and 1e-6: the Embree queries rise, and the per-ray estimate
+    `error` bounds the measured hit-position error (against the reference's first hit) of every ray
+    that hits the reference's object at both tolerances (and so does 2 tolerance / cos of
+    incidence). The hit is refined on the curve onto the triangle the curve meets (a neighbour of
+    the chord's where the curve meets the chord's triangle's plane outside it), so most coarse hits
+    are as accurate as the fine ones (Nil: to the reference's own 1e-9), and the worst falls by
+    orders of magnitude with the tolerance (Sol's curve is integrated to 1/20 of it)."""
     world = sphere_world(space_of(sid))
     hits, _ = world.compared()
     runs = {t: world.trace(t) for t in (1e-2, 1e-6)}
@@ -695,7 +698,7 @@ def test_tolerance_trades_chords_for_error(space_of, sid):
     coarse, fine = runs[1e-2], runs[1e-6]
     assert fine["ray_chords"].sum() > 3 * coarse["ray_chords"].sum()
     assert np.all(fine["ray_chords"][rows] >= coarse["ray_chords"][rows] - 2)
-    assert np.median(measured[1e-6]) < 1e-3 * np.median(measured[1e-2])
+    assert np.median(measured[1e-6]) <= np.median(measured[1e-2]) + 1e-12
     assert measured[1e-6].max() < 1e-2 * measured[1e-2].max()
 
 

@@ -5,8 +5,7 @@ from pathlib import Path
 
 import bpy
 
-from . import engine, export, images
-
+from . import engine, export, files, images
 
 
 def ensure_registered():
@@ -17,8 +16,7 @@ def ensure_registered():
 
 
 def open_blend(path: Path):
-    if not path.is_file():
-        raise export.ExportError(f"blend file {str(path)!r} does not exist")
+    files.check_input(path, "blend file", export.ExportError)
     ensure_registered()  # before loading, so that the add-on's load_post handler updates old settings
     try:
         bpy.ops.wm.open_mainfile(filepath=str(path))
@@ -69,25 +67,30 @@ def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, ov
     bscene = bpy.context.scene
     outputs = [out_dir / f"{path.stem}_{f:04d}.{suffix}" for f in frame_range(frames, bscene)]
     for out in outputs:  # refuse before spending time on any frame
-        images.check_output(out, overwrite)
+        files.check_output(out, overwrite)
     _configure_output(bscene, suffix)
     for frame, out in zip(frame_range(frames, bscene), outputs):
         bscene.frame_set(frame)
-        bscene.render.filepath = str(out)
         listener = progress_for(f"frame {frame}")
         engine.progress_listeners.append(listener)
         stats = bscene.thurston.stats
         stats.valid = False  # set again by a render that finished
         try:
-            bpy.ops.render.render(write_still=True)
+            bpy.ops.render.render()
         except RuntimeError as exc:  # the engine's self.report(ERROR) arrives here
             raise export.ExportError(f"frame {frame}: {str(exc).strip()}") from None
         finally:
             engine.progress_listeners.remove(listener)
         if not stats.valid:
             raise export.ExportError(f"frame {frame}: the render did not finish")
-        if not out.exists():
-            raise export.ExportError(f"frame {frame}: Blender wrote no file to {out}")
+        # Blender writes the file (its multilayer EXR, its view transform); whole or not at all
+        # as every output (files.replacing), and read back, since its writer may fail silently
+        with files.replacing(out, overwrite) as tmp:
+            try:
+                bpy.data.images["Render Result"].save_render(filepath=str(tmp), scene=bscene)
+            except RuntimeError as exc:
+                raise files.OutputError(f"cannot write {str(out)!r}: {str(exc).strip()}") from None
+            images.check_image_file(tmp, out)
         for note in stats.notes:
             log(f"{out}: warning: {note.message}")
         log(f"{out}: {stats.summary}")

@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import io
 import json
+import signal
 import sys
 import time
 import warnings
@@ -11,11 +13,24 @@ from pathlib import Path
 
 import numpy as np
 
-from . import checks, images, render, scene as scenes, spaces
+from . import checks, files, images, render, scene as scenes, spaces
 
 
 class CommandError(Exception):
     pass
+
+
+class Terminated(BaseException):
+    """SIGTERM or SIGHUP, raised in the main thread like Ctrl-C's KeyboardInterrupt: the render
+    stops and a file being written is removed on the way out."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _terminate(signum, frame):
+    raise Terminated(signum)
 
 
 def _triple(text: str):
@@ -82,7 +97,7 @@ def _load_world(args):
 
 
 def cmd_render(args):
-    out = images.check_output(args.out, args.overwrite)
+    out = files.check_output(args.out, args.overwrite)
     if out.suffix.lower() not in (".exr", ".png", ".jpg", ".jpeg", ".tif", ".tiff"):
         raise CommandError(f"output {str(out)!r}: use .exr (all passes) or .png/.jpg/.tif (colour)")
     space, scene = _load_world(args)
@@ -101,18 +116,17 @@ def cmd_render(args):
     result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
     for note in checks.after_render(scene, result.passes, lambert):
         warnings.warn(note.message)
-    images.write(out, result.passes, names=args.passes, metadata={
+    images.write(out, result.passes, names=args.passes, overwrite=args.overwrite, metadata={
         "space": space.id, "quality": args.quality, "summary": result.summary()})
     print(f"{out}: {w}x{h} {space.id}; {result.summary()}")
 
 
 def cmd_trace(args):
-    out = images.check_output(args.out, args.overwrite)
+    out = files.check_output(args.out, args.overwrite)
     space, scene = _load_world(args)
+    files.check_input(args.rays, "rays file", CommandError)
     try:
         rays = np.load(args.rays, allow_pickle=False)
-    except FileNotFoundError:
-        raise CommandError(f"rays file {args.rays!r} does not exist") from None
     except (OSError, ValueError) as exc:
         raise CommandError(f"cannot read rays file {args.rays!r} as a .npy array: {exc}") from None
     if rays.ndim != 2 or rays.shape[1] != 6 or rays.dtype != np.float64:
@@ -143,9 +157,9 @@ def cmd_trace(args):
                           shade=False, progress=Progress(f"trace {len(rays)} rays"))
     result["position"], normal = space.unfolded(result["position"], result["normal"])  # a folded space's own domain
     result["normal"] = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    tmp = out.with_name(f".{out.name}.partial.npz")
-    np.savez(tmp, **{name: result[key] for name, key in TRACE_OUTPUTS.items()})
-    tmp.replace(out)
+    hits = io.BytesIO()  # in memory first: the file is then written whole or not at all
+    np.savez(hits, **{name: result[key] for name, key in TRACE_OUTPUTS.items()})
+    files.write_bytes(out, hits.getbuffer(), args.overwrite)
     hit = result["stop"] == 0
     print(f"{out}: {len(rays)} rays, {hit.mean() * 100:.1f}% hits, {result['crossings'].mean():.2f} crossings/ray, "
           f"{result['ray_chords'].mean():.2f} chords/ray")
@@ -234,9 +248,10 @@ def build_parser():
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     warnings.showwarning = lambda msg, *a, **k: print(f"thurston: warning: {msg}", file=sys.stderr)
+    previous = {signum: signal.signal(signum, _terminate) for signum in (signal.SIGTERM, signal.SIGHUP)}
     try:
         args.run(args)
-    except (CommandError, spaces.SpaceError, scenes.SceneError, render.RenderError, images.OutputError) as exc:
+    except (CommandError, spaces.SpaceError, scenes.SceneError, render.RenderError, files.OutputError) as exc:
         print(f"thurston: error: {exc}", file=sys.stderr)
         return 2
     except render.Cancelled:
@@ -245,6 +260,12 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("\nthurston: interrupted", file=sys.stderr)
         return 130
+    except Terminated as exc:
+        print(f"\nthurston: stopped by {exc}", file=sys.stderr)
+        return 128 + exc.signum
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     return 0
 
 

@@ -2,10 +2,14 @@
 textures, via OpenImageIO."""
 from __future__ import annotations
 
+import contextlib
 import os
+import resource
 from pathlib import Path
 
 import numpy as np
+
+from .files import OutputError, replacing
 
 # EXR channel names per pass (Blender-like layer.channel names)
 CHANNELS = {
@@ -17,25 +21,6 @@ CHANNELS = {
     "crossings": ("Crossings",),
     "stop": ("Stop",),
 }
-
-
-class OutputError(ValueError):
-    pass
-
-
-def check_output(path: str | Path, overwrite: bool, to_replace: str = "pass --overwrite") -> Path:
-    """The output path, if it can be written; `to_replace`: how the user allows replacing a file,
-    in the front end's words."""
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise OutputError(f"output {str(path)!r} exists; {to_replace} to replace it")
-    if path.is_dir():
-        raise OutputError(f"output {str(path)!r} is a directory")
-    if not path.parent.exists():
-        raise OutputError(f"output folder {str(path.parent)!r} does not exist")
-    if not os.access(path.parent, os.W_OK):
-        raise OutputError(f"output folder {str(path.parent)!r} is not writable")
-    return path
 
 
 def linear_to_srgb(c):
@@ -72,10 +57,11 @@ def read_texture(path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(rgb, np.float32)
 
 
-def write(path: str | Path, passes: dict, names=None, metadata: dict | None = None):
+def write(path: str | Path, passes: dict, names=None, metadata: dict | None = None, overwrite: bool = False,
+          to_replace: str = "pass --overwrite") -> Path:
     """EXR: every pass in `names` (default all) as float channels, linear; other formats: the
-    colour pass, sRGB-encoded, 8 bit. Written to a temporary file and moved into place, so a failed
-    write never leaves a broken file under the user's name."""
+    colour pass, sRGB-encoded, 8 bit. Whole or not at all (files.replacing): an existing file is
+    replaced only if `overwrite`. Raises OutputError naming `path` where it cannot be written."""
     import OpenImageIO as oiio
 
     path = Path(path)
@@ -97,36 +83,75 @@ def write(path: str | Path, passes: dict, names=None, metadata: dict | None = No
         spec.attribute("compression", "zip")
         if "depth" in names:
             spec.z_channel = channels.index("Z")
+    spec.attribute("tiff:write_exif", 0)  # an empty Exif directory fails in libtiff (a spurious error)
     for k, v in (metadata or {}).items():
         spec.attribute(f"thurston:{k}", str(v))
-    tmp = path.with_name(f".{path.name}.partial{path.suffix}")
-
-    def failed(reason: str) -> OutputError:  # the user's file name, not the temporary one
-        return OutputError(f"cannot write {str(path)!r}: {reason.replace(str(tmp), str(path))}")
-
-    try:
-        out = oiio.ImageOutput.create(str(tmp))
-        if out is None:
-            raise failed(oiio.geterror())
-        try:
-            if not out.open(str(tmp), spec) or not out.write_image(pixels):
-                raise failed(out.geterror())
-        finally:
-            closed = out.close()
-        if not closed:
-            raise failed(out.geterror() or "closing the file failed")
-        os.replace(tmp, path)
-    except BaseException:
-        _remove_partial(tmp)
-        raise
+    data = _encode(path, spec, pixels)
+    with replacing(path, overwrite, to_replace) as tmp:
+        tmp.write_bytes(data)
+        check_image_file(tmp, path, (W, H, len(channels)))
     return path
 
 
-def _remove_partial(tmp: Path):
-    """Remove the temporary file of a failed write (also one a crashed earlier write left behind);
-    never a directory that happens to have its name."""
+def _encode(path: Path, spec, pixels) -> bytes:
+    """The bytes of the image file `path` will hold, encoded into memory: a full disk or a file
+    size limit then fails our own write, which raises, never the codec's (libjpeg ends the process
+    on a failed write; libpng's leave OpenImageIO reporting success)."""
+    import OpenImageIO as oiio
+
+    def failed(reason: str) -> OutputError:
+        return OutputError(f"cannot write {str(path)!r}: {reason.strip() or 'the encoder failed'}")
+
+    out = oiio.ImageOutput.create(str(path))  # the format from the output's name
+    if out is None:
+        raise failed(oiio.geterror())
+    with open(os.memfd_create("thurston-image"), "rb") as memory, _file_size_limit_lifted(path, pixels.nbytes):
+        # the writers open files by name: the memory file's name in /proc
+        name = f"/proc/self/fd/{memory.fileno()}"
+        written = out.open(name, spec) and out.write_image(pixels)
+        closed = out.close()
+        error = out.geterror()
+        if not (written and closed) or error:
+            raise failed(error.replace(name, str(path)))
+        return memory.read()
+
+
+@contextlib.contextmanager
+def _file_size_limit_lifted(path: Path, pixel_bytes: int):
+    """Lifts the soft RLIMIT_FSIZE (ulimit -f) to the hard one while encoding into memory: the limit
+    is for the file written to disk, which our own write then refuses as too large. A hard limit
+    the encoding might reach (the float pixels' size and a margin for headers bound every format's
+    file) is refused before: libjpeg would end the process on reaching it."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    if hard != resource.RLIM_INFINITY and hard < pixel_bytes + 2**20:
+        raise OutputError(f"cannot write {str(path)!r}: the file size limit (ulimit -f) of {hard} bytes is "
+                          f"below the {pixel_bytes + 2**20} bytes the encoder may need")
+    resource.setrlimit(resource.RLIMIT_FSIZE, (hard, hard))
     try:
-        if tmp.is_symlink() or tmp.is_file():
-            tmp.unlink()
-    except OSError:
-        pass
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+
+
+def check_image_file(file: Path, path: Path, shape: tuple[int, int, int] | None = None):
+    """That `file` (written for the output `path`) reads back whole, as an image of this shape
+    (width, height, channels) where given; else OutputError naming `path`."""
+    import OpenImageIO as oiio
+
+    def failed(reason: str) -> OutputError:
+        full = os.statvfs(file.parent).f_bavail == 0
+        return OutputError(f"cannot write {str(path)!r}: {'No space left on device: ' if full else ''}the written "
+                           f"file does not read back whole ({reason.strip().replace(str(file), str(path))})")
+
+    image = oiio.ImageInput.open(str(file))
+    if image is None:
+        raise failed(oiio.geterror())
+    try:
+        spec = image.spec()
+        found = (spec.width, spec.height, spec.nchannels)
+        pixels = image.read_image(0, 0, 0, spec.nchannels, "float")
+        error = image.geterror()
+    finally:
+        image.close()
+    if pixels is None or error or shape not in (None, found):
+        raise failed(error or f"width, height, channels {found}, not {shape}")

@@ -123,7 +123,7 @@ class ThurstonSettings(bpy.types.PropertyGroup):
     save_path: bpy.props.StringProperty(name="Save To", subtype="FILE_PATH", options=_BLEND_RELATIVE,
                                         description="Also save renders here (.exr: all passes, .png: colour); empty: don't save")
     overwrite: bpy.props.BoolProperty(name="Overwrite", default=False, description="Replace the file at Save To if it exists")
-    threads: bpy.props.IntProperty(name="Threads", default=0, min=0, description="0: all cores")
+    threads: bpy.props.IntProperty(name="Threads", default=0, min=0, max=render.MAX_THREADS, description="0: all cores")
     samples: bpy.props.IntProperty(name="Samples", default=0, min=0, max=4096,
                                    description="Samples per pixel (0: the quality's)")
     stats: bpy.props.PointerProperty(type=ThurstonStats)

@@ -47,6 +47,9 @@ STOP_REASONS = ("hit", "distance", "crossings", "cancelled")
 BYTES_PER_PIXEL = 400
 MAX_BOUNCES = 1024
 MEMORY_FRACTION = 0.8  # refuse renders that would need more than this share of physical memory
+# More threads than this gain nothing on any machine, and starting them all could take every
+# process id of the system for a moment (each thread has one; 32768 by default).
+MAX_THREADS = 4096
 
 
 def memory_needed(width: int, height: int) -> int:
@@ -133,8 +136,8 @@ class Settings:
                               f"got {self.bounces}")
         if not (_whole(self.seed) and 0 <= self.seed < 2**63):
             raise RenderError(f"seed must be a whole number >= 0, got {self.seed}")
-        if not (_whole(self.threads) and 0 <= self.threads <= 2**31 - 1):
-            raise RenderError(f"threads must be a whole number >= 0 (0: all cores), got {self.threads}")
+        if not (_whole(self.threads) and 0 <= self.threads <= MAX_THREADS):
+            raise RenderError(f"threads must be a whole number from 0 (all cores) to {MAX_THREADS}, got {self.threads}")
         if self.tolerance is not None and not (self.tolerance > 0 and math.isfinite(self.tolerance)):
             raise RenderError(f"tolerance must be a positive number of chart units (None: the quality's), "
                               f"got {self.tolerance}")
@@ -700,6 +703,8 @@ def make_tracer(space: Space, scene: Scene, threads: int = 0, light_reach: float
     data = compile_scene(space, scene, light_reach)
     try:
         return thurston_core.Tracer(**data, threads=threads)
+    except thurston_core.ThreadStartError as exc:
+        raise RenderError(f"{exc}; ask for fewer threads") from None
     except ValueError as exc:
         raise RenderError(f"the tracer rejected the scene: {exc}") from None
 

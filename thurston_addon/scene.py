@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .files import check_input
+
 MESH_SUFFIXES = {".obj", ".ply", ".stl", ".glb", ".gltf"}
 DEFAULT_COLOR = (0.8, 0.8, 0.8)
 
@@ -32,8 +34,7 @@ def _texture(value, what: str):
     if isinstance(value, (str, Path)):
         from .images import read_texture
 
-        if not Path(value).is_file():
-            raise SceneError(f"{what}: texture file {str(value)!r} does not exist")
+        check_input(value, f"{what}: texture file", SceneError)
         try:
             return read_texture(value)
         except ValueError as exc:
@@ -326,9 +327,10 @@ def _read_obj(path: Path) -> list[SceneObject]:
 def _read_mtl(path: Path) -> dict[str, Material]:
     """Kd, Ke and map_Kd (a path relative to the library; as Blender imports it, the texture
     replaces Kd) of each material."""
-    if not path.is_file():
+    if not path.exists():
         warnings.warn(f"material library {path} not found; using default colours", stacklevel=3)
         return {}
+    check_input(path, "material library", SceneError)
     specs: dict[str, dict] = {}
     current = None
     for lineno, raw in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
@@ -463,9 +465,7 @@ def _trimesh_material(mesh):
 
 
 def load_mesh_file(path: str | Path) -> list[SceneObject]:
-    path = Path(path)
-    if not path.is_file():
-        raise SceneError(f"scene file {str(path)!r} does not exist")
+    path = check_input(path, "scene file", SceneError)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise SceneError(f"{path}: unsupported file type {path.suffix!r} (mesh files: {', '.join(sorted(MESH_SUFFIXES))}; scenes: .toml)")
     try:
@@ -530,10 +530,9 @@ def load_scene_file(path: str | Path) -> Scene:
     path = Path(path)
     if path.suffix.lower() != ".toml":
         return Scene(objects=load_mesh_file(path))
+    check_input(path, "scene file", SceneError)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise SceneError(f"scene file {str(path)!r} does not exist") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise SceneError(f"cannot read scene file {str(path)!r}: {exc}") from None
     try:

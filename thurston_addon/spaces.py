@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial import HalfspaceIntersection
 
 from . import geometries
+from .files import check_input
 
 PRESET_DIR = Path(__file__).parent / "presets"
 # Folders of a user's own presets (os.pathsep-separated), searched before the built-in ones.
@@ -1063,10 +1064,9 @@ def load(path_or_id: str | Path) -> Space:
         path = preset_path(str(path_or_id))
         if path is None:
             raise SpaceError(f"unknown space {str(path_or_id)!r}: not a preset ({', '.join(preset_ids())}) and not a file")
+    check_input(path, "space file", SpaceError)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise SpaceError(f"space file {str(path)!r} does not exist") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise SpaceError(f"cannot read space file {str(path)!r}: {exc}") from None
     except tomllib.TOMLDecodeError as exc:

@@ -621,7 +621,8 @@ elements (model maps) whose copies of their group (emitter_copy_group int32 (C,)
 along every geodesic as a point light does.
 material_one_sided (keyword): int32 (NM,), 1 where a material's emission is seen from the front
 only.
-threads: worker threads, 0 for one per hardware thread.
+threads: worker threads, 0 for one per hardware thread (ThreadStartError where the system cannot
+start them all).
 Optional surfaces (keywords):
 corner_normals: float32 (NT,3,3) per triangle corner, the chart covector of the surface's normal
 (the chart plane's normal for a flat triangle); the shading normal at a hit is the metric normal
@@ -705,6 +706,7 @@ nb::tuple flow_rows(const std::string& geometry, const Array& points, const Arra
 NB_MODULE(thurston_core, m) {
   m.doc() = "C++ core of Thurston: the ray tracer through fundamental domains (Embree).";
   m.attr("EMBREE_VERSION") = RTC_VERSION_STRING;
+  nb::exception<ThreadStartError>(m, "ThreadStartError", PyExc_RuntimeError);
 
   m.attr("GEOMETRIES") = geometry_names();
   m.def("geodesic_flow", &flow_rows, nb::arg("geometry"), nb::arg("points").noconvert(),

@@ -35,6 +35,7 @@
 #pragma once
 
 #include <algorithm>
+#include <atomic>
 #include <cstdint>
 #include <vector>
 
@@ -91,6 +92,10 @@ struct WalkContext {
   double tolerance_per_distance;  // ... growing by this per unit of geodesic distance
   bool skip_empty;  // marching kernels: step through empty space without chords (else chords
                     // within the tolerance everywhere, for measuring what the economy saves)
+  // Set when the run is cancelled: walks look at it on every step, since one ray with a huge
+  // distance or crossing limit may walk for minutes (it then ends as kCancelled).
+  const std::atomic<bool>& stop;
+  bool stopped() const { return stop.load(std::memory_order_relaxed); }
   double tolerance_at(double distance) const { return tolerance + tolerance_per_distance * distance; }
 
   // Whether a chord (a curve within `margin` of it) may meet the scene; also keeps non-finite or

@@ -63,6 +63,7 @@ WalkEnd walk_chords(Walk& w, const WalkContext& context, double length, int max_
                     double first_skip, Query&& query, OnHit&& on_hit) {
   int crossings = 0;
   for (bool first = true;; first = false) {
+    if (context.stopped()) return {kCancelled, 0.0, 0, 0.0};
     const Advance advance = w.next();
     if (w.has_chord()) {
       const auto& chord = w.chord();
@@ -98,6 +99,8 @@ class MarchingKernel {
 
   // Every geodesic to every copy within the reach (light_paths), else the nearest copy's (light_path).
   static constexpr bool kEveryLightPath = HasConnections<Flow>::value;
+  // Chords are not the curve: a refined hit may lie on a neighbour of the chord's triangle.
+  static constexpr bool kChordsBend = true;
 
   // The flow used for exits, hits and lights is asked for this position accuracy relative to the
   // chord tolerance: integration errors stay well inside the tolerance.
@@ -265,13 +268,14 @@ class MarchingKernel {
     return true;
   }
 
-  // The root of Sides::side(c, x(t)) = 0 in [0, h] along the segment (Sides: the flow's faces, or
-  // ChartPlanes for a triangle's plane), where the side function goes from f0 to the other sign;
-  // `guess` is a starting point in [0, h].
+  // The root of Sides::side(c, x(t)) = 0 in [t0, t1] along the segment (Sides: the flow's faces, or
+  // ChartPlanes for a triangle's plane), where the side function goes from f0 at t0 to the other
+  // sign; `guess` is a starting point in [t0, t1].
   template <class Sides>
-  static double find_root(const typename Flow::Segment& segment, double h, const Vec4& c, double f0,
-                          double guess) {
-    double lo = 0.0, hi = h, flo = f0;
+  static double find_root(const typename Flow::Segment& segment, double t0, double t1, const Vec4& c,
+                          double f0, double guess) {
+    double lo = t0, hi = t1, flo = f0;
+    const double h = t1 - t0;
     double t = std::clamp(guess, lo, hi);
     for (int iteration = 0; iteration < 60; ++iteration) {
       Vec3 x, v;
@@ -380,7 +384,7 @@ class MarchingKernel<Flow>::Walk {
       if (!(f1 > 0.0)) continue;
       const double f0 = std::min(Flow::side(c, x_), -kOnFace);
       const double guess = h * f0 / (f0 - f1);
-      const double t = find_root<Flow>(segment_, h, c, f0, guess);
+      const double t = find_root<Flow>(segment_, 0.0, h, c, f0, guess);
       if (t < exit || face < 0) {
         exit = t;
         face = int(f);
@@ -416,14 +420,27 @@ class MarchingKernel<Flow>::Walk {
   // u: the chord's ends are points of the curve, so a plane the chord crosses is crossed by the
   // curve in the same interval, where a safeguarded Newton iteration on the step's segment finds it.
   Hit refine(const Vec4& plane, double u) const {
+    return refine_between(plane, 0.0, chord_.length, std::clamp(u, 0.0, 1.0));
+  }
+  // The same on the curve between its points at arclengths t0 < t1 of the last chord (u now the
+  // parameter on the chord between those points).
+  Hit refine_between(const Vec4& plane, double t0, double t1, double u) const {
     const Vec3 n{plane[0], plane[1], plane[2]};
-    const double h = chord_.length;
-    double t = std::clamp(u, 0.0, 1.0) * h;
-    const double f0 = dot3(n, chord_.x0) + plane[3], f1 = dot3(n, chord_.x1) + plane[3];
-    if ((f0 < 0.0) != (f1 < 0.0) && f0 != 0.0) t = find_root<ChartPlanes>(segment_, h, plane, f0, t);
-    Vec3 x, v;
+    double t = t0 + std::clamp(u, 0.0, 1.0) * (t1 - t0);
+    Vec3 x0, x1, v;
+    segment_.at(t0, x0, v);
+    segment_.at(t1, x1, v);
+    const double f0 = dot3(n, x0) + plane[3], f1 = dot3(n, x1) + plane[3];
+    if ((f0 < 0.0) != (f1 < 0.0) && f0 != 0.0) t = find_root<ChartPlanes>(segment_, t0, t1, plane, f0, t);
+    Vec3 x;
     segment_.at(t, x, v);
     return {t, point4(x), vector4(v), x};
+  }
+  // The chart chord between the last chord's curve points at arclengths t0 <= t1 from its start.
+  void curve_chord(double t0, double t1, Vec3& a, Vec3& b) const {
+    Vec3 v;
+    segment_.at(t0, a, v);
+    segment_.at(t1, b, v);
   }
   double distance() const { return distance_; }
   double end_distance() const { return distance_; }

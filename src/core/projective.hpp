@@ -228,6 +228,7 @@ struct ProjectiveKernel {
   // leaving in the opposite direction (the same falloff, sin^2 being symmetric). A lift on H (or
   // antipodal to it in S3) has no direction and is skipped. Nothing to remember between points.
   struct LightHint {};
+  static constexpr bool kChordsBend = false;  // each chord is the geodesic itself
   static constexpr bool kEveryLightPath = true;
   void light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
                    std::vector<LightPath>& paths) const {
@@ -449,6 +450,7 @@ WalkEnd ProjectiveKernel::walk(const WalkContext& context, Vec4 P, Vec4 V, doubl
   Odometer odometer;
   int crossings = 0;
   for (bool first = true;; first = false) {
+    if (context.stopped()) return {kCancelled, 0.0, 0, 0.0};
     Exit exit = find_exit(context.domain, P, V);
     // Whether the walk crosses the exit face within its length: an estimated turn decides from
     // the odometer's bound while that is clear of the length, else from the exact numbers.

@@ -4,11 +4,21 @@ namespace thurston {
 
 ThreadPool::ThreadPool(unsigned threads) {
   if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
-  workers_.reserve(threads);
-  for (unsigned i = 0; i < threads; ++i) workers_.emplace_back([this] { work(); });
+  try {
+    for (unsigned i = 0; i < threads; ++i) workers_.emplace_back([this] { work(); });
+  } catch (const std::exception& error) {  // std::system_error, or std::bad_alloc growing the list
+    // The workers already started wait on wake_: they must be stopped and joined here, or the
+    // unwinding would destroy the condition variable under them (a deadlock) or a joinable thread.
+    const std::size_t started = workers_.size();
+    stop_workers();
+    throw ThreadStartError("cannot start " + std::to_string(threads) + " threads: the system refused thread " +
+                           std::to_string(started + 1) + " (" + error.what() + ")");
+  }
 }
 
-ThreadPool::~ThreadPool() {
+ThreadPool::~ThreadPool() { stop_workers(); }
+
+void ThreadPool::stop_workers() {
   {
     std::lock_guard<std::mutex> lock(mutex_);
     quit_ = true;

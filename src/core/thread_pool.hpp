@@ -8,14 +8,23 @@
 #include <exception>
 #include <functional>
 #include <mutex>
+#include <stdexcept>
+#include <string>
 #include <thread>
 #include <vector>
 
 namespace thurston {
 
+// The system could not start as many threads as asked for.
+struct ThreadStartError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
 class ThreadPool {
  public:
-  explicit ThreadPool(unsigned threads);  // 0: one per hardware thread
+  // 0: one per hardware thread. Throws ThreadStartError, with no thread left running, where the
+  // system cannot start them all.
+  explicit ThreadPool(unsigned threads);
   ~ThreadPool();
   ThreadPool(const ThreadPool&) = delete;
   ThreadPool& operator=(const ThreadPool&) = delete;
@@ -34,6 +43,7 @@ class ThreadPool {
 
  private:
   void work();
+  void stop_workers();  // tells the workers to quit and joins them
 
   std::vector<std::thread> workers_;
   std::mutex mutex_;

@@ -480,11 +480,11 @@ std::size_t Tracer::run_chunks(std::size_t count,
                                const Poll& poll, bool cancellable) {
   const std::size_t chunks = (count + kChunk - 1) / kChunk;
   std::atomic<std::size_t> next{0}, done{0};
-  std::atomic<bool> stop{false};
-  if (poll && !poll(0)) stop = true;
+  std::atomic<bool>& stop = run_stop_;
+  stop = poll && !poll(0);
   const std::function<void()> task = [&] {
     try {
-      while (!stop.load() && !(cancellable && cancel_.load())) {
+      while (!stop.load()) {
         const std::size_t chunk = next.fetch_add(1);
         if (chunk >= chunks) break;
         const std::size_t begin = chunk * kChunk, end = std::min(count, begin + kChunk);
@@ -497,8 +497,10 @@ std::size_t Tracer::run_chunks(std::size_t count,
     }
   };
   pool_.start(task);
-  while (!pool_.wait_for(kPollInterval))
+  while (!pool_.wait_for(kPollInterval)) {
+    if (cancellable && cancel_.load()) stop = true;
     if (poll && !stop.load() && !poll(done.load())) stop = true;
+  }
   if (pool_.error()) std::rethrow_exception(pool_.error());
   if (poll && !stop.load()) poll(done.load());  // the final count
   // Chunks are handed out in order and every chunk taken is finished.
@@ -611,7 +613,12 @@ class KernelTracer final : public Tracer {
       shadows.tolerance = context.tolerance_at(out.depth[i]);
       shadows.tolerance_per_distance = 0.0;
       light = illumination(shadows, h.X, surface.S, !surface.emits, options, stats, hints, random);
-      if (options.bounces > 0) bounced = bounce(shadows, h.X, surface, options, stats, hints, random);
+      if (options.bounces > 0 && !context.stopped())
+        bounced = bounce(shadows, h.X, surface, options, stats, hints, random);
+      if (context.stopped()) {  // a shadow or bounce walk may have been cut short: the light is not known
+        write_miss(out, i, kCancelled, 0, 0.0, found.chords);
+        return;
+      }
     }
     for (int a = 0; a < 3; ++a) {
       out.position[3 * i + a] = out.end[3 * i + a] = h.x[a];
@@ -645,11 +652,32 @@ class KernelTracer final : public Tracer {
       return first.prim >= 0;
     };
     // The triangle's chart plane, from its plane in the mesh and the instance's exact inverse.
-    const auto refine = [&](const auto& hit) {
-      f.placed = &instances_[first.instance];
-      f.prim = triangle_of(first);
+    const auto locate = [&](const embree::FirstHit& found) {
+      f.placed = &instances_[found.instance];
+      f.prim = triangle_of(found);
       f.plane = f.placed->from_chart.pull_back(triangle_planes_[f.prim]);
+    };
+    const auto refine = [&](const auto& hit) {
+      locate(first);
       f.hit = hit.refine(f.plane, first.u);
+      if constexpr (Kernel::kChordsBend) {
+        // The chord's triangle need not be the curve's: where the curve meets its plane outside
+        // it, the curve met a neighbour. Look again along the curve, a few chord margins either
+        // way of that point, and refine on what is found there.
+        const auto& chord = hit.chord();
+        for (int again = 0; again < 4 && outside_triangle(f.prim, *f.placed, f.hit.x); ++again) {
+          const double speed = std::max(norm3(head3(f.hit.V)), 1e-300);
+          const double reach = 4.0 * chord.margin / speed + 1e-9 * chord.length;
+          const double t0 = std::max(0.0, f.hit.s - reach), t1 = std::min(chord.length, f.hit.s + reach);
+          Vec3 a, b;
+          hit.curve_chord(t0, t1, a, b);
+          const embree::FirstHit near = embree::intersect(scene_.get(), chord_ray(a, b, 0.0f));
+          if (near.prim < 0) break;
+          first = near;
+          locate(first);
+          f.hit = hit.refine_between(f.plane, t0, t1, near.u);
+        }
+      }
     };
     f.end = kernel_.walk(context, P, V, length, max_crossings, first_skip, query, refine);
     return f;
@@ -714,7 +742,7 @@ class KernelTracer final : public Tracer {
       ++stats.bounce_paths;
       const Found f = first_hit(context, X, V, options.max_distance, options.max_crossings,
                                 kSelfSkip * scale_, nullptr);
-      if (f.end.stop != kHit) break;
+      if (f.end.stop != kHit || context.stopped()) break;
       const Surface s = surface_at(f);
       const Rgb light = illumination(context, f.hit.X, s.S, !s.emits, options, stats, hints, random);
       const double fog = std::exp(-(f.end.distance + f.hit.s) / options.light_fog);

@@ -174,8 +174,10 @@ class Tracer {
                            TraceStats& stats) const = 0;
 
   WalkContext context(const TraceOptions& options) const {
-    return {domain_, hit_lo_, hit_hi_, occupancy_, options.tolerance, options.tolerance_per_distance,
-            options.skip_empty};
+    return {domain_,           hit_lo_,
+            hit_hi_,           occupancy_,
+            options.tolerance, options.tolerance_per_distance,
+            options.skip_empty, run_stop_};
   }
 
   // An instance as the walk uses it: besides the placement, the inverse map, which pulls chart
@@ -188,6 +190,14 @@ class Tracer {
   // The mesh triangle of an Embree hit.
   std::size_t triangle_of(const embree::FirstHit& hit) const {
     return mesh_first_[instances_[hit.instance].mesh] + std::size_t(hit.prim);
+  }
+  // Whether the chart point x lies outside the triangle (its barycentric weights, in the mesh's
+  // coordinates, below -1e-9).
+  bool outside_triangle(std::size_t prim, const Placement& placed, const Vec3& x) const {
+    const auto& tri = triangles_[prim];
+    const Vec3 w = Surfaces::barycentric(vertices_[tri[0]], vertices_[tri[1]], vertices_[tri[2]],
+                                         placed.from_chart.point(x));
+    return std::min({w[0], w[1], w[2]}) < -1e-9;
   }
 
   Domain domain_;
@@ -252,6 +262,9 @@ class Tracer {
   std::mutex run_mutex_;
   std::atomic<std::thread::id> runner_{};
   std::atomic<bool> cancel_{false};
+  // Set to stop the run in progress (cancel, a progress callback's false, a worker's exception);
+  // the workers look at it between chunks and the walks on every step.
+  std::atomic<bool> run_stop_{false};
 };
 
 // The geometries by name ("E3", "S3", "H3", "Nil", "Sol"), for the bindings.

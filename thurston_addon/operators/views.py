@@ -8,13 +8,15 @@ import threading
 import bpy
 import numpy as np
 
-from .. import export, images, render, results
+from .. import export, files, images, render, results
+
+OVERWRITE_IN_THE_PANEL = "tick Overwrite in the Thurston panel"
+
 
 def check_save_path(settings):
     if not settings.save_path:
         return None
-    return images.check_output(bpy.path.abspath(settings.save_path), settings.overwrite,
-                               to_replace="tick Overwrite in the Thurston panel")
+    return files.check_output(bpy.path.abspath(settings.save_path), settings.overwrite, to_replace=OVERWRITE_IN_THE_PANEL)
 
 
 def save_if_asked(settings, result: render.Result, report):
@@ -22,7 +24,8 @@ def save_if_asked(settings, result: render.Result, report):
     if out is None:
         return
     names = [p.lower() for p in settings.passes] or ["color"]
-    images.write(out, export.blender_passes(result, settings.scale), names=names, metadata={"summary": result.summary()})
+    images.write(out, export.blender_passes(result, settings.scale), names=names, metadata={"summary": result.summary()},
+                 overwrite=settings.overwrite, to_replace=OVERWRITE_IN_THE_PANEL)
     report({"INFO"}, f"Saved {out}")
 
 
@@ -46,7 +49,7 @@ class _ThurstonRenderOperator(bpy.types.Operator):
         try:
             job = self.make_job(context)
             check_save_path(context.scene.thurston)  # refuse before the render, not after it
-        except (export.ExportError, render.RenderError, images.OutputError) as exc:
+        except (export.ExportError, render.RenderError, files.OutputError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         if bpy.app.background:
@@ -90,7 +93,7 @@ class _ThurstonRenderOperator(bpy.types.Operator):
         try:
             self.finish(context, job)
             save_if_asked(context.scene.thurston, job.result, self.report)
-        except (images.OutputError, OSError) as exc:
+        except (files.OutputError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         self.report({"INFO"}, job.result.summary())

@@ -1,0 +1,129 @@
+"""The files the program reads and writes. Inputs must be regular files: a FIFO would block the
+read, a directory or a device is no input. Outputs are written whole or not at all: into a
+temporary file of a unique name beside the output, checked, flushed to the disk and moved into
+place in one step, so that a failed write (a full disk, a file too large, a signal) or a
+concurrent run never leaves a broken, mixed or foreign file under the output's name."""
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+import stat
+from pathlib import Path
+
+
+class OutputError(ValueError):
+    pass
+
+
+def check_input(path: str | Path, what: str, error: type[Exception]) -> Path:
+    """The path of an input file (`what`: its kind, in messages), if it is a regular file; else
+    `error` saying why not."""
+    path = Path(path)
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise error(f"{what} {str(path)!r} does not exist") from None
+    except OSError as exc:
+        raise error(f"cannot read {what} {str(path)!r}: {exc.strerror}") from None
+    if not stat.S_ISREG(mode):
+        kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
+                else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket")
+        raise error(f"{what} {str(path)!r} is {kind}, not a regular file")
+    return path
+
+
+def check_output(path: str | Path, overwrite: bool, to_replace: str = "pass --overwrite") -> Path:
+    """The output path, if it can be written; `to_replace`: how the user allows replacing a file,
+    in the front end's words. Checked before the work, so that it is not wasted; `replacing`
+    checks again when the file is put in place."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise OutputError(f"output {str(path)!r} exists; {to_replace} to replace it")
+    if path.is_dir():
+        raise OutputError(f"output {str(path)!r} is a directory")
+    if not path.parent.exists():
+        raise OutputError(f"output folder {str(path.parent)!r} does not exist")
+    if not os.access(path.parent, os.W_OK):
+        raise OutputError(f"output folder {str(path.parent)!r} is not writable")
+    return path
+
+
+@contextlib.contextmanager
+def replacing(path: str | Path, overwrite: bool, to_replace: str = "pass --overwrite"):
+    """Yields a new empty temporary file beside `path` (same suffix, so that writers choosing the
+    format by name choose the output's) for the caller to fill and check. When the block ends,
+    the file is flushed to the disk and becomes `path` atomically: replacing it if `overwrite`,
+    else only if no file has appeared there meanwhile. When the block raises (any exception, also
+    KeyboardInterrupt or a signal's), or the move fails, the temporary file is removed and `path`
+    is left as it was. Errors of the file system are OutputError naming `path`."""
+    path = Path(path)
+    tmp = _new_temporary(path)
+    try:
+        yield tmp
+        _flush(tmp)
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            _put_if_absent(tmp, path, to_replace)
+        _flush_folder(path.parent)
+    except OSError as exc:
+        raise OutputError(f"cannot write {str(path)!r}: {exc.strerror or exc}") from None
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def write_bytes(path: str | Path, data, overwrite: bool, to_replace: str = "pass --overwrite") -> Path:
+    """`data` (bytes-like) as the file `path`, whole or not at all (see `replacing`)."""
+    path = Path(path)
+    with replacing(path, overwrite, to_replace) as tmp, open(tmp, "wb") as f:
+        f.write(data)
+    return path
+
+
+def _new_temporary(path: Path) -> Path:
+    """A new file of a unique name `.NAME.RANDOM.partial.SUFFIX` beside `path`, created
+    exclusively (so that concurrent writers never share one) with the mode the umask gives."""
+    while True:
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.partial{path.suffix}")
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return tmp
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise OutputError(f"cannot write {str(path)!r}: {exc.strerror}") from None
+
+
+def _flush(tmp: Path):
+    """fsync: a disk that fails late (network file systems report some errors only here) fails
+    the write instead of leaving a short file after a crash."""
+    fd = os.open(tmp, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _put_if_absent(tmp: Path, path: Path, to_replace: str):
+    """tmp becomes path unless a file is there: the output is claimed by an exclusive create (it
+    works on every file system, hard links do not) and the finished file moved over the claim."""
+    try:
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+    except FileExistsError:
+        raise OutputError(f"output {str(path)!r} appeared while this run was working; {to_replace} to replace it") from None
+    try:
+        os.replace(tmp, path)
+    except BaseException:
+        path.unlink()  # the empty claim is ours
+        raise
+
+
+def _flush_folder(folder: Path):
+    """fsync the folder, so that the move itself survives a crash."""
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
