@@ -108,7 +108,7 @@ def cmd_render(args):
     settings = render.Settings(width=w, height=h, projection=args.projection, quality=args.quality, samples=args.samples,
                                shading=args.shading, max_distance=args.max_distance,
                                max_crossings=args.max_crossings, fog=args.fog, light_reach=args.light_reach,
-                               light_samples=args.light_samples, threads=args.threads,
+                               light_samples=args.light_samples, bounces=args.bounces, threads=args.threads,
                                tolerance=args.tolerance)
     lambert = settings.shading == "lambert"
     for note in checks.before_render(space, scene, camera, lambert):
@@ -223,6 +223,9 @@ def build_parser():
                                                      "(default: the space's, see README)")
     r.add_argument("--light-samples", type=int, default=render.Settings.light_samples,
                    help="points sampled on the emissive meshes (and area lights) per shaded point and sample")
+    r.add_argument("--bounces", type=int, default=render.Settings.bounces,
+                   help="diffuse bounces after each camera hit: global illumination by path tracing "
+                        "(default 0: direct light only)")
     r.add_argument("--out", required=True, metavar="FILE")
     r.set_defaults(run=cmd_render)
 

@@ -76,6 +76,9 @@ class ThurstonStats(bpy.types.PropertyGroup):
     chords_per_ray: bpy.props.FloatProperty(name="Chords per Ray", description="Embree queries per ray")
     bound: bpy.props.StringProperty(name="Accuracy", description="The hit-position accuracy the render promises")
     measured_error: bpy.props.FloatProperty(name="Measured Error", description="Largest hit-position difference, over sampled hits, to the same rays traced at 1/100 of the tolerance (chart units)")
+    noise: bpy.props.FloatProperty(name="Noise", description="RMS over the pixels of the standard error of each "
+                                                             "pixel's mean brightness, from its samples' spread "
+                                                             "(-1: one sample per pixel, not estimated)")
     summary: bpy.props.StringProperty(name="Summary")
     notes: bpy.props.CollectionProperty(type=ThurstonNote, name="Notes",
                                         description="What the last render found that can make it look wrong, and what to change")
@@ -105,6 +108,9 @@ class ThurstonSettings(bpy.types.PropertyGroup):
     light_samples: bpy.props.IntProperty(name="Light Samples", default=render.Settings.light_samples, min=1, max=4096,
                                          description="Points sampled on the emissive meshes and area lights per "
                                                      "shaded point and sample")
+    bounces: bpy.props.IntProperty(name="Bounces", default=render.Settings.bounces, min=0, max=render.MAX_BOUNCES,
+                                   description="Diffuse bounces after each camera hit: global illumination by path "
+                                               "tracing along geodesics (0: direct light only)")
     tolerance: bpy.props.FloatProperty(name="Tolerance", default=0.0, min=0.0, precision=6, step=0.001,
                                        description="Where geodesics bend (Nil, Sol): how far the traced chords may stray "
                                                    "from the true geodesic, in Blender units (0: the quality's bound, a "

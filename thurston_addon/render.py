@@ -45,6 +45,7 @@ STOP_REASONS = ("hit", "distance", "crossings", "cancelled")
 # for it and for the centre ray, and the colour sum. Measured at about 330 bytes (2000 x 1000, all
 # shading modes and projections; tests/test_render.py measures it again); rounded up.
 BYTES_PER_PIXEL = 400
+MAX_BOUNCES = 1024
 MEMORY_FRACTION = 0.8  # refuse renders that would need more than this share of physical memory
 # More threads than this gain nothing on any machine, and starting them all could take every
 # process id of the system for a moment (each thread has one; 32768 by default).
@@ -87,6 +88,8 @@ class Settings:
     threads: int = 0
     tolerance: float | None = None  # chord tolerance in chart units (S2xR: metric); None: the quality's bound
     light_samples: int = 4  # points sampled on the emissive meshes per shaded point (each sample)
+    bounces: int = 0  # diffuse bounces after each camera hit (path tracing); 0: direct light only
+    seed: int = 0  # sample k's random numbers (light samples, bounces) come from seed + k
     transparent: bool = False  # alpha: the share of a pixel's samples that hit something (else 1)
     # (x, y, w, h): render only this window of the width x height image, x, y its top-left pixel
     # (rows top-down); None: the whole image
@@ -128,6 +131,11 @@ class Settings:
             raise RenderError(f"light reach must be a distance >= 0 (None: the space's default), got {self.light_reach}")
         if not (_whole(self.light_samples) and 1 <= self.light_samples <= 4096):
             raise RenderError(f"light samples must be a whole number between 1 and 4096, got {self.light_samples}")
+        if not (_whole(self.bounces) and 0 <= self.bounces <= MAX_BOUNCES):
+            raise RenderError(f"bounces must be a whole number between 0 (direct light only) and {MAX_BOUNCES}, "
+                              f"got {self.bounces}")
+        if not (_whole(self.seed) and 0 <= self.seed < 2**63):
+            raise RenderError(f"seed must be a whole number >= 0, got {self.seed}")
         if not (_whole(self.threads) and 0 <= self.threads <= MAX_THREADS):
             raise RenderError(f"threads must be a whole number from 0 (all cores) to {MAX_THREADS}, got {self.threads}")
         if self.tolerance is not None and not (self.tolerance > 0 and math.isfinite(self.tolerance)):
@@ -163,7 +171,16 @@ class Result:
                 f"chart units at median depth; {s['bound']}; measured error {s['measured_error']:.1e} "
                 f"chart units = {s['measured_error_pixels']:.2g} pixel footprints (re-traced at 1/{RETRACE_FACTOR} "
                 f"of the tolerance; {s['retrace_changed'] * 100:.1f}% of them met another object), geodesic error "
-                f"{s['geodesic_error']:.1e} (against the reference geodesic); {light_summary(s)}")
+                f"{s['geodesic_error']:.1e} (against the reference geodesic); {light_summary(s)}; "
+                f"{illumination_summary(s)}")
+
+
+def illumination_summary(s: dict) -> str:
+    bounces = (f"path tracing, bounce limit {s['bounces']} ({s['bounce_paths_per_point']:.2f} bounce geodesics per "
+               f"camera hit)" if s["bounces"] else "direct light only")
+    noise = ("noise: one sample per pixel, not estimated" if s["noise"] is None else
+             f"noise {s['noise']:.2e} (RMS standard error of the pixel means, from {s['samples_per_pixel']} samples)")
+    return f"{bounces}, {noise}"
 
 
 def light_summary(s: dict) -> str:
@@ -693,7 +710,7 @@ def make_tracer(space: Space, scene: Scene, threads: int = 0, light_reach: float
 
 
 def trace(tracer, origins, directions, max_distance, max_crossings, tolerance=1e-3, tolerance_per_distance=0.0,
-          shade=True, progress=None, fog=None, light_samples=1, seed=0):
+          shade=True, progress=None, fog=None, light_samples=1, seed=0, bounces=0):
     """tracer.trace, with what the core rejects (ValueError) raised as RenderError. Exceptions
     from the progress callback pass through unchanged (they are the caller's, not the input's)."""
     raised = []
@@ -709,7 +726,7 @@ def trace(tracer, origins, directions, max_distance, max_crossings, tolerance=1e
         return tracer.trace(origins, directions, max_distance, max_crossings, shade=shade,
                             progress=None if progress is None else report, tolerance=tolerance,
                             tolerance_per_distance=tolerance_per_distance, fog=fog or math.inf,
-                            light_samples=light_samples, seed=seed)
+                            light_samples=light_samples, seed=seed, bounces=bounces)
     except ValueError as exc:
         if raised:
             raise
@@ -889,9 +906,10 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     pixels = w * h
     total = len(jobs) * pixels
     color_sum = None
+    brightness_squares = np.zeros(w * h)  # per pixel: the sum over samples of (mean of RGB)^2
     hit_sum = np.zeros(w * h)
     first = None
-    chords = light_failures = light_paths = shaded_points = 0
+    chords = light_failures = light_paths = shaded_points = bounce_paths = 0
     light_energy = 0.0
     for k, (jitter, shaded, colour) in enumerate(jobs):
         view = view_directions(camera, settings, jitter)
@@ -902,7 +920,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         base = k * pixels
         report = None if progress is None else (lambda done, _n, base=base: progress(base + done, total))
         out = trace(tracer, origins, directions, *limits, shade=shaded, progress=report, fog=settings.fog,
-                    light_samples=settings.light_samples, seed=k)
+                    light_samples=settings.light_samples, seed=settings.seed + k, bounces=settings.bounces)
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
         _miss_beyond(out, end - start)
@@ -910,6 +928,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         light_failures += int(out["light_failures"])
         light_paths += int(out["light_paths"]) + int(out["emitter_paths"])
         light_energy += float(out["light_energy"]) + float(out["emitter_energy"])
+        bounce_paths += int(out["bounce_paths"])
         shaded_points += int(np.sum(out["stop"] == 0)) if shaded else 0
         if jitter == CENTRE:
             first, first_start, first_limits = out, start, limits
@@ -919,6 +938,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         if colour:
             hit_sum += out["stop"] == 0
             color = _colorize(out, settings, space)
+            brightness_squares += color.mean(axis=1) ** 2
             if color_sum is None:
                 color_sum = color
             else:
@@ -964,10 +984,24 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "geodesic_error": geodesic_error(space, origins, directions, first["depth"][sample],
                                          first["position"][sample]),
         "light_failures": light_failures,
+        "bounces": settings.bounces, "bounce_paths_per_point": bounce_paths / shaded_points if shaded_points else 0.0,
+        "noise": pixel_noise(color_sum, brightness_squares, len(offsets)),
         **light_stats(space, settings, tracer, light_paths, light_energy, shaded_points),
         "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},
     }
     return Result(passes, stats)
+
+
+def pixel_noise(color_sum, brightness_squares, n: int) -> float | None:
+    """The RMS over the pixels of the standard error of each pixel's mean brightness (mean of RGB),
+    from the spread of its n samples (None for one sample). The samples of a pixel are stratified
+    over it, so across its edges this overstates the error of the mean; inside surfaces it measures
+    the Monte Carlo noise (light samples, bounces)."""
+    if n < 2:
+        return None
+    mean = color_sum.mean(axis=1) / n
+    variance = np.maximum(brightness_squares / n - mean ** 2, 0.0) * n / (n - 1)
+    return float(np.sqrt(np.mean(variance / n)))
 
 
 def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: float, shaded: int) -> dict:

@@ -471,8 +471,9 @@ void check_rays(const Array& a, const Array& b, const char* a_name, const char* 
 nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directions, double max_distance,
                int max_crossings, bool shade, nb::object progress, bool record_segments,
                double tolerance, double tolerance_per_distance, bool skip_empty, double fog,
-               int light_samples, std::uint64_t seed) {
+               int light_samples, std::uint64_t seed, int bounces) {
   if (light_samples < 1) throw nb::value_error("light_samples must be >= 1");
+  if (bounces < 0) throw nb::value_error("bounces must be >= 0 (0: direct light only)");
   check_rays(origins, directions, "origins", "directions", 4, "ray");
   if (!(fog > 0.0)) throw nb::value_error("fog must be a positive distance (inf: none)");
   if (std::isnan(max_distance) || max_distance < 0.0)
@@ -494,7 +495,7 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
                          object.get(), crossings.get(), stop.get(),   distance.get(),
                          chords.get(), error.get(), end.get()};
   const TraceOptions options{max_distance, max_crossings, shade, record_segments, tolerance,
-                             tolerance_per_distance, skip_empty, fog, light_samples, seed};
+                             tolerance_per_distance, skip_empty, fog, light_samples, seed, bounces};
 
   // The callback runs on this thread with the GIL re-acquired; its exception is kept until the
   // workers have stopped.
@@ -547,6 +548,8 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
   result["emitter_paths"] = to_numpy(std::move(emitter_paths), {});
   std::unique_ptr<double[]> emitter_energy(new double[1]{stats.emitter_energy});
   result["emitter_energy"] = to_numpy(std::move(emitter_energy), {});
+  std::unique_ptr<std::int64_t[]> bounce_paths(new std::int64_t[1]{std::int64_t(stats.bounce_paths)});
+  result["bounce_paths"] = to_numpy(std::move(bounce_paths), {});
   if (record_segments) {
     std::size_t s = 0;
     for (const auto& chunk : stats.segments) s += chunk.size() / 6;
@@ -654,6 +657,10 @@ skip_empty they step through empty space (no triangle near, by a coarse occupanc
 next face without any Embree query (False: chords everywhere, for measuring the saving).
 light_samples points are sampled on the emitters per shaded point, with random numbers from
 `seed` and the ray's index (the same for any thread count).
+bounces: diffuse bounces after each hit (path tracing: a cosine-weighted direction in the metric at
+the hit, its geodesic traced through the pairings, its hit lit by next-event estimation; emission a
+bounce meets is counted by those estimates, not again; Russian roulette from the 4th bounce on);
+0: direct light only.
 progress(done, total) is called about every 0.1 s (and at the start and end); returning False
 stops the trace like cancel(). Returns a dict of:
 color float32 (N,3), depth float64 (N,) (inf: no hit), position float64 (N,3) chart point of the
@@ -668,7 +675,8 @@ paths that were not found (marching geometries), light_paths int64 () geodesics 
 at the shaded points, light_energy float64 () their mean radiance times falloff (times fog: light
 falls to 1/e over `fog` of its path) summed before cosines and shadows, emitter_paths int64 ()
 and emitter_energy float64 () the same for the emitters' samples (their energy: mean radiance
-times the emitter's cosine times falloff over the sampling density), and with record_segments segment_starts /
+times the emitter's cosine times falloff over the sampling density), bounce_paths int64 ()
+geodesics traced for bounces, and with record_segments segment_starts /
 segment_ends float64 (S,3), the chart endpoints of the queries.)";
 
 nb::tuple flow_rows(const std::string& geometry, const Array& points, const Array& velocities,
@@ -806,14 +814,15 @@ NB_MODULE(thurston_core, m) {
                    "progress: collections.abc.Callable[[int, int], bool | None] | None = None, "
                    "record_segments: bool = False, tolerance: float = 1e-3, "
                    "tolerance_per_distance: float = 0.0, skip_empty: bool = True, "
-                   "fog: float = float('inf'), light_samples: int = 1, seed: int = 0) -> "
+                   "fog: float = float('inf'), light_samples: int = 1, seed: int = 0, "
+                   "bounces: int = 0) -> "
                    "dict[str, numpy.ndarray]"),
            nb::arg("origins").noconvert(), nb::arg("directions").noconvert(),
            nb::arg("max_distance"), nb::arg("max_crossings"), nb::arg("shade") = true,
            nb::arg("progress").none() = nb::none(), nb::arg("record_segments") = false,
            nb::arg("tolerance") = 1e-3, nb::arg("tolerance_per_distance") = 0.0,
            nb::arg("skip_empty") = true, nb::arg("fog") = kInf, nb::arg("light_samples") = 1,
-           nb::arg("seed") = 0, kTraceDoc)
+           nb::arg("seed") = 0, nb::arg("bounces") = 0, kTraceDoc)
       .def("cancel", [](TracerHandle& t) { t.tracer->cancel(); },
            "Stops a running trace(); callable from any Python thread.")
       .def("query_segments", &query_segments,

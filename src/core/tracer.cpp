@@ -48,6 +48,9 @@ namespace {
 constexpr std::size_t kChunk = 1024;  // rays per unit of work
 constexpr std::chrono::milliseconds kPollInterval{100};
 constexpr int kOccupancyCells = 32;
+// Geodesics leaving a surface skip this much of the scene's scale at their start (chart length),
+// so as not to meet their own triangle: Embree's float vertices are only good to about 1e-7 of it.
+constexpr double kSelfSkip = 1e-5;
 // The rounding a hit position carries per face crossing (chart units), on top of what a kernel's
 // walk reports.
 constexpr double kRoundingPerCrossing = 1e-14;
@@ -421,7 +424,8 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   const std::size_t chunks = (count + kChunk - 1) / kChunk;
   // Kept by chunk, so that the recording does not depend on the thread count.
   std::vector<std::vector<double>> chunk_segments(options.record_segments ? chunks : 0);
-  std::atomic<std::uint64_t> chords{0}, light_failures{0}, light_paths{0}, emitter_paths{0};
+  std::atomic<std::uint64_t> chords{0}, light_failures{0}, light_paths{0}, emitter_paths{0},
+      bounce_paths{0};
   // summed in chunk order: the same for any threads
   std::vector<double> chunk_energy(chunks, 0.0), chunk_emitter_energy(chunks, 0.0);
   const std::size_t traced = run_chunks(
@@ -434,6 +438,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
         light_failures.fetch_add(local.light_failures);
         light_paths.fetch_add(local.light_paths);
         emitter_paths.fetch_add(local.emitter_paths);
+        bounce_paths.fetch_add(local.bounce_paths);
         chunk_energy[chunk] = local.light_energy;
         chunk_emitter_energy[chunk] = local.emitter_energy;
       },
@@ -444,6 +449,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   stats.light_failures = light_failures.load();
   stats.light_paths = light_paths.load();
   stats.emitter_paths = emitter_paths.load();
+  stats.bounce_paths = bounce_paths.load();
   for (const double e : chunk_energy) stats.light_energy += e;
   for (const double e : chunk_emitter_energy) stats.emitter_energy += e;
   stats.segments = std::move(chunk_segments);
@@ -578,11 +584,67 @@ class KernelTracer final : public Tracer {
       write_miss(out, i, kDistanceLimit, 0, 0.0, 0);
       return;
     }
+    const Found found = first_hit(context, P, V, options.max_distance, options.max_crossings, 0.0, segments);
+    const WalkEnd& end = found.end;
+    const Hit& h = found.hit;
+    stats.chords += found.chords;
+    if (end.stop != kHit) {
+      write_miss(out, i, end.stop, end.crossings, end.distance, found.chords, end.end);
+      return;
+    }
+    out.stop[i] = kHit;
+    out.crossings[i] = end.crossings;
+    out.chords[i] = found.chords;
+    out.depth[i] = end.distance + h.s;
+    out.distance[i] = out.depth[i];
+
+    const Surface surface = surface_at(found);
+    // A path within `error` of the true geodesic meets the surface within error / cos of it.
+    const double path_error = end.error + kRoundingPerCrossing * (1 + end.crossings);
+    out.error[i] = path_error / std::max(std::abs(surface.incidence), 1e-3);
+    const Vec3 chart_normal = Kernel::chart_vector(h.X, surface.S);
+
+    Rgb light{1.0f, 1.0f, 1.0f};
+    Rgb bounced{0.0f, 0.0f, 0.0f};
+    if (options.shade) {
+      // Shadow rays need the accuracy of the point they shade, which the pixel sees at its depth;
+      // so do the bounces, which are light arriving there.
+      WalkContext shadows = context;
+      shadows.tolerance = context.tolerance_at(out.depth[i]);
+      shadows.tolerance_per_distance = 0.0;
+      light = illumination(shadows, h.X, surface.S, !surface.emits, options, stats, hints, random);
+      if (options.bounces > 0 && !context.stopped())
+        bounced = bounce(shadows, h.X, surface, options, stats, hints, random);
+      if (context.stopped()) {  // a shadow or bounce walk may have been cut short: the light is not known
+        write_miss(out, i, kCancelled, 0, 0.0, found.chords);
+        return;
+      }
+    }
+    for (int a = 0; a < 3; ++a) {
+      out.position[3 * i + a] = out.end[3 * i + a] = h.x[a];
+      out.normal[3 * i + a] = float(chart_normal[a]);
+      out.color[3 * i + a] = (options.shade ? surface.emission[a] : 0.0f) + surface.base[a] * light[a] +
+                             bounced[a];
+    }
+    out.object[i] = surface.object;
+  }
+
+  // The first hit of the geodesic (P, V) within `length`: how the walk ended, the hit refined onto
+  // the true curve, its instance, mesh triangle and chart plane, and the Embree queries made.
+  struct Found {
+    WalkEnd end;
+    Hit hit{};
+    const Placement* placed = nullptr;
+    std::size_t prim = 0;
+    Vec4 plane{};
     int chords = 0;
+  };
+  Found first_hit(const WalkContext& context, const Vec4& P, const Vec4& V, double length,
+                  int max_crossings, double first_skip, std::vector<double>* segments) const {
+    Found f;
     embree::FirstHit first;
-    Hit h{};
     const auto query = [&](const Chord& chord, float tnear) {
-      ++chords;
+      ++f.chords;
       if (segments)
         segments->insert(segments->end(), {chord.x0[0], chord.x0[1], chord.x0[2], chord.x1[0],
                                            chord.x1[1], chord.x1[2]});
@@ -590,89 +652,133 @@ class KernelTracer final : public Tracer {
       return first.prim >= 0;
     };
     // The triangle's chart plane, from its plane in the mesh and the instance's exact inverse.
-    const Placement* placed = nullptr;
-    std::size_t prim = 0;
-    Vec4 plane{};
     const auto locate = [&](const embree::FirstHit& found) {
-      placed = &instances_[found.instance];
-      prim = triangle_of(found);
-      plane = placed->from_chart.pull_back(triangle_planes_[prim]);
+      f.placed = &instances_[found.instance];
+      f.prim = triangle_of(found);
+      f.plane = f.placed->from_chart.pull_back(triangle_planes_[f.prim]);
     };
     const auto refine = [&](const auto& hit) {
       locate(first);
-      h = hit.refine(plane, first.u);
+      f.hit = hit.refine(f.plane, first.u);
       if constexpr (Kernel::kChordsBend) {
         // The chord's triangle need not be the curve's: where the curve meets its plane outside
         // it, the curve met a neighbour. Look again along the curve, a few chord margins either
         // way of that point, and refine on what is found there.
         const auto& chord = hit.chord();
-        for (int again = 0; again < 4 && outside_triangle(prim, *placed, h.x); ++again) {
-          const double speed = std::max(norm3(head3(h.V)), 1e-300);
+        for (int again = 0; again < 4 && outside_triangle(f.prim, *f.placed, f.hit.x); ++again) {
+          const double speed = std::max(norm3(head3(f.hit.V)), 1e-300);
           const double reach = 4.0 * chord.margin / speed + 1e-9 * chord.length;
-          const double t0 = std::max(0.0, h.s - reach), t1 = std::min(chord.length, h.s + reach);
+          const double t0 = std::max(0.0, f.hit.s - reach), t1 = std::min(chord.length, f.hit.s + reach);
           Vec3 a, b;
           hit.curve_chord(t0, t1, a, b);
           const embree::FirstHit near = embree::intersect(scene_.get(), chord_ray(a, b, 0.0f));
           if (near.prim < 0) break;
           first = near;
           locate(first);
-          h = hit.refine_between(plane, t0, t1, near.u);
+          f.hit = hit.refine_between(f.plane, t0, t1, near.u);
         }
       }
     };
-    const WalkEnd end = kernel_.walk(context, P, V, options.max_distance, options.max_crossings, 0.0,
-                                     query, refine);
-    stats.chords += chords;
-    if (end.stop != kHit) {
-      write_miss(out, i, end.stop, end.crossings, end.distance, chords, end.end);
-      return;
-    }
-    out.stop[i] = kHit;
-    out.crossings[i] = end.crossings;
-    out.chords[i] = chords;
-    out.depth[i] = end.distance + h.s;
-    out.distance[i] = out.depth[i];
+    f.end = kernel_.walk(context, P, V, length, max_crossings, first_skip, query, refine);
+    return f;
+  }
 
-    // Unit normal at the hit facing the incoming ray.
-    Vec4 N = kernel_.plane_normal(h.X, plane);
-    if (!kernel_.normalise(h.X, N)) N = scaled(-1.0, h.V);  // degenerate triangle
-    const double incidence = kernel_.dot(h.X, N, h.V);
-    const bool front = incidence < 0.0;  // the ray meets the side the winding normal points to
-    if (incidence > 0.0) N = scaled(-1.0, N);
-    // A path within `error` of the true geodesic meets the surface within error / cos of it.
-    const double path_error = end.error + kRoundingPerCrossing * (1 + end.crossings);
-    out.error[i] = path_error / std::max(std::abs(incidence), 1e-3);
-
-    const auto& tri = triangles_[prim];
-    const Vec3 in_mesh = placed->from_chart.point(h.x);
+  // A hit's surface as shading sees it: the unit geometric and shading normals, both facing the
+  // ray, the metric cosine of incidence (of the winding normal), the material's base colour and
+  // emission there (none from the back of a one-sided emitter), whether it emits, and the object.
+  struct Surface {
+    Vec4 N, S;
+    double incidence;
+    Rgb base, emission;
+    bool emits;
+    std::int32_t object;
+  };
+  Surface surface_at(const Found& f) const {
+    const Hit& h = f.hit;
+    Surface s;
+    s.N = kernel_.plane_normal(h.X, f.plane);
+    if (!kernel_.normalise(h.X, s.N)) s.N = scaled(-1.0, h.V);  // degenerate triangle
+    s.incidence = kernel_.dot(h.X, s.N, h.V);
+    const bool front = s.incidence < 0.0;  // the ray meets the side the winding normal points to
+    if (s.incidence > 0.0) s.N = scaled(-1.0, s.N);
+    const auto& tri = triangles_[f.prim];
+    const Vec3 in_mesh = f.placed->from_chart.point(h.x);
     const Vec3 weights =
         Surfaces::barycentric(vertices_[tri[0]], vertices_[tri[1]], vertices_[tri[2]], in_mesh);
-    const Vec4 S = shading_normal(prim, weights, *placed, in_mesh, h, N);
-    const Vec3 chart_normal = Kernel::chart_vector(h.X, S);
+    s.S = shading_normal(f.prim, weights, *f.placed, in_mesh, h, s.N);
+    s.object = f.placed->object + triangle_object_[f.prim];
+    surfaces_.look_up(f.prim, weights, s.base, s.emission);
+    const Material& material = surfaces_.materials[surfaces_.triangle_material[f.prim]];
+    s.emits = material.emits();
+    if (material.one_sided && !front) s.emission = {0.0f, 0.0f, 0.0f};
+    return s;
+  }
 
-    const std::int32_t object = placed->object + triangle_object_[prim];
-    Rgb base, emission;
-    surfaces_.look_up(prim, weights, base, emission);
-    const Material& material = surfaces_.materials[surfaces_.triangle_material[prim]];
-    if (material.one_sided && !front) emission = {0.0f, 0.0f, 0.0f};
-    Rgb light{1.0f, 1.0f, 1.0f};
-    if (options.shade) {
-      // Shadow rays need the accuracy of the point they shade, which the pixel sees at its depth.
-      WalkContext shadows = context;
-      shadows.tolerance = context.tolerance_at(out.depth[i]);
-      shadows.tolerance_per_distance = 0.0;
-      light = illumination(shadows, h.X, S, !material.emits(), options, stats, hints, random);
-      if (context.stopped()) {  // a shadow walk may have been cut short: the light is not known
-        write_miss(out, i, kCancelled, 0, 0.0, chords);
-        return;
+  // Russian roulette from this bounce on: a path goes on with probability its throughput's largest
+  // channel (at most kSurvival), and its throughput is divided by that.
+  static constexpr int kRouletteFrom = 4;
+  static constexpr double kSurvival = 0.95;
+
+  // The light that options.bounces diffuse bounces bring to the camera ray's hit X (surface
+  // `first`). Each bounce leaves in a cosine-weighted direction about the shading normal, whose
+  // density cos / pi cancels the Lambert BRDF's cos / pi, so the throughput takes the albedo
+  // alone (and the fog along the bounce), and its hit adds throughput * albedo * its next-event
+  // estimate. Emission that a bounce meets is not added: the next-event estimates count it.
+  Rgb bounce(const WalkContext& context, const Vec4& X0, const Surface& first,
+             const TraceOptions& options, TraceStats& stats, LightHints& hints, Random& random) const {
+    std::array<double, 3> throughput{first.base[0], first.base[1], first.base[2]};
+    Rgb sum{0.0f, 0.0f, 0.0f};
+    Vec4 X = X0, N = first.N, S = first.S;
+    for (int b = 1; b <= options.bounces; ++b) {
+      if (b >= kRouletteFrom) {
+        const double survive =
+            std::min(kSurvival, std::max({throughput[0], throughput[1], throughput[2]}));
+        if (!(random.uniform() < survive)) break;
+        for (double& t : throughput) t /= survive;
       }
+      Vec4 V = cosine_direction(X, S, random);
+      // Shading normals can send a bounce below the surface: absorbed.
+      if (!(kernel_.dot(X, N, V) > 0.0) || !kernel_.normalise(X, V)) break;
+      ++stats.bounce_paths;
+      const Found f = first_hit(context, X, V, options.max_distance, options.max_crossings,
+                                kSelfSkip * scale_, nullptr);
+      if (f.end.stop != kHit || context.stopped()) break;
+      const Surface s = surface_at(f);
+      const Rgb light = illumination(context, f.hit.X, s.S, !s.emits, options, stats, hints, random);
+      const double fog = std::exp(-(f.end.distance + f.hit.s) / options.light_fog);
+      for (int a = 0; a < 3; ++a) {
+        throughput[a] *= fog * s.base[a];
+        sum[a] += float(throughput[a] * light[a]);
+      }
+      if (!(std::max({throughput[0], throughput[1], throughput[2]}) > 0.0)) break;
+      X = f.hit.X;
+      N = s.N;
+      S = s.S;
     }
-    for (int a = 0; a < 3; ++a) {
-      out.position[3 * i + a] = out.end[3 * i + a] = h.x[a];
-      out.normal[3 * i + a] = float(chart_normal[a]);
-      out.color[3 * i + a] = (options.shade ? emission[a] : 0.0f) + base[a] * light[a];
-    }
-    out.object[i] = object;
+    return sum;
+  }
+
+  // A unit direction at X about the unit normal S with density cos / pi over its hemisphere, in
+  // an orthonormal frame of the metric at X: S and the two chart axes least along S, made
+  // orthonormal to S and to each other.
+  Vec4 cosine_direction(const Vec4& X, const Vec4& S, Random& random) const {
+    const Vec3 n = Kernel::chart_vector(X, S);
+    std::array<int, 3> axes{0, 1, 2};
+    std::sort(axes.begin(), axes.end(), [&](int a, int b) { return std::abs(n[a]) < std::abs(n[b]); });
+    const auto axis_tangent = [&](int a) {
+      Vec3 e{0.0, 0.0, 0.0};
+      e[a] = 1.0;
+      return kernel_.chart_tangent(X, e);
+    };
+    Vec4 T1 = axis_tangent(axes[0]);
+    T1 = lin4(1.0, T1, -kernel_.dot(X, T1, S), S);
+    kernel_.normalise(X, T1);
+    Vec4 T2 = axis_tangent(axes[1]);
+    T2 = lin4(1.0, T2, -kernel_.dot(X, T2, S), S);
+    T2 = lin4(1.0, T2, -kernel_.dot(X, T2, T1), T1);
+    kernel_.normalise(X, T2);
+    const double u = random.uniform(), phi = 2.0 * kPi * random.uniform(), r = std::sqrt(u);
+    return lin4(1.0, lin4(r * std::cos(phi), T1, r * std::sin(phi), T2), std::sqrt(1.0 - u), S);
   }
 
   // The unit shading normal at the hit: the metric normal of the chart plane through the hit
@@ -774,7 +880,7 @@ class KernelTracer final : public Tracer {
       ++stats.emitter_paths;
       stats.emitter_energy += weight * std::max(emitted, 0.0) * mean_radiance;
       const double cosine = kernel_.dot(H, N, path.direction);
-      const double short_of = path.distance * (1.0 - 1e-6) - 1e-5 * scale_;
+      const double short_of = path.distance * (1.0 - 1e-6) - kSelfSkip * scale_;
       if (!(cosine > 0.0) || !(emitted > 0.0) || (opaque && path.distance > geodesic_loop_) ||
           !visible(context, scene_.get(), H, path.direction, short_of, options.max_crossings))
         continue;
@@ -790,8 +896,7 @@ class KernelTracer final : public Tracer {
     const auto query = [&](const Chord& chord, float tnear) {
       return embree::occluded(blockers, chord_ray(chord.x0, chord.x1, tnear));
     };
-    // Embree's float vertices are only good to about 1e-7 of the scene's scale.
-    return kernel_.walk(context, H, dir, r, max_crossings, 1e-5 * scale_, query,
+    return kernel_.walk(context, H, dir, r, max_crossings, kSelfSkip * scale_, query,
                         [](const auto&) {}).stop != kHit;
   }
 

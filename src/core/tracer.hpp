@@ -97,6 +97,7 @@ struct TraceOptions {
   double light_fog;               // distance over which light falls to 1/e along its path (inf: none)
   int light_samples;              // points sampled on the emitters per shaded point
   std::uint64_t seed;             // of the samples' random numbers (a ray's depend on it and its index)
+  int bounces;                    // diffuse bounces after the camera ray's hit (0: direct light only)
 };
 
 // Caller-allocated per-ray outputs (N rows each).
@@ -125,6 +126,7 @@ struct TraceStats {
   // radiance times cos' (at the emitter) times falloff (and fog) over the sampling density.
   std::uint64_t emitter_paths = 0;
   double emitter_energy = 0.0;
+  std::uint64_t bounce_paths = 0;  // geodesics traced for bounces (path tracing)
   // Recorded chords by chunk of rays, in ray order: 6 doubles each, start xyz and end xyz.
   std::vector<std::vector<double>> segments;
 };

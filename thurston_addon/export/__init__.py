@@ -54,7 +54,7 @@ def render_settings(settings, width: int, height: int, projection: str = "perspe
         max_distance=settings.max_distance / settings.scale or None,
         max_crossings=None if settings.max_crossings < 0 else settings.max_crossings,
         fog=settings.fog / settings.scale or None, light_reach=settings.light_reach / settings.scale or None,
-        light_samples=settings.light_samples, threads=settings.threads,
+        light_samples=settings.light_samples, bounces=settings.bounces, threads=settings.threads,
         tolerance=settings.tolerance / settings.scale or None)
 
 
@@ -358,6 +358,7 @@ def store_stats(settings, job: RenderJob):
     s.seconds, s.rays, s.crossings_per_ray = st["seconds"], st["rays"], st["crossings_per_ray"]
     s.footprint, s.geodesic_error = st["footprint"], st["geodesic_error"]
     s.chords_per_ray, s.bound, s.measured_error = st["chords_per_ray"], st["bound"], st["measured_error"]
+    s.noise = -1.0 if st["noise"] is None else st["noise"]
     s.summary = job.result.summary()
     store_notes(settings, job.notes)
 

@@ -74,6 +74,7 @@ class THURSTON_PT_render(_UnderThurston, bpy.types.Panel):
         col.prop(s, "fog")
         col.prop(s, "light_reach")
         col.prop(s, "light_samples")
+        col.prop(s, "bounces")
         col.prop(s, "threads")
         col.prop(s, "passes")
         col.prop(s, "save_path")
@@ -98,6 +99,7 @@ def draw_last_render(layout, st):
     grid = box.grid_flow(columns=2, even_columns=True)
     grid.label(text=f"Measured error: {st.measured_error:.1e}")
     grid.label(text=f"Geodesic error: {st.geodesic_error:.1e}")
+    grid.label(text="Noise: one sample, not estimated" if st.noise < 0 else f"Noise: {st.noise:.1e}")
     for note in st.notes:
         row = box.row()
         row.label(text=note.message, icon="ERROR")
