@@ -111,7 +111,7 @@ class Reference:
                 return None  # the chord crosses, the curve does not change sides: a graze
             s = brentq(f, t[k], t[k + 1], xtol=1e-15, rtol=4 * np.finfo(float).eps)
             h = chart(s)
-            if min(_barycentric(h, tri)) < 1e-3:
+            if trimesh.triangles.points_to_barycentric(tri[None], h[None])[0].min() < 1e-3:
                 return None  # at a triangle's edge: which one is hit is ill-posed
             velocity = chart(s + 1e-7) - chart(s - 1e-7)
             if abs(n @ velocity) < math.sin(math.radians(3)) * np.linalg.norm(velocity):
@@ -178,16 +178,6 @@ def floor_seconds(reference, chords_per_ray, chord_length, rng, count=200000):
     t0 = time.perf_counter()
     reference.embree.run(origins, d, dists=np.full(count, chord_length, np.float32), output=1)
     return (time.perf_counter() - t0) / count * chords_per_ray
-
-
-def _barycentric(p, tri):
-    a, b, c = tri
-    v0, v1, v2 = b - a, c - a, p - a
-    d00, d01, d11, d20, d21 = v0 @ v0, v0 @ v1, v1 @ v1, v2 @ v0, v2 @ v1
-    den = d00 * d11 - d01 * d01
-    v = (d11 * d20 - d01 * d21) / den
-    w = (d00 * d21 - d01 * d20) / den
-    return 1 - v - w, v, w
 
 
 def timed(tracer, P, V, length, max_crossings, tolerances, repeat, count):

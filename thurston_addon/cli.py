@@ -155,8 +155,7 @@ def cmd_trace(args):
                           space.max_crossings if args.max_crossings is None else args.max_crossings,
                           *settings.tolerances(space, render.REFERENCE_PIXEL_ANGLE),
                           shade=False, progress=Progress(f"trace {len(rays)} rays"))
-    result["position"], normal = space.unfolded(result["position"], result["normal"])  # a folded space's own domain
-    result["normal"] = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    result["position"], result["normal"] = render.own_hits(space, result)
     hits = io.BytesIO()  # in memory first: the file is then written whole or not at all
     np.savez(hits, **{name: result[key] for name, key in TRACE_OUTPUTS.items()})
     files.write_bytes(out, hits.getbuffer(), args.overwrite)

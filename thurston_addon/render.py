@@ -315,6 +315,13 @@ def _own_normals(obj, kept):
     return np.repeat(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])[:, None, :], 3, axis=1)
 
 
+def own_hits(space: Space, out: dict):
+    """The hits' chart points and unit normals in the space's own domain (a folded space's tracer
+    walks its double cover: space.unfolded)."""
+    position, normal = space.unfolded(out["position"], out["normal"])
+    return position, _unit(normal)
+
+
 def _folded(obj, fold):
     """A flat object's image under a space's fold: its vertices moved by it, its corner normals by
     its differential (the folds are conformal, so normals stay normal), its triangles and surfaces
@@ -946,13 +953,13 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
             del color
         del out
     seconds = time.perf_counter() - t0
-    position, normal = space.unfolded(first["position"], first["normal"])  # a folded space's hits in its own domain
+    position, normal = own_hits(space, first)
     passes = {
         "color": (color_sum / len(offsets)).reshape(h, w, 3).astype(np.float32),
         # the colour of a miss is 0, so the colour is premultiplied by this alpha
         "alpha": (hit_sum / len(offsets) if settings.transparent else np.ones(w * h)).reshape(h, w).astype(np.float32),
         "depth": (first["depth"] + first_start).reshape(h, w),
-        "normal": _unit(normal).reshape(h, w, 3),
+        "normal": normal.reshape(h, w, 3),
         "position": position.reshape(h, w, 3),
         "object": first["object"].reshape(h, w),
         "crossings": first["crossings"].reshape(h, w),

@@ -853,6 +853,15 @@ class CoordinateSpace(Space):
                                  "the file states")
 
 
+def _sphere_face(c, where, geometry) -> tuple[float, bool]:
+    """(w0, whether the shell lies inside it) of a shell's face covector (0, 0, c, d): the sphere
+    c log|x| + d = 0, the domain on the side <= 0."""
+    if c[0] != 0 or c[1] != 0 or c[2] == 0:
+        raise SpaceError(f"{where}: the face {c.tolist()} is not a sphere |x| = const "
+                         f"({geometry.name} faces are [0, 0, c, d]: the sphere c log|x| + d = 0)")
+    return -c[3] / c[2], bool(c[2] > 0)
+
+
 class ShellSpace(CoordinateSpace):
     """A coordinate domain whose faces are the spheres |x| = e^w0 of S2xR: the shell between the
     inner and the outer one. Each face is given as the covector (0, 0, c, d) of the geometry's
@@ -863,17 +872,12 @@ class ShellSpace(CoordinateSpace):
 
     def _face_domain(self, covectors, elements) -> Domain:
         where = self.source
-        bounds = []  # (w0, +1 for an outer face w <= w0, -1 for an inner one w >= w0)
-        for c in covectors:
-            if c[0] != 0 or c[1] != 0 or c[2] == 0:
-                raise SpaceError(f"{where}: the face {c.tolist()} is not a sphere |x| = const "
-                                 f"({self.geometry.name} faces are [0, 0, c, d]: the sphere c log|x| + d = 0)")
-            bounds.append((-c[3] / c[2], 1 if c[2] > 0 else -1))
-        outer = min((w for w, s in bounds if s > 0), default=math.inf)
-        inner = max((w for w, s in bounds if s < 0), default=-math.inf)
+        bounds = [_sphere_face(c, where, self.geometry) for c in covectors]  # (w0, an outer face w <= w0)
+        outer = min((w for w, s in bounds if s), default=math.inf)
+        inner = max((w for w, s in bounds if not s), default=-math.inf)
         if not inner < outer < math.inf:
             raise SpaceError(f"{where}: the faces do not bound a shell between two spheres")
-        if any(abs(w - (outer if s > 0 else inner)) > 1e-12 * (1 + abs(w)) for w, s in bounds):
+        if any(abs(w - (outer if s else inner)) > 1e-12 * (1 + abs(w)) for w, s in bounds):
             raise SpaceError(f"{where}: a face sphere does not bound the shell between |x| = e^{inner:g} and e^{outer:g}")
         axes = np.vstack([np.eye(3), -np.eye(3)])
         vertices = np.vstack([math.exp(inner) * axes, math.exp(outer) * axes])
@@ -976,11 +980,7 @@ class FoldedShellSpace(ShellSpace):
             if "matrix" in gen:
                 raise SpaceError(f"{where}: an antipodal reflection has no matrix (no 4x4 linear map is one); "
                                  "give only its face")
-            c = _vector(gen.get("face"), 4, f"{where} face")
-            if c[0] != 0 or c[1] != 0 or c[2] == 0:
-                raise SpaceError(f"{where}: the face {c.tolist()} is not a sphere |x| = const "
-                                 f"({g.name} faces are [0, 0, c, d]: the sphere c log|x| + d = 0)")
-            faces.append((-c[3] / c[2], c[2] > 0))  # (log of the sphere's radius, whether the shell is inside it)
+            faces.append(_sphere_face(_vector(gen.get("face"), 4, f"{where} face"), where, g))
         if len(faces) != 2:
             raise SpaceError(f"{source}: a shell glued to itself has two antipodal reflections, one in each sphere; "
                              f"got {len(faces)}")
