@@ -33,6 +33,7 @@ import math
 import numpy as np
 
 from .base import Geometry, _floats
+from .hyperbolic import Hyperbolic
 
 
 class Element(NamedTuple):
@@ -245,8 +246,9 @@ class SL2(Geometry):
     diameter = math.inf
     plane_chart_is_chart = False  # face planes are planes of (Klein(w), phi)
     copy_rings = 1  # hyperbolic rings of copies grow too fast for more
-    # far in the cover the model's entries grow like e^t, as H3's
-    reference_depth = 30.0
+    # far in the cover the model's SU(1,1) entries grow like e^(t/2), half H3's rate (cosh of half
+    # the horizontal distance), so its words agree to H3's accuracy at twice H3's depth
+    reference_depth = 2 * Hyperbolic.reference_depth
     # the volume density in (Klein(w), phi) peaks at the octagon's vertices, as H2xR's
     volume_order = 32
 
