@@ -57,7 +57,8 @@ enum class Advance { kContinue, kCross, kLimit };
 
 // The walk loop over a Walk, which provides next() (lay the next chord: kCross, kLimit
 // or kContinue in the same cell), has_chord(), chord(), cross(crossings), chord_start_distance(),
-// distance(), end_distance(), error(), end_point() and refine(plane, u).
+// distance(), end_distance(), error(), end_point(), followed() (false once the state was lost)
+// and refine(plane, u).
 template <class Walk, class Query, class OnHit>
 WalkEnd walk_chords(Walk& w, const WalkContext& context, double length, int max_crossings,
                     double first_skip, Query&& query, OnHit&& on_hit) {
@@ -75,7 +76,12 @@ WalkEnd walk_chords(Walk& w, const WalkContext& context, double length, int max_
         return {kHit, w.chord_start_distance(), crossings, w.error()};
       }
     }
-    if (advance == Advance::kLimit) return {kDistanceLimit, length, crossings, 0.0, w.end_point()};
+    if (advance == Advance::kLimit) {
+      // a state that could not be brought into the domain (or kept finite) ends where it was lost,
+      // with no end point: not at the distance limit, outside the domain
+      if (!w.followed()) return {kDistanceLimit, w.distance(), crossings, 0.0};
+      return {kDistanceLimit, length, crossings, 0.0, w.end_point()};
+    }
     if (advance == Advance::kCross) {
       if (crossings == max_crossings)
         return {kCrossingLimit, w.end_distance(), crossings, 0.0, w.end_point()};
@@ -432,7 +438,11 @@ class MarchingKernel<Flow>::Walk {
     segment_.at(t1, x1, v);
     const double f0 = dot3(n, x0) + plane[3], f1 = dot3(n, x1) + plane[3];
     if ((f0 < 0.0) != (f1 < 0.0) && f0 != 0.0) t = find_root<ChartPlanes>(segment_, t0, t1, plane, f0, t);
-    Vec3 x;
+    return at(t);
+  }
+  // The curve's point at arclength t from the last chord's start.
+  Hit at(double t) const {
+    Vec3 x, v;
     segment_.at(t, x, v);
     return {t, point4(x), vector4(v), x};
   }
@@ -449,6 +459,9 @@ class MarchingKernel<Flow>::Walk {
   double error() const { return chord_margin_ + drift_; }
   // Where the walk stands: the end of the last step (at a face, or at the end of its length).
   Vec3 end_point() const { return x_; }
+  // Whether the state is still the ray's: false where it could not be brought into the domain
+  // (a start too far out for kMaxReductions face maps) or stopped being finite.
+  bool followed() const { return ok_; }
 
   bool cross(int) {
     apply(exit_face_);
@@ -457,7 +470,9 @@ class MarchingKernel<Flow>::Walk {
   }
 
  private:
-  static constexpr int kMaxReductions = 64;
+  // Face maps that settle() may apply in a row: one or two after a crossing, some hundreds for a
+  // start far out in the cover (Sol at |z| = 20: about 500, as Space.move_inside needs).
+  static constexpr int kMaxReductions = 2048;
 
   // The acceleration bound over a chord of length h within the step (K bounds the whole step).
   double chord_bound(double K, double h) const {
