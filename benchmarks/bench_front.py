@@ -1,26 +1,43 @@
 """The error/time front of every geometry: the tracer's hits against a reference that shares no code
 with it, at every quality and over a sweep of chord tolerances, side by side in one run (not a
-test: the machines are shared and noisy; every time is the best of --repeat runs).
+test: the machines are shared and noisy; every time is the best of --repeat runs); and the chord
+rule of the qualities (render.CHORD_SCALE) derived from it.
 
 For one preset of each of the eight geometries: a scene of balls (icosphere meshes) inside its
-domain, and rays from points of the domain, half of them aimed at a ball. The reference for each ray
-is computed here in Python: the geodesic in the universal cover from the geometry's own closed form
-(or its Python integrator: Sol), sampled every --step of arclength, each sample carried into the
-domain by the face pairings (spaces.move_inside: the cover's copies of the scene, met where the
-carried path meets the scene), the carried path's pieces tested against the scene's triangles
-exactly (embreex, on the chords between samples), the first crossing refined on the curve itself
-(a root of the triangle's plane along the closed form) and kept when it lies clearly inside its
-triangle (rays grazing an edge, or meeting a triangle's plane at under 3 degrees, are left out).
+domain, and rays from points of the domain, a third aimed at a ball's centre, a third at its rim
+(where the chords decide what is hit) and a third anywhere. The reference for each ray is computed
+here in Python: the geodesic in the universal cover from the geometry's own closed form (or its
+Python integrator: Sol), sampled every --step of arclength, each sample carried into the domain by
+the face pairings (spaces.move_inside: the cover's copies of the scene, met where the carried path
+meets the scene), the carried path's pieces tested against the scene's triangles exactly (embreex,
+on the chords between samples), the first crossing refined on the curve itself (a root of the
+triangle's plane along the closed form) and kept when it lies clearly inside its triangle (rays
+grazing an edge, or meeting a triangle's plane at under 3 degrees, are left out of the position
+errors); and every passage of the carried path through a ball with its depth (the balls are convex:
+the least distance to a face plane, in the metric).
 
 Per space and setting: rays compared, chords (Embree queries) per ray, time per ray, the hit
 position error (the metric distance between the traced and the reference hit) and the depth error
-(median, 99th percentile, max), rays on which tracer and reference disagree about what is hit, and
-for the qualities the stated bound (the quality's fraction of the pixel footprint at the hit's
-distance, render.Settings.tolerances) against the largest measured error in footprints: it must
-bound it. Written as a Markdown table (docs/front.md) and a plot of the 99th-percentile error against
-the time per ray (docs/front.png).
+(median, 99th percentile, max), rays on which tracer and reference disagree about what is hit, the
+silhouette error of every ray whose hit is not the reference's (grazing ones included): how deep
+the true curve went into a ball the tracer passed, and how far a traced hit lies from the true
+curve plus how far it lies off its ball, and for the qualities the stated bound (the quality's
+fraction of the pixel footprint at the hit's distance, render.footprint) against the largest
+measured error (positions and silhouettes) in footprints: it must bound it.
+
+The chord rule: the chord tolerance of a quality is CHORD_SCALE times its bound (render.py). Hits
+are refined on the true curve, so a chord tolerance above the bound moves silhouettes by what the
+chords really stray (K h^2 / 8 overstates it), and Sol's surfaces by its integrator's accuracy
+(1/20 of the tolerance). For every curved geometry and quality the sweep traces scales
+--scales of the bound; the derived scale is the largest with which every quality of every curved
+geometry keeps its largest measured error within --margin of its bound (E3, S3 and H3 have exact
+chords: the tolerance does not apply). Its time and chords against scale 1 (the rule before) are
+measured side by side, interleaved.
+
+Written as Markdown tables (docs/front.md) and a plot of the 99th-percentile error against the time
+per ray (docs/front.png).
 Run: .venv/bin/python benchmarks/bench_front.py [--rays 300] [--timing-rays 20000] [--repeat 3]
-     [--spaces torus,...] [--tolerances 1e-2,1e-3,1e-4,1e-5,1e-6,1e-7] [--out docs]
+     [--spaces torus,...] [--tolerances 1e-2,...,1e-7] [--scales 1,2,4,8,16,32] [--out docs]
 """
 import argparse
 import math
@@ -32,7 +49,7 @@ import numpy as np
 import trimesh
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
-from scipy.optimize import brentq
+from scipy.optimize import brentq, minimize_scalar
 
 from thurston_addon import render, spaces
 from thurston_addon.scene import Scene, SceneObject
@@ -62,19 +79,36 @@ def ball_scene(space, rng, count=4):
 
 
 def rays(space, rng, n, centres, radii):
+    """A third of the rays aimed at a ball's centre (give or take 15% of the distance), a third at
+    its rim (0.93 to 1.03 of its radius off the centre, across the line of sight: the silhouettes),
+    a third anywhere."""
     g = space.geometry
     x = space._interior_points(rng, 6 * n)
     x = x[np.all(np.linalg.norm(x[:, None] - centres[None], axis=-1) > 1.3 * radii, axis=1)][:n]
     u = rng.normal(size=(len(x), 3))
-    aimed = np.arange(len(x)) < len(x) // 2
-    towards = centres[rng.integers(len(centres), size=len(x))] - x
+    ball = rng.integers(len(centres), size=len(x))
+    towards = centres[ball] - x
+    aimed, rim = np.arange(len(x)) % 3 == 0, np.arange(len(x)) % 3 == 1
     u[aimed] = towards[aimed] + 0.15 * np.linalg.norm(towards[aimed], axis=1)[:, None] * u[aimed]
+    across = np.cross(towards[rim], u[rim])
+    across /= np.linalg.norm(across, axis=1)[:, None]
+    u[rim] = towards[rim] + rng.uniform(0.93, 1.03, (rim.sum(), 1)) * radii[ball[rim], None] * across
     P = g.to_model(x)
     return P, g.normalize_tangent(P, g.tangent_to_model(x, u))
 
 
+class Ray:
+    """The reference for one ray: its first hit (depth, chart point, object), (inf, None, -1) for
+    none, None where it grazes (left out of the position errors); its passages through the balls
+    (object, entry and exit arclength, deepest metric depth); and its path (model points at
+    arclengths s)."""
+
+    def __init__(self, first, passages, path):
+        self.first, self.passages, self.path = first, passages, path
+
+
 class Reference:
-    """The reference's first hits (see the module docstring)."""
+    """The reference's rays (see the module docstring)."""
 
     def __init__(self, space, scene, step):
         self.space, self.step = space, step
@@ -82,11 +116,19 @@ class Reference:
         self.owner = np.concatenate([np.full(len(o.triangles), i) for i, o in enumerate(scene.objects)])
         self.embree = rtcore_scene.EmbreeScene()
         TriangleMesh(self.embree, self.triangles.astype(np.float32))
+        # each ball's face planes n . x <= d (n unit, outward: the balls are convex)
+        self.planes = []
+        for o in scene.objects:
+            tri = o.vertices[o.triangles]
+            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            n /= np.linalg.norm(n, axis=1)[:, None]
+            d = np.sum(n * tri[:, 0], axis=1)
+            flip = n @ o.vertices.mean(axis=0) > d
+            self.planes.append((np.where(flip[:, None], -n, n), np.where(flip, -d, d)))
 
-    def first_hit(self, P, V, length, path=None):
-        """(depth, chart point, object) of the first hit, (inf, None, -1) for none, None where the
-        ray grazes (left out). `path(s)`: the geodesic's model points at arclengths s (default: the
-        geometry's closed form)."""
+    def trace(self, P, V, length, path=None) -> Ray:
+        """The reference of the ray (P, V) over `length`; `path(s)`: the geodesic's model points at
+        arclengths s (default: the geometry's closed form)."""
         g, space = self.space.geometry, self.space
         path = path or (lambda s: g.geodesic(P[None], V[None], s)[0])
         t = np.arange(0.0, length + self.step, self.step)
@@ -94,6 +136,10 @@ class Reference:
         Y, _, M = space.move_inside(X)
         x = np.asarray(g.to_chart(Y), float)
         x_next = np.asarray(g.to_chart(np.einsum("kij,kj->ki", M[:-1], X[1:])), float)
+        return Ray(self._first_hit(path, t, x, x_next, M), self._passages(path, t, x), path)
+
+    def _first_hit(self, path, t, x, x_next, M):
+        g = self.space.geometry
         d = x_next - x[:-1]
         size = np.linalg.norm(d, axis=1)
         ok = size > 0
@@ -118,6 +164,89 @@ class Reference:
                 return None
             return s, h, int(self.owner[found["primID"][k]])
         return math.inf, None, -1
+
+    def _passages(self, path, t, x):
+        """(object, entry, exit, depth) of each run of samples inside a ball, its depth the largest
+        on a fine sampling about the deepest sample (a passage shorter than a step, at most
+        K step^2 / 8 deep, is not seen)."""
+        found = []
+        for obj, (n, d) in enumerate(self.planes):
+            inside = np.min(d[None] - x @ n.T, axis=1) > 0
+            edges = np.flatnonzero(np.diff(np.r_[0, inside.astype(int), 0]))
+            for a, b in zip(edges[::2], edges[1::2]):
+                k = a + int(np.argmax(np.min(d[None] - x[a:b] @ n.T, axis=1)))
+                s = np.linspace(t[max(k - 1, 0)], t[min(k + 1, len(t) - 1)], 41)
+                fine = self._carried(path, t[k], s)
+                depth = max(self._depth(obj, y) for y in fine)
+                found.append((obj, t[max(a - 1, 0)], t[min(b, len(t) - 1)], depth))
+        return sorted(found, key=lambda p: p[1])
+
+    def _carried(self, path, s0, s):
+        """Chart points of the path at arclengths s, carried by the isometry that brings s0's in."""
+        g = self.space.geometry
+        _, _, M = self.space.move_inside(path(np.array([s0])))
+        return np.asarray(g.to_chart(path(np.atleast_1d(s)) @ M[0].T), float)
+
+    def _depth(self, obj, y):
+        """The metric distance of the chart point y from ball obj's surface (positive inside):
+        from each face plane, the chart distance over the metric length of the plane's covector."""
+        g = self.space.geometry
+        n, d = self.planes[obj]
+        k = int(np.argmin(d - n @ y))
+        return (d[k] - n[k] @ y) / math.sqrt(n[k] @ np.linalg.solve(g.metric(y), n[k]))
+
+    def clearance(self, ray, obj, s, radius):
+        """How near the ray's true curve passes ball obj about arclength s (within `radius` of
+        arclength either way), in the metric: the least distance of its points from the ball's
+        triangles (0 where it enters the ball)."""
+        g = self.space.geometry
+        tri = self.triangles[self.owner == obj]
+        n, d = self.planes[obj]
+
+        def gap(u):
+            y = self._carried(ray.path, s, u)
+            if np.all(y @ n.T < d[None]):
+                return np.zeros(len(y)), y
+            near = trimesh.triangles.closest_point(np.tile(tri, (len(y), 1, 1)), np.repeat(y, len(tri), axis=0))
+            near = near.reshape(len(y), len(tri), 3)
+            q = near[np.arange(len(y)), np.argmin(np.linalg.norm(near - y[:, None], axis=2), axis=1)]
+            return np.asarray(g.chord_distance(g.to_model(y), g.to_model(q)), float), y
+
+        u = np.linspace(s - radius, s + radius, 101)
+        k = int(np.argmin(gap(u)[0]))
+        best = minimize_scalar(lambda v: gap(np.array([v]))[0][0], bounds=(u[max(k - 1, 0)], u[min(k + 1, 100)]),
+                               method="bounded", options={"xatol": 1e-12})
+        return float(min(best.fun, gap(u[k:k + 1])[0][0]))
+
+    def off_curve(self, ray, s, h):
+        """The metric distance of the chart point h from the ray's true curve about arclength s."""
+        g = self.space.geometry
+        gap = lambda u: float(np.sum((self._carried(ray.path, s, u)[0] - h) ** 2))
+        best = minimize_scalar(gap, bounds=(s - 0.02, s + 0.02), method="bounded", options={"xatol": 1e-12})
+        q = self._carried(ray.path, s, best.x)[0]
+        return float(g.chord_distance(g.to_model(h), g.to_model(q)))
+
+    def silhouette_error(self, ray, hit, obj, s, h, diameter):
+        """How far the traced outcome (hit or not; object obj at depth s, chart point h) is from
+        one the true curve allows, in footprints: the deepest passage through a ball the tracer went
+        past (at its entry), and for a hit that is not the reference's, how near the true curve
+        passes the ball hit (its silhouette moved by that much would give the traced hit) plus the
+        hit point's distance from the true curve (at the hit's depth)."""
+        footprint = lambda depth: render.footprint(self.space, render.REFERENCE_PIXEL_ANGLE, depth)
+        worst = 0.0
+        for o, entry, exit_, depth in ray.passages:
+            if not hit or exit_ < s - self.step or (entry < s - self.step and o != obj):
+                worst = max(worst, depth / footprint(entry))
+        if hit and not same_passage(ray.first, obj, s, diameter):
+            worst = max(worst, (self.clearance(ray, obj, s, diameter) + self.off_curve(ray, s, h)) / footprint(s))
+        return worst
+
+
+def same_passage(first, obj, s, diameter):
+    """Whether a traced hit (object obj at depth s) is the reference's first hit, on the same
+    passage through that ball (one ball's diameter of arclength apart at most), so that its position
+    error is measured; other hits are silhouettes that moved."""
+    return first is not None and first[2] == obj and abs(first[0] - s) < diameter
 
 
 def wavefront(space, reference, P, V, length, h):
@@ -184,14 +313,21 @@ def timed(tracer, P, V, length, max_crossings, tolerances, repeat, count):
     """(out of the rays, seconds per ray): the rays traced, then tiled to `count` rays and traced
     repeat times for the least time."""
     out = render.trace(tracer, P, V, length, max_crossings, *tolerances, shade=False)
+    return out, least_seconds(tracer, P, V, length, max_crossings, [tolerances], repeat, count)[0]
+
+
+def least_seconds(tracer, P, V, length, max_crossings, settings, repeat, count):
+    """Seconds per ray of each of the tolerance settings, the rays tiled to `count` rays, traced
+    repeat times in turn (interleaved: the machine's load falls on each alike) for the least time."""
     k = max(1, count // len(P))
     P, V = np.ascontiguousarray(np.tile(P, (k, 1))), np.ascontiguousarray(np.tile(V, (k, 1)))
-    best = math.inf
+    best = [math.inf] * len(settings)
     for _ in range(repeat):
-        t0 = time.perf_counter()
-        render.trace(tracer, P, V, length, max_crossings, *tolerances, shade=False)
-        best = min(best, time.perf_counter() - t0)
-    return out, best / len(P)
+        for i, tolerances in enumerate(settings):
+            t0 = time.perf_counter()
+            render.trace(tracer, P, V, length, max_crossings, *tolerances, shade=False)
+            best[i] = min(best[i], time.perf_counter() - t0)
+    return [b / len(P) for b in best]
 
 
 def p99(a):
@@ -203,27 +339,37 @@ def row(sid, name, compared, chords, seconds, pos, depth, disagree, bound, verdi
                               str(disagree), bound, verdict]) + " |"
 
 
-def errors(space, out, refs):
-    """The row's measured numbers over the rays with a reference."""
+def errors(space, out, firsts, radii):
+    """The measured numbers over the rays with a reference first hit (firsts[i]: see Ray)."""
     g = space.geometry
     pos, depth, footprints, disagree, compared = [], [], [], 0, 0
-    for i, ref in enumerate(refs):
-        if ref is None:
+    for i, first in enumerate(firsts):
+        if first is None:
             continue
         compared += 1
-        s, h, obj = ref
+        s, h, obj = first
         hit = out["stop"][i] == 0
         if math.isinf(s):
             disagree += bool(hit)
             continue
-        if not hit or out["object"][i] != obj:
+        if not (hit and same_passage(first, int(out["object"][i]), float(out["depth"][i]), 2 * radii[obj])):
             disagree += 1
             continue
         e = float(g.chord_distance(g.to_model(h), g.to_model(out["position"][i].astype(float))))
         pos.append(e)
         depth.append(abs(float(out["depth"][i]) - s))
-        footprints.append(e / (render.REFERENCE_PIXEL_ANGLE * (s + render.NEAR_FRACTION * space.metric_extent)))
+        footprints.append(e / render.footprint(space, render.REFERENCE_PIXEL_ANGLE, s))
     return compared, disagree, np.array(pos), np.array(depth), np.array(footprints)
+
+
+def silhouettes(reference, out, refs, radii):
+    """The largest silhouette error (Reference.silhouette_error) over the rays, in footprints."""
+    worst = 0.0
+    for i, ray in enumerate(refs):
+        hit, obj = out["stop"][i] == 0, int(out["object"][i])
+        worst = max(worst, reference.silhouette_error(ray, hit, obj, float(out["depth"][i]),
+                                                      out["position"][i].astype(float), 2 * radii[obj]))
+    return worst
 
 
 def fmt(a):
@@ -238,46 +384,56 @@ def main():
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--spaces", default=",".join(SPACES))
     ap.add_argument("--tolerances", default="1e-2,1e-3,1e-4,1e-5,1e-6,1e-7")
+    ap.add_argument("--scales", default="0.5,1,2,4,8", help="chord tolerances in units of a quality's bound")
+    ap.add_argument("--margin", type=float, default=0.75, help="the derived scale keeps errors within this of the bound")
+    ap.add_argument("--balls", type=int, default=8)
     ap.add_argument("--timing-rays", type=int, default=20000, help="the rays tiled to this many for the times")
     ap.add_argument("--step", type=float, default=2e-3, help="arclength between the reference's samples")
     ap.add_argument("--out", default=str(ROOT / "docs"))
     args = ap.parse_args()
+    scales = [float(v) for v in args.scales.split(",")]
     print(f"{args.rays} rays per space, best of {args.repeat}, {os.cpu_count()} CPUs; load average at the start "
           f"{os.getloadavg()[0]:.1f}\n")
     header = ["space", "setting", "rays", "chords/ray", "µs/ray", "position error (median / p99 / max)",
-              "depth error (median / p99 / max)", "disagree", "error in footprints (max) / bound",
+              "depth error (median / p99 / max)", "disagree", "error in footprints (positions; silhouettes) / bound",
               "within / peer's time against ours at its accuracy"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    front = {}
+    front, sweep, cases = {}, {}, {}
     for sid in args.spaces.split(","):
         space = spaces.load(sid)
         rng = np.random.default_rng(20261201)
-        scene, centres, radii = ball_scene(space, rng)
+        scene, centres, radii = ball_scene(space, rng, args.balls)
         P, V = rays(space, rng, args.rays, centres, radii)
+        P, V = np.ascontiguousarray(P), np.ascontiguousarray(V)
         length = min(8.0, 4 * space.metric_extent)
         reference = Reference(space, scene, args.step)
         t0 = time.perf_counter()
-        refs = [reference.first_hit(P[i], V[i], length) for i in range(len(P))]
+        refs = [reference.trace(P[i], V[i], length) for i in range(len(P))]
         reference_seconds = (time.perf_counter() - t0) / len(P)
+        firsts = [r.first for r in refs]
         tracer = render.make_tracer(space, scene)
+        cases[sid] = (space, tracer, P, V, length)
         settings = [(q, render.Settings(quality=q)) for q in render.QUALITY]
         settings += [(f"tol {t}", render.Settings(tolerance=float(t))) for t in args.tolerances.split(",")]
         ours = []  # (setting, µs per ray, p99 position error)
         for name, s in settings:
             tolerances = s.tolerances(space, render.REFERENCE_PIXEL_ANGLE)
-            out, seconds = timed(tracer, np.ascontiguousarray(P), np.ascontiguousarray(V), length, 100000,
-                                 tolerances, args.repeat, args.timing_rays)
-            compared, disagree, pos, depth, fp = errors(space, out, refs)
+            out, seconds = timed(tracer, P, V, length, 100000, tolerances, args.repeat, args.timing_rays)
+            compared, disagree, pos, depth, fp = errors(space, out, firsts, radii)
+            sil = silhouettes(reference, out, refs, radii)
             bound = render.QUALITY[name].footprint_fraction if name in render.QUALITY else None
-            worst = float(fp.max()) if len(fp) else 0.0
+            worst = max(float(fp.max()) if len(fp) else 0.0, sil)
             chords = float(out["chords"]) / len(P)
             if name == "standard":
                 standard_chords = chords
+            measured = f"{float(fp.max()) if len(fp) else 0.0:.1e}; {sil:.1e}"
             lines.append(row(sid, name, compared, f"{chords:.2f}", seconds, pos, depth, disagree,
-                             f"{worst:.1e} / {bound}" if bound else f"{worst:.1e}",
+                             f"{measured} / {bound}" if bound else measured,
                              ("yes" if worst <= bound else "NO") if bound else ""))
             ours.append((name, seconds * 1e6, p99(pos)))
         front[sid] = list(ours)
+        if not space.geometry.projective:
+            sweep[sid] = scale_sweep(space, tracer, P, V, length, reference, refs, radii, scales)
         # the peers, each against our cheapest setting at least as accurate (by the 99th percentile)
         peers = [("peer: bare Embree, the chords (floor)", floor_seconds(reference, standard_chords, 0.5 * space.extent, rng),
                   None)]
@@ -292,7 +448,7 @@ def main():
         if not space.geometry.projective:
             count = min(60, len(P))
             t0 = time.perf_counter()
-            found = [reference.first_hit(P[i], V[i], length, path=solve_ivp_path(space, P[i], V[i], length))
+            found = [reference.trace(P[i], V[i], length, path=solve_ivp_path(space, P[i], V[i], length)).first
                      for i in range(count)]
             seconds = (time.perf_counter() - t0) / count
             found += [None] * (len(P) - count)
@@ -305,20 +461,78 @@ def main():
             if out is None:
                 lines.append(row(sid, name, "", "", seconds, [], [], "", "", ""))
                 continue
-            compared, disagree, pos, depth, _ = errors(space, out, refs)
+            compared, disagree, pos, depth, _ = errors(space, out, firsts, radii)
             match = min((r for r in ours if r[2] <= p99(pos)), key=lambda r: r[1], default=None)
             versus = f"{seconds * 1e6 / match[1]:.0f}x our {match[0]}" if match else "more accurate than ours"
             lines.append(row(sid, name, compared, "", seconds, pos, depth, disagree, "", versus))
-        print(f"{sid}: reference {reference_seconds * 1e3:.0f} ms/ray, {sum(r is None for r in refs)} of {len(refs)} "
-              "rays left out (grazing)")
+        print(f"{sid}: reference {reference_seconds * 1e3:.0f} ms/ray, {sum(f is None for f in firsts)} of {len(refs)} "
+              "rays left out of the position errors (grazing)")
     table = "\n".join(lines)
     print("\n" + table)
+    rule = chord_rule(sweep, scales, args.margin, cases, args.repeat, args.timing_rays)
+    print("\n" + rule)
     out = Path(args.out)
     out.mkdir(exist_ok=True)
     (out / "front.md").write_text(
-        "# The error/time front (benchmarks/bench_front.py)\n\n" + __doc__.split("\n\n")[1] + "\n\n" + table + "\n")
+        "# The error/time front (benchmarks/bench_front.py)\n\n" + "\n\n".join(__doc__.split("\n\n")[1:3]) +
+        f"\n\n{len(P)} rays per space, {args.balls} balls, best of {args.repeat}; load average "
+        f"{os.getloadavg()[0]:.1f} at the end.\n\n" + table + "\n\n## The chord rule\n\n" +
+        __doc__.split("\n\n")[3] + "\n\n" + rule + "\n")
     plot(front, out / "front.png")
     print(f"\nload average at the end {os.getloadavg()[0]:.1f}; wrote {out / 'front.md'} and {out / 'front.png'}")
+
+
+def scale_sweep(space, tracer, P, V, length, reference, refs, radii, scales):
+    """{quality: [(largest error in footprints / bound, chords per ray) per scale]}: each quality's
+    chord tolerance at each scale of its bound."""
+    firsts = [r.first for r in refs]
+    found = {}
+    for q, level in render.QUALITY.items():
+        base = np.array(render.Settings(quality=q).tolerances(space, render.REFERENCE_PIXEL_ANGLE)) / render.CHORD_SCALE
+        found[q] = []
+        for scale in scales:
+            out = render.trace(tracer, P, V, length, 100000, *(scale * base), shade=False)
+            _, _, _, _, fp = errors(space, out, firsts, radii)
+            worst = max(float(fp.max()) if len(fp) else 0.0, silhouettes(reference, out, refs, radii))
+            found[q].append((worst / level.footprint_fraction, float(out["chords"]) / len(P)))
+    return found
+
+
+def chord_rule(sweep, scales, margin, cases, repeat, count):
+    """The sweep's table with each geometry's largest passing scale (every quality within margin of
+    its bound, as at every smaller scale), the derived scale (the least of those: one rule for all),
+    and its time and chords against scale 1 (the rule before the derivation) side by side."""
+    lines = ["| space | quality | " + " | ".join(f"scale {s:g}: error / bound, chords/ray" for s in scales) + " |",
+             "|---|---|" + "---|" * len(scales)]
+    largest = {}
+    for sid, found in sweep.items():
+        ok = [True] * len(scales)
+        for q, cells in found.items():
+            lines.append(f"| {sid} | {q} | " + " | ".join(f"{e:.2g}, {c:.2f}" for e, c in cells) + " |")
+            ok = [a and e <= margin for a, (e, _) in zip(ok, cells)]
+        passing = [s for k, s in enumerate(scales) if all(ok[:k + 1])]
+        largest[sid] = max(passing) if passing else None
+    lines.append("\nThe largest scale with every quality within " + f"{margin:g} of its bound: " +
+                 ", ".join(f"{sid} {s:g}" if s else f"{sid} none" for sid, s in largest.items()) + ".")
+    if None in largest.values():
+        return "\n".join(lines)
+    scale = min(largest.values())
+    lines.append(f"\nDerived scale (the least of them): **{scale:g}**; render.CHORD_SCALE is {render.CHORD_SCALE:g}.\n")
+    if 1.0 not in scales or scale == 1.0:
+        return "\n".join(lines)
+    one, chosen = scales.index(1.0), scales.index(scale)
+    lines += [f"Scale {scale:g} against scale 1 (interleaved, best of {repeat}):\n",
+              "| space | quality | chords/ray (1 → derived) | µs/ray (1 → derived) | time saved | error / bound (1 → derived) |",
+              "|---|---|---|---|---|---|"]
+    for sid, found in sweep.items():
+        space, tracer, P, V, length = cases[sid]
+        for q, cells in found.items():
+            base = np.array(render.Settings(quality=q).tolerances(space, render.REFERENCE_PIXEL_ANGLE)) / render.CHORD_SCALE
+            before, after = least_seconds(tracer, P, V, length, 100000, [base, scale * base], repeat, count)
+            (e1, c1), (e2, c2) = cells[one], cells[chosen]
+            lines.append(f"| {sid} | {q} | {c1:.2f} → {c2:.2f} | {before * 1e6:.2f} → {after * 1e6:.2f} | "
+                         f"{1 - after / before:.0%} | {e1:.2g} → {e2:.2g} |")
+    return "\n".join(lines)
 
 
 def plot(front, path):

@@ -34,6 +34,13 @@ REFERENCE_PIXEL_ANGLE = math.radians(90.0) / 640
 # The bound stays positive at the camera: distances are counted from this fraction of the
 # domain's metric extent behind it.
 NEAR_FRACTION = 0.05
+# The chord tolerance of a quality is its bound (footprint_fraction of the pixel footprint) times
+# this. Chords may stray farther from the curve than the bound allows hits to: hits are refined on
+# the true curve, and a chord's K h^2 / 8 overstates its distance from the curve. The value is the
+# largest scale of benchmarks/bench_front.py's sweep with which every quality of every curved
+# geometry keeps its measured error (hit positions and silhouettes) within half its bound
+# (docs/front.md, "The chord rule").
+CHORD_SCALE = 1.0
 RETRACE_FACTOR = 100  # the measured error: sampled rays traced again at tolerance / this
 SHADING = ("lambert", "normal", "position", "depth", "crossings", "object")
 PASSES = ("color", "depth", "normal", "position", "object", "crossings", "stop")
@@ -149,8 +156,15 @@ class Settings:
         domain's metric extent behind the camera)."""
         if self.tolerance is not None:
             return self.tolerance, 0.0
-        slope = QUALITY[self.quality].footprint_fraction * pixel_angle
+        slope = CHORD_SCALE * QUALITY[self.quality].footprint_fraction * pixel_angle
         return slope * NEAR_FRACTION * space.metric_extent, slope
+
+
+def footprint(space: Space, pixel_angle: float, depth):
+    """The pixel footprint at geodesic distance depth that the qualities' bounds are fractions of
+    (a straight-line view's, with distances counted from NEAR_FRACTION of the domain's metric
+    extent behind the camera)."""
+    return pixel_angle * (depth + NEAR_FRACTION * space.metric_extent)
 
 def _whole(n) -> bool:
     return isinstance(n, (int, np.integer)) and not isinstance(n, bool)
@@ -1097,8 +1111,7 @@ def retrace_error(space: Space, tracer, origins, directions, out, sample, limits
     ends = np.array([trace(path, P[i:i + 1], D[i:i + 1], depth[k], max_crossings, *fine, shade=False)["end"][0]
                      for k, i in enumerate(paths)])
     error = _image_distance(space, g.to_model(out["position"][sample][paths]), g.to_model(ends))
-    footprint = pixel_angle * (depth + NEAR_FRACTION * space.metric_extent)
-    return float(error.max()), float((error / footprint).max()), changed
+    return float(error.max()), float((error / footprint(space, pixel_angle, depth)).max()), changed
 
 
 def geodesic_error(space: Space, origins, directions, depth, position) -> float:
