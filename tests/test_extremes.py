@@ -30,7 +30,7 @@ from test_marching import into_domain
 from test_sl2 import body_direction, christoffel_truth as sl2_christoffel, metric_truth as sl2_metric
 from thurston_addon import render, spaces
 from thurston_addon.scene import Scene, SceneObject
-from truth import AMBIENT, christoffel_from, dop853, nil_metric, s2xr_metric, sol_metric
+from truth import AMBIENT, christoffel_from, dop853, h2xr_metric, nil_metric, s2xr_metric, sol_metric
 
 ld = np.longdouble
 FINAL = render.QUALITY["final"].footprint_fraction
@@ -369,3 +369,362 @@ def cover_ends_at(space, P, V, lengths):
     """cover_ends with a length per ray."""
     Y, _ = space.geometry.geodesic(np.asarray(P, ld), np.asarray(V, ld), np.asarray(lengths, ld))
     return np.asarray(reduce(space, Y)[0], float)
+
+
+# --- 4. no NaN or inf at the extremes -----------------------------------------------------------
+
+def test_h3_rays_of_length_50(space_of):
+    """Seifert-Weber rays traced for 50 (about 50 crossings; H3 separates nearby geodesics like e^t,
+    so past ~10 crossings no float64 path is the cover geodesic's, see CHAOTIC): no NaN or inf,
+    every ray ends by its length (or on the ball) inside the domain, hits on the ball's surface."""
+    space = space_of("seifert_weber")
+    g = space.geometry
+    rng = np.random.default_rng(75)
+    P, V = random_rays(space, rng, 20000)
+    radius = 0.1
+    scene = Scene(objects=[SceneObject("ball", radius * BALL.vertices, BALL.faces)])
+    for s, name in ((Scene(), "empty"), (scene, "ball")):
+        out = trace(space, s, P, V, 50.0, final_tolerances(space))
+        assert np.all(np.isin(out["stop"], (0, 1))) and np.all(np.isfinite(out["end"])), name
+        assert space.domain.contains(g.to_model(out["end"]), tol=1e-9).all(), name
+        assert np.all(out["distance"][out["stop"] == 1] == 50.0), name
+        hit = out["stop"] == 0
+        if name == "ball":
+            r = np.linalg.norm(out["position"][hit], axis=1)
+            assert hit.sum() > 1000 and np.all((r >= radius * BALL_INNER - 1e-12) & (r <= radius + 1e-12))
+        assert out["crossings"].max() >= 40
+
+
+def test_sol_starts_at_z_20(space_of):
+    """Sol at |z| = 20: the C++ flow from there (in the cover, e^(2z) ~ 2e17 in the metric) matches
+    DOP853 of the geodesic equation; rays started there are brought into the domain by the core
+    itself (~500 face maps: once, the walk's reduction stopped after 64 and reported the distance
+    limit at a point outside the domain) and end inside it, where the cover geodesic ends within
+    what the start's float64 reduction loses (about a unit of the last place of x times phi^42,
+    ~1e-6) grown by e^L."""
+    space = space_of("sol")
+    g = space.geometry
+    rng = np.random.default_rng(76)
+    n = 12
+    x = np.c_[rng.uniform(-1, 1, (n, 2)), np.where(np.arange(n) % 2 == 0, 20.0, -20.0)]
+    u = rng.normal(size=(n, 3))
+    christoffel = lambda p: christoffel_from(sol_metric(p), sol_metric_derivative(p))
+    for i in range(4):
+        v = u[i] / math.sqrt(u[i] @ sol_metric(x[i]) @ u[i])
+        (x_ref, v_ref) = dop853(christoffel, x[i], v, 1.5)
+        xc, vc = thurston_core.geodesic_flow("Sol", x[i:i + 1].copy(), v[None].copy(), np.array([1.5]))
+        assert np.all(np.abs(xc[0] - x_ref) <= 1e-9 * (1 + np.abs(x_ref))), (xc[0], x_ref)
+        assert np.all(np.abs(vc[0] - v_ref) <= 1e-9 * (1 + np.abs(v_ref))), (vc[0], v_ref)
+    P = g.to_model(x)
+    V = g.normalize_tangent(P, g.tangent_to_model(x, u))
+    L = 1.0
+    out = trace(space, Scene(), P, V, L, (1e-7, 0.0))
+    assert np.all(out["stop"] == 1) and np.all(out["distance"] == L) and np.all(np.isfinite(out["end"]))
+    assert space.domain.contains(g.to_model(out["end"]), tol=1e-9).all()
+    err = end_errors(space, out, cover_ends(space, P, V, L))
+    report("sol: rays started at |z| = 20", ["rays", "crossings", "max error"], [[n, int(out["crossings"].max()), float(err.max())]])
+    assert err.max() <= 1e-6 * math.exp(L) * 10
+
+
+def sol_metric_derivative(x):
+    """d_l g_ij of e^(2z) dx^2 + e^(-2z) dy^2 + dz^2: only d_z, of the first two."""
+    dg = np.zeros((3, 3, 3))
+    dg[2, 0, 0], dg[2, 1, 1] = 2 * math.exp(2 * x[2]), -2 * math.exp(-2 * x[2])
+    return dg
+
+
+@pytest.mark.parametrize("w", [0.0, -0.0, 1e-300, -1e-300, 5e-324])
+def test_nil_rays_with_vanishing_vertical_component(space_of, w):
+    """Nil rays whose vertical component in the orthonormal frame (dx, dy, dz - x dy) is 0, -0,
+    +-1e-300 or the least subnormal (the closed form divides by it), through ~1000 crossings:
+    finite, inside the domain, where the cover geodesic ends within the final bound."""
+    space = space_of("nil")
+    g = space.geometry
+    rng = np.random.default_rng(77)
+    n = 12
+    x = space._interior_points(rng, n)
+    a = rng.uniform(0, 2 * math.pi, n)
+    e = np.c_[np.cos(a), np.sin(a), np.full(n, w)]
+    u = np.c_[e[:, 0], e[:, 1], e[:, 2] + x[:, 0] * e[:, 1]]  # the frame's chart vectors
+    P = g.to_model(x)
+    V = np.c_[u, np.zeros(n)]
+    assert np.allclose(np.einsum("ni,nij,nj->n", u, np.array([nil_metric(p) for p in x]), u), 1.0)
+    for L in (60.0, 650.0):
+        out = trace(space, Scene(), P, V, L, final_tolerances(space))
+        assert np.all(out["stop"] == 1) and np.all(np.isfinite(out["end"]))
+        assert space.domain.contains(g.to_model(out["end"]), tol=1e-9).all()
+        err = end_errors(space, out, cover_ends(space, P, V, L))
+        assert err.max() <= stated_bound(space, L), (L, err.max())
+    assert out["crossings"].min() >= 600
+
+
+def test_sl2_rays_at_a_equal_to_c(space_of):
+    """SL2 rays whose body velocity has a = |c| exactly (where the closed form's hyperbolic
+    functions turn trigonometric): the C++ flow matches DOP853; traced rays end finite and inside
+    after ~1000 crossings, and where the cover geodesic ends within the final bound after ~10
+    (past that the flow's chaos leaves float64 nothing to compare, see CHAOTIC)."""
+    space = space_of("sl2")
+    g = space.geometry
+    rng = np.random.default_rng(78)
+    n = 12
+    x = space._interior_points(rng, n)
+    c = np.where(np.arange(n) % 2, 1.0, -1.0) / math.sqrt(2)
+    axis = np.arange(n) % 4 // 2  # the horizontal part along one body axis: a = |c| exactly
+    b = np.zeros((n, 3))
+    b[np.arange(n), axis] = np.abs(c) * np.where(np.arange(n) % 3, 1.0, -1.0)
+    b[:, 2] = c
+    u = np.array([body_direction(p, q) for p, q in zip(x, b)])
+    for i in range(3):
+        v = u[i] / math.sqrt(u[i] @ sl2_metric(x[i]) @ u[i])
+        x_ref, v_ref = dop853(sl2_christoffel, x[i], v, 3.0)
+        xc, vc = thurston_core.geodesic_flow("SL2", x[i:i + 1].copy(), v[None].copy(), np.array([3.0]))
+        assert np.all(np.abs(xc[0] - x_ref) <= 1e-9 * (1 + np.abs(x_ref))), (xc[0], x_ref)
+    P = g.to_model(x)
+    V = g.normalize_tangent(P, g.tangent_to_model(x, u))
+    rate = crossing_rate(space, P, V)
+    for level in (10, 1000):
+        L = level / rate
+        out = trace(space, Scene(), P, V, L, final_tolerances(space))
+        assert np.all(out["stop"] == 1) and np.all(np.isfinite(out["end"]))
+        assert space.domain.contains(g.to_model(out["end"]), tol=1e-9).all()
+        if level <= CHAOS_LEVEL:
+            err = end_errors(space, out, cover_ends(space, P, V, L))
+            assert err.max() <= stated_bound(space, L), err.max()
+    assert out["crossings"].mean() >= 500
+
+
+# (space, the chart radius of the disk or ball whose rim is approached, how the chart point of
+# radius r is placed): the Klein ball of H3, the Klein disk of H2xR, the Poincare disk of SL2
+RIMS = {"seifert_weber": lambda d, r: r * d, "genus2xs1": lambda d, r: np.c_[r * d[:, :2] / np.linalg.norm(d[:, :2], axis=1)[:, None], d[:, 2]],
+        "sl2": lambda d, r: np.c_[r * d[:, :2] / np.linalg.norm(d[:, :2], axis=1)[:, None], d[:, 2]]}
+
+
+@pytest.mark.parametrize("sid", list(RIMS))
+@pytest.mark.parametrize("gap", [1e-6, 1e-9, 1e-12])
+def test_points_near_the_rim_of_the_disks(space_of, sid, gap):
+    """Chart points 1 - gap from the centre of H3's Klein ball, H2xR's Klein disk and SL2's
+    Poincare disk (distances ~7 to ~28 from it): brought into the domain finite, on the model and
+    inside, by isometries (relative defect <= 1e-12); rays from there end finite and inside; the
+    C++ flow from there (H2xR, SL2) stays finite, in the chart, at unit speed in the metric and
+    comes back to its start when flowed back, to what float64 allows there: 1 - r^2 is known to
+    eps / gap, and the metric (1 / (1 - r^2)^2) to twice that, so the tolerance is 1e-14 / gap
+    (the measured errors are 1e-15 / gap to 2e-15 / gap)."""
+    space = space_of(sid)
+    g = space.geometry
+    rng = np.random.default_rng(79)
+    n = 200
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    x = RIMS[sid](d, 1.0 - gap)
+    assert g.in_chart(x).all()
+    X, _, M = space.move_inside(g.to_model(x))
+    assert np.all(np.isfinite(X)) and space.domain.contains(X, tol=1e-9).all()
+    assert np.allclose(g.normalize_point(X), X, rtol=1e-12, atol=1e-12)
+    assert isometry_defect(space, M, rng).max() <= 1e-12
+    u = rng.normal(size=(n, 3))
+    V = g.normalize_tangent(X, g.tangent_to_model(np.asarray(g.to_chart(X), float), u))
+    out = trace(space, Scene(), X, V, 10.0, final_tolerances(space))
+    assert np.all(out["stop"] == 1) and np.all(np.isfinite(out["end"]))
+    assert space.domain.contains(g.to_model(out["end"]), tol=1e-9).all()
+    if g.projective:
+        return
+    metric = {"H2xR": h2xr_metric, "SL2": sl2_metric}[g.name]
+    v = np.array([w / math.sqrt(w @ metric(p) @ w) for p, w in zip(x, u)])
+    t = np.full(n, 0.5)
+    xt, vt = thurston_core.geodesic_flow(g.name, np.ascontiguousarray(x), v, t)
+    assert np.all(np.isfinite(xt)) and g.in_chart(xt).all()
+    speed = np.array([w @ metric(p) @ w for p, w in zip(xt, vt)])
+    floor = 1e-14 / gap
+    back, _ = thurston_core.geodesic_flow(g.name, xt, np.ascontiguousarray(-vt), t)
+    gone = np.array([math.sqrt(max(q @ metric(p) @ q, 0.0)) for p, q in zip(x, back - x)])
+    report(f"{sid}: the flow from 1 - {gap:g}", ["max |speed - 1|", "max back", "floor"],
+           [[float(np.abs(speed - 1).max()), float(gone.max()), floor]])
+    assert np.all(np.abs(speed - 1) <= floor), np.abs(speed - 1).max()
+    assert gone.max() <= floor, gone.max()
+
+
+# --- 5. no leak at the domain's edges and vertices ----------------------------------------------
+
+LEAK_RAYS = 10**6
+# the built-in presets (not the user's THURSTON_SPACE_PATH)
+PRESETS = sorted(p.stem for p in spaces.preset_path("torus").parent.glob("*.toml"))
+
+
+def boundary_targets(space, rng, n):
+    """n points of the domain's boundary: on its edges (a fifth at vertices), interpolated in the
+    plane chart where the faces are planes; on the face spheres of a shell."""
+    g = space.geometry
+    if not space.domain.edges:  # a folded shell's inner sphere is inside the double cover traced
+        radii = np.asarray(space.radii)[rng.integers(1 if space.fold else 0, 2, size=n)]
+        d = rng.normal(size=(n, 3))
+        return radii[:, None] * d / np.linalg.norm(d, axis=1)[:, None]
+    V = space.domain.vertices
+    if not g.plane_chart_is_chart:
+        Y = np.asarray(g.plane_coordinates(g.to_model(V)), float)
+        V = Y[:, :3] / Y[:, 3:]
+    E = np.array([e[:2] for e in space.domain.edges])[rng.integers(len(space.domain.edges), size=n)]
+    s = rng.random(n)
+    s[: n // 5] = rng.integers(0, 2, size=n // 5)
+    y = s[:, None] * V[E[:, 0]] + (1 - s[:, None]) * V[E[:, 1]]
+    return y if g.plane_chart_is_chart else np.asarray(g.from_plane_chart(y), float)
+
+
+def rays_through(space, rng, targets, s):
+    """Rays from inside the domain that pass exactly through the chart points `targets` after
+    arclength s: the geodesic from each target towards a random interior point, flowed s and
+    turned back (the closed form of the projective geometries, the C++ flow of the others).
+    Returns (P, V) of the rays whose start lies inside the domain."""
+    g = space.geometry
+    q = space._interior_points(rng, 4096)[rng.integers(4096, size=len(targets))]
+    T = g.to_model(targets)
+    W = g.normalize_tangent(T, g.tangent_to_model(targets, q - targets))
+    if g.projective:
+        P, back = g.geodesic(T, W, np.full(len(T), s))
+    else:
+        w = np.ascontiguousarray(g.tangent_to_chart(T, W), float)
+        x, v = thurston_core.geodesic_flow(g.name, np.ascontiguousarray(targets), w, np.full(len(T), s))
+        P = g.to_model(x)
+        back = g.tangent_to_model(x, v)
+    V = g.normalize_tangent(P, -back)
+    inside = np.all(np.isfinite(P), axis=1) & space.domain.contains(P, tol=-1e-9)
+    return P[inside], V[inside]
+
+
+@pytest.mark.parametrize("sid", PRESETS)
+def test_no_leak_at_edges_and_vertices(space_of, sid):
+    """10^6 rays per preset (a quarter at each quality's tolerances, each quarter from its own
+    distance) that pass exactly through points of the domain's edges and vertices (shells: of its
+    spheres; RP3 # RP3 is traced through its double cover, where only the outer one is a face),
+    stopped a little past them: each ends by its length, finite, inside the domain, having
+    crossed; and 10^5 rays through a vertex where a ball sits hit it inside the domain (to the
+    chord tolerance)."""
+    space = space_of(sid)
+    g = space.geometry
+    rng = np.random.default_rng(80)
+    tracer = render.make_tracer(space, Scene())
+    past = 0.05 * space.inradius
+    rows = []
+    for k, q in enumerate(render.QUALITY):
+        n = LEAK_RAYS // 4
+        s = (0.1 + 0.1 * k) * space.inradius
+        P, V = rays_through(space, rng, boundary_targets(space, rng, 3 * n // 2), s)
+        assert len(P) >= n, (q, len(P))
+        tolerances = render.Settings(quality=q).tolerances(space, render.REFERENCE_PIXEL_ANGLE)
+        out = tracer.trace(np.ascontiguousarray(P[:n]), np.ascontiguousarray(V[:n]), s + past, 10**6, shade=False,
+                           tolerance=tolerances[0], tolerance_per_distance=tolerances[1])
+        assert np.all(out["stop"] == 1) and np.all(np.isfinite(out["end"])), (q, np.bincount(out["stop"]))
+        inside = space.domain.contains(g.to_model(out["end"]), tol=1e-9)
+        assert inside.all(), (q, np.flatnonzero(~inside)[:5])
+        rows.append([q, n, float(out["crossings"].mean()), float(np.mean(out["crossings"] >= 1))])
+    report(f"{sid}: rays through edges and vertices", ["quality", "rays", "mean cross", "crossed"], rows)
+    assert min(r[3] for r in rows) >= 0.99
+    # a ball about a point of the boundary (a vertex; a shell: a point of its outer sphere), its
+    # copies added where it sticks out: rays through that point hit it, inside the domain
+    corner = boundary_targets(space, rng, 1)[:1] if not space.domain.edges else space.domain.vertices[:1]
+    P, V = rays_through(space, rng, np.repeat(corner, LEAK_RAYS // 10, axis=0), 0.3 * space.inradius)
+    # half the chart distance of the nearest start: every ray starts outside the ball
+    radius = 0.5 * np.min(np.linalg.norm(np.asarray(g.to_chart(P), float) - corner, axis=1))
+    ball = Scene(objects=[SceneObject("ball", corner + radius * BALL.vertices, BALL.faces)])
+    tolerance = 1e-4
+    out = render.make_tracer(space, ball).trace(np.ascontiguousarray(P), np.ascontiguousarray(V), 0.3 * space.inradius,
+                                                10**6, shade=False, tolerance=tolerance)
+    hit = out["stop"] == 0
+    assert hit.mean() >= 0.99 and np.all(np.isfinite(out["position"][hit])), hit.mean()
+    # (a curve may poke out of a face and back within a chord, by less than the tolerance: SL2's
+    # sides are curved in its chart; by 2e-7 here)
+    inside = space.domain.contains(g.to_model(out["position"][hit]), tol=tolerance)
+    assert inside.all(), (out["position"][hit][~inside][:3], out["crossings"][hit][~inside][:3])
+
+
+# --- 6. float32 BVH, float64 geodesics ----------------------------------------------------------
+
+def first_hits_in_double(origins, directions, triangles):
+    """(t, point) of the first crossing of each ray (unit chart directions) with the triangles,
+    Moeller-Trumbore in float64 (t = inf: none)."""
+    a, b, c = (triangles[:, k][None] for k in range(3))
+    e1, e2 = b - a, c - a
+    d = directions[:, None]
+    p = np.cross(d, e2)
+    det = np.sum(e1 * p, axis=2)
+    s = origins[:, None] - a
+    u = np.sum(s * p, axis=2) / det
+    q = np.cross(s, e1)
+    v = np.sum(d * q, axis=2) / det
+    t = np.sum(e2 * q, axis=2) / det
+    t = np.where((u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0), t, np.inf)
+    first = t.min(axis=1)
+    return first, origins + first[:, None] * directions
+
+
+def test_far_from_the_origin_hits_are_refined_in_double(tmp_path):
+    """A flat 3-torus of side 2000 with a ball at x ~ 900 (triangles) and an instance of it at
+    x ~ -900 (Embree traverses both in float32: a unit of the last place is 6e-5 there): every
+    hit is the float64 ray-triangle intersection to 1e-9 (the hits are refined on the triangles'
+    planes in double precision), far below what float32 could give."""
+    side = 2000.0
+    text = spaces.preset_path("torus").read_text()
+    big = text.replace("[1, 0, 0, 1]", f"[1, 0, 0, {side}]").replace("[0, 1, 0, 1]", f"[0, 1, 0, {side}]") \
+              .replace("[0, 0, 1, 1]", f"[0, 0, 1, {side}]").replace("position = [0.1, -0.2, 0.05]", "position = [0, 0, 0]")
+    path = tmp_path / "big_torus.toml"
+    path.write_text(big)
+    space = spaces.load(path)
+    assert abs(space.extent - side) < 1e-9
+    g = space.geometry
+    radius = 5.0
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=radius)
+    centre = np.array([900.0, 300.0, -600.0])
+    shift = np.eye(4)
+    shift[:3, 3] = [-1800.0, 0.0, 0.0]  # the instance's centre: (-900, 300, -600)
+    scene = Scene(objects=[SceneObject("ball", mesh.vertices + centre, mesh.faces),
+                           SceneObject("placed", mesh.vertices + centre, mesh.faces, instances=shift[None])])
+    rng = np.random.default_rng(81)
+    n = 4000
+    target = np.where(np.arange(n)[:, None] % 2 == 0, centre, centre + shift[:3, 3])
+    x = target + rng.uniform(-60, 60, (n, 3))
+    d = target + rng.uniform(-radius, radius, (n, 3)) - x
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    P = g.to_model(x)
+    V = g.normalize_tangent(P, g.tangent_to_model(x, d))
+    out = trace(space, scene, P, V, 200.0, (1e-3, 0.0))
+    triangles = np.concatenate([mesh.triangles + centre, mesh.triangles + centre + shift[:3, 3]])
+    t, h = first_hits_in_double(x, d, triangles)
+    hit = np.isfinite(t)
+    assert hit.sum() > 2000 and np.array_equal(out["stop"] == 0, hit)
+    err = np.linalg.norm(out["position"][hit] - h[hit], axis=1)
+    depth_err = np.abs(out["depth"][hit] - t[hit])
+    report("flat torus of side 2000, hits at |x| ~ 900", ["hits", "max position error", "max depth error", "float32 ulp"],
+           [[int(hit.sum()), float(err.max()), float(depth_err.max()), float(np.spacing(np.float32(900.0)))]])
+    assert err.max() <= 1e-9 and depth_err.max() <= 1e-9
+
+
+def test_s2xr_hits_far_out_in_the_chart_are_refined_in_double(space_of):
+    """S2xS1's chart reaches |x| = e^(2 pi) ~ 535, where float32 holds 3e-5: a ball (metric radius
+    0.1) at |x| ~ 400 hit by rays from near it lies on the plane of the triangle hit to 1e-12
+    relative (refined in double) and on the cover geodesic at the hit's depth within the
+    tolerance asked for (metric; the flow is S2xR's closed form)."""
+    space = space_of("s2xs1")
+    g = space.geometry
+    rng = np.random.default_rng(82)
+    centre = 400.0 * np.array([0.6, -0.48, 0.64])
+    radius = 0.1 * np.linalg.norm(centre)
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=radius)
+    scene = Scene(objects=[SceneObject("ball", mesh.vertices + centre, mesh.faces)])
+    n = 3000
+    x = centre * (1 + rng.uniform(0.25, 0.3, n))[:, None] + rng.normal(size=(n, 3)) * 0.05 * np.linalg.norm(centre)
+    P = g.to_model(x)
+    V = g.normalize_tangent(P, g.tangent_to_model(x, centre + rng.uniform(-radius, radius, (n, 3)) - x))
+    tolerance = 1e-7
+    out = trace(space, scene, P, V, 2.0, (tolerance, 0.0))
+    hit = out["stop"] == 0
+    assert hit.sum() > 1000
+    h = out["position"][hit]
+    tri = mesh.triangles + centre
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    off_plane = np.min(np.abs(np.einsum("fj,nj->nf", normal, h) - np.sum(normal * tri[:, 0], axis=1)), axis=1)
+    on_curve = end_errors(space, {"end": h}, cover_ends_at(space, P[hit], V[hit], out["depth"][hit]))
+    report("s2xs1: hits at |x| ~ 400", ["hits", "max off plane / |x|", "max off curve (metric)", "float32 ulp / |x|"],
+           [[int(hit.sum()), float((off_plane / np.linalg.norm(h, axis=1)).max()), float(on_curve.max()),
+             float(np.spacing(np.float32(400.0)) / 400.0)]])
+    assert np.all(off_plane <= 1e-12 * np.linalg.norm(h, axis=1))
+    assert on_curve.max() <= tolerance
