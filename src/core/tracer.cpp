@@ -663,19 +663,26 @@ class KernelTracer final : public Tracer {
       if constexpr (Kernel::kChordsBend) {
         // The chord's triangle need not be the curve's: where the curve meets its plane outside
         // it, the curve met a neighbour, or none. Look again along the curve, a few chord margins
-        // either way of where the chord met the triangle, and refine on what is found there; where
-        // nothing is, the curve passes the scene by within the chord's margin (a silhouette the
-        // chord moved) and the hit is the curve's point there, not where it meets the triangle's
-        // plane, which at grazing angles lies far from the triangle.
+        // either way of that point, then of where the chord met the triangle, and refine on what
+        // is found there; where nothing is, the curve passes the scene by within the chord's
+        // margin (a silhouette the chord moved) and the hit is the curve's point where the chord
+        // met the triangle, not where the curve meets the triangle's plane, which at grazing
+        // angles lies far from the triangle.
         const auto& chord = hit.chord();
         double met = std::clamp(double(first.u), 0.0, 1.0) * chord.length;
         for (int again = 0; again < 4 && outside_triangle(f.prim, *f.placed, f.hit.x); ++again) {
           const double speed = std::max(norm3(head3(f.hit.V)), 1e-300);
           const double reach = 4.0 * chord.margin / speed + 1e-9 * chord.length;
-          const double t0 = std::max(0.0, met - reach), t1 = std::min(chord.length, met + reach);
-          Vec3 a, b;
-          hit.curve_chord(t0, t1, a, b);
-          const embree::FirstHit near = embree::intersect(scene_.get(), chord_ray(a, b, 0.0f));
+          embree::FirstHit near;
+          double t0 = 0.0, t1 = 0.0;
+          for (const double centre : {f.hit.s, met}) {
+            t0 = std::max(0.0, centre - reach);
+            t1 = std::min(chord.length, centre + reach);
+            Vec3 a, b;
+            hit.curve_chord(t0, t1, a, b);
+            near = embree::intersect(scene_.get(), chord_ray(a, b, 0.0f));
+            if (near.prim >= 0) break;
+          }
           if (near.prim < 0) {
             f.hit = hit.at(met);
             break;
