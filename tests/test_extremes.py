@@ -26,7 +26,7 @@ import trimesh
 
 import thurston_core
 from cover import first_hits
-from test_marching import into_domain
+from test_marching import into_domain, space_of  # noqa: F401 (space_of: the fixture)
 from test_sl2 import body_direction, christoffel_truth as sl2_christoffel, metric_truth as sl2_metric
 from thurston_addon import render, spaces
 from thurston_addon.scene import Scene, SceneObject
@@ -41,17 +41,6 @@ def report(title, header, rows):
     print(f"\n{title}\n  " + "  ".join(f"{h:>12}" for h in header))
     for row in rows:
         print("  " + "  ".join(f"{v:>12.3g}" if isinstance(v, float) else f"{v!s:>12}" for v in row))
-
-
-@pytest.fixture(scope="module")
-def space_of():
-    cache = {}
-
-    def load(sid):
-        if sid not in cache:
-            cache[sid] = spaces.load(sid)
-        return cache[sid]
-    return load
 
 
 def stated_bound(space, depth):
