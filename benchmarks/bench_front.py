@@ -1,7 +1,7 @@
 """The error/time front of every geometry: the tracer's hits against a reference that shares no code
 with it, at every quality and over a sweep of chord tolerances, side by side in one run (not a
 test: the machines are shared and noisy; every time is the best of --repeat runs); and the chord
-rule of the qualities (render.CHORD_SCALE) derived from it.
+rule of the qualities (each geometry's chord_scale) derived from it.
 
 For one preset of each of the eight geometries: a scene of balls (icosphere meshes) inside its
 domain, and rays from points of the domain, a third aimed at a ball's centre, a third at its rim
@@ -25,19 +25,20 @@ curve plus how far it lies off its ball, and for the qualities the stated bound 
 fraction of the pixel footprint at the hit's distance, render.footprint) against the largest
 measured error (positions and silhouettes) in footprints: it must bound it.
 
-The chord rule: the chord tolerance of a quality is CHORD_SCALE times its bound (render.py). Hits
-are refined on the true curve, so a chord tolerance above the bound moves silhouettes by what the
-chords really stray (K h^2 / 8 overstates it), and Sol's surfaces by its integrator's accuracy
-(1/20 of the tolerance). For every curved geometry and quality the sweep traces scales
---scales of the bound; the derived scale is the largest with which every quality of every curved
-geometry keeps its largest measured error within --margin of its bound (E3, S3 and H3 have exact
-chords: the tolerance does not apply). Its time and chords against scale 1 (the rule before) are
-measured side by side, interleaved.
+The chord rule: the chord tolerance of a quality is its bound times the geometry's chord_scale
+(render.Settings.tolerances). Hits are refined on the true curve, so the tolerance moves
+silhouettes by what the chords really stray, and Sol's surfaces by its integrator's accuracy (1/20
+of the tolerance). At scale 1 the chords' bound K h^2 / 8 keeps silhouettes within the bound; a
+larger scale is worth taking where K overstates what the curve does. For every curved geometry and
+quality the sweep traces scales --scales of the bound; the derived scale is the largest above 1
+with every quality within --margin of its bound at it and at every scale between, else 1 (E3, S3
+and H3 have exact chords: the tolerance does not apply). Each derived scale's time and chords
+against scale 1 (the rule before) are measured side by side, interleaved.
 
 Written as Markdown tables (docs/front.md) and a plot of the 99th-percentile error against the time
 per ray (docs/front.png).
 Run: .venv/bin/python benchmarks/bench_front.py [--rays 300] [--timing-rays 20000] [--repeat 3]
-     [--spaces torus,...] [--tolerances 1e-2,...,1e-7] [--scales 1,2,4,8,16,32] [--out docs]
+     [--spaces torus,...] [--tolerances 1e-2,...,1e-7] [--scales 1,2,4,8,16] [--margin 0.5] [--out docs]
 """
 import argparse
 import math
@@ -384,8 +385,8 @@ def main():
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--spaces", default=",".join(SPACES))
     ap.add_argument("--tolerances", default="1e-2,1e-3,1e-4,1e-5,1e-6,1e-7")
-    ap.add_argument("--scales", default="0.5,1,2,4,8", help="chord tolerances in units of a quality's bound")
-    ap.add_argument("--margin", type=float, default=0.75, help="the derived scale keeps errors within this of the bound")
+    ap.add_argument("--scales", default="1,2,4,8,16", help="chord tolerances in units of a quality's bound")
+    ap.add_argument("--margin", type=float, default=0.5, help="a derived scale above 1 keeps errors within this of the bound")
     ap.add_argument("--balls", type=int, default=8)
     ap.add_argument("--timing-rays", type=int, default=20000, help="the rays tiled to this many for the times")
     ap.add_argument("--step", type=float, default=2e-3, help="arclength between the reference's samples")
@@ -488,7 +489,7 @@ def scale_sweep(space, tracer, P, V, length, reference, refs, radii, scales):
     firsts = [r.first for r in refs]
     found = {}
     for q, level in render.QUALITY.items():
-        base = np.array(render.Settings(quality=q).tolerances(space, render.REFERENCE_PIXEL_ANGLE)) / render.CHORD_SCALE
+        base = np.array(rule_tolerances(space, q))
         found[q] = []
         for scale in scales:
             out = render.trace(tracer, P, V, length, 100000, *(scale * base), shade=False)
@@ -499,40 +500,48 @@ def scale_sweep(space, tracer, P, V, length, reference, refs, radii, scales):
 
 
 def chord_rule(sweep, scales, margin, cases, repeat, count):
-    """The sweep's table with each geometry's largest passing scale (every quality within margin of
-    its bound, as at every smaller scale), the derived scale (the least of those: one rule for all),
-    and its time and chords against scale 1 (the rule before the derivation) side by side."""
+    """The sweep's table; each geometry's derived scale: 1 (where the chords' bound K h^2 / 8
+    keeps silhouettes within the bound), or the largest scale above it with every quality within
+    `margin` of its bound at it and at every scale between; and the time and chords of each derived
+    scale against scale 1 (the rule before), measured side by side."""
     lines = ["| space | quality | " + " | ".join(f"scale {s:g}: error / bound, chords/ray" for s in scales) + " |",
              "|---|---|" + "---|" * len(scales)]
-    largest = {}
+    derived = {}
     for sid, found in sweep.items():
         ok = [True] * len(scales)
         for q, cells in found.items():
             lines.append(f"| {sid} | {q} | " + " | ".join(f"{e:.2g}, {c:.2f}" for e, c in cells) + " |")
             ok = [a and e <= margin for a, (e, _) in zip(ok, cells)]
-        passing = [s for k, s in enumerate(scales) if all(ok[:k + 1])]
-        largest[sid] = max(passing) if passing else None
-    lines.append("\nThe largest scale with every quality within " + f"{margin:g} of its bound: " +
-                 ", ".join(f"{sid} {s:g}" if s else f"{sid} none" for sid, s in largest.items()) + ".")
-    if None in largest.values():
+        above = [k for k, s in enumerate(scales) if s > 1]
+        passing = [scales[k] for k in above if all(ok[j] for j in above if j <= k)]
+        derived[sid] = max(passing, default=1.0)
+    lines.append("\nDerived scales (1, or the largest above it with every quality within " + f"{margin:g} of its bound): " +
+                 ", ".join(f"{sid} **{s:g}** (the geometry's chord_scale: "
+                           f"{spaces.load(sid).geometry.chord_scale:g})" for sid, s in derived.items()) + ".\n")
+    if 1.0 not in scales:
         return "\n".join(lines)
-    scale = min(largest.values())
-    lines.append(f"\nDerived scale (the least of them): **{scale:g}**; render.CHORD_SCALE is {render.CHORD_SCALE:g}.\n")
-    if 1.0 not in scales or scale == 1.0:
-        return "\n".join(lines)
-    one, chosen = scales.index(1.0), scales.index(scale)
-    lines += [f"Scale {scale:g} against scale 1 (interleaved, best of {repeat}):\n",
+    lines += [f"Each derived scale against scale 1 (interleaved, best of {repeat}):\n",
               "| space | quality | chords/ray (1 → derived) | µs/ray (1 → derived) | time saved | error / bound (1 → derived) |",
               "|---|---|---|---|---|---|"]
     for sid, found in sweep.items():
+        if derived[sid] == 1.0:
+            continue
         space, tracer, P, V, length = cases[sid]
+        one, chosen = scales.index(1.0), scales.index(derived[sid])
         for q, cells in found.items():
-            base = np.array(render.Settings(quality=q).tolerances(space, render.REFERENCE_PIXEL_ANGLE)) / render.CHORD_SCALE
-            before, after = least_seconds(tracer, P, V, length, 100000, [base, scale * base], repeat, count)
+            base = np.array(rule_tolerances(space, q))
+            before, after = least_seconds(tracer, P, V, length, 100000, [base, derived[sid] * base], repeat, count)
             (e1, c1), (e2, c2) = cells[one], cells[chosen]
             lines.append(f"| {sid} | {q} | {c1:.2f} → {c2:.2f} | {before * 1e6:.2f} → {after * 1e6:.2f} | "
                          f"{1 - after / before:.0%} | {e1:.2g} → {e2:.2g} |")
     return "\n".join(lines)
+
+
+def rule_tolerances(space, quality):
+    """The chord tolerances of a quality at scale 1: its bound's (render.Settings.tolerances over
+    the geometry's chord_scale)."""
+    t0, t1 = render.Settings(quality=quality).tolerances(space, render.REFERENCE_PIXEL_ANGLE)
+    return t0 / space.geometry.chord_scale, t1 / space.geometry.chord_scale
 
 
 def plot(front, path):

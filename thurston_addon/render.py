@@ -34,13 +34,6 @@ REFERENCE_PIXEL_ANGLE = math.radians(90.0) / 640
 # The bound stays positive at the camera: distances are counted from this fraction of the
 # domain's metric extent behind it.
 NEAR_FRACTION = 0.05
-# The chord tolerance of a quality is its bound (footprint_fraction of the pixel footprint) times
-# this. Chords may stray farther from the curve than the bound allows hits to: hits are refined on
-# the true curve, and a chord's K h^2 / 8 overstates its distance from the curve. The value is the
-# largest scale of benchmarks/bench_front.py's sweep with which every quality of every curved
-# geometry keeps its measured error (hit positions and silhouettes) within half its bound
-# (docs/front.md, "The chord rule").
-CHORD_SCALE = 1.0
 RETRACE_FACTOR = 100  # the measured error: sampled rays traced again at tolerance / this
 SHADING = ("lambert", "normal", "position", "depth", "crossings", "object")
 PASSES = ("color", "depth", "normal", "position", "object", "crossings", "stop")
@@ -152,11 +145,12 @@ class Settings:
     def tolerances(self, space: Space, pixel_angle: float) -> tuple[float, float]:
         """(tolerance at distance 0, growth per unit of distance) of the chords, chart units (S2xR:
         metric, which its walk scales to the chart): the given tolerance, or the quality's fraction
-        of the pixel footprint pixel_angle * d at distance d (counted from NEAR_FRACTION of the
-        domain's metric extent behind the camera)."""
+        of the pixel footprint (footprint()) times the geometry's chord_scale, which
+        benchmarks/bench_front.py derives from the measured error/time front (docs/front.md, "The
+        chord rule")."""
         if self.tolerance is not None:
             return self.tolerance, 0.0
-        slope = CHORD_SCALE * QUALITY[self.quality].footprint_fraction * pixel_angle
+        slope = space.geometry.chord_scale * QUALITY[self.quality].footprint_fraction * pixel_angle
         return slope * NEAR_FRACTION * space.metric_extent, slope
 
 
