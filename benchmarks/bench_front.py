@@ -3,7 +3,8 @@ with it, at every quality and over a sweep of chord tolerances, side by side in 
 test: the machines are shared and noisy; every time is the best of --repeat runs); and the chord
 rule of the qualities (each geometry's chord_scale) derived from it.
 
-For one preset of each of the eight geometries: a scene of balls (icosphere meshes) inside its
+For one preset of each of the eight geometries (and RP3 # RP3, S2xR's folded quotient, traced
+through its double cover): a scene of balls (icosphere meshes) inside its
 domain, and rays from points of the domain, a third aimed at a ball's centre, a third at its rim
 (where the chords decide what is hit) and a third anywhere. The reference for each ray is computed
 here in Python: the geodesic in the universal cover from the geometry's own closed form (or its
@@ -30,10 +31,11 @@ The chord rule: the chord tolerance of a quality is its bound times the geometry
 silhouettes by what the chords really stray, and Sol's surfaces by its integrator's accuracy (1/20
 of the tolerance). At scale 1 the chords' bound K h^2 / 8 keeps silhouettes within the bound; a
 larger scale is worth taking where K overstates what the curve does. For every curved geometry and
-quality the sweep traces scales --scales of the bound; the derived scale is the largest above 1
-with every quality within --margin of its bound at it and at every scale between, else 1 (E3, S3
-and H3 have exact chords: the tolerance does not apply). Each derived scale's time and chords
-against scale 1 (the rule before) are measured side by side, interleaved.
+quality the sweep traces scales --scales of the bound; the scales that keep the bounds are 1 and
+those above it with every quality within --margin of its bound at them and at every scale
+between; their CPU times are measured side by side (interleaved), and the derived scale is the
+cheapest of them over the four qualities (E3, S3 and H3 have exact chords: the tolerance does not
+apply). Scale 1 is the rule before.
 
 Written as Markdown tables (docs/front.md) and a plot of the 99th-percentile error against the time
 per ray (docs/front.png).
@@ -55,7 +57,7 @@ from scipy.optimize import brentq, minimize_scalar
 from thurston_addon import render, spaces
 from thurston_addon.scene import Scene, SceneObject
 
-SPACES = ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "sl2"]
+SPACES = ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "rp3_rp3", "sl2"]
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -314,20 +316,21 @@ def timed(tracer, P, V, length, max_crossings, tolerances, repeat, count):
     """(out of the rays, seconds per ray): the rays traced, then tiled to `count` rays and traced
     repeat times for the least time."""
     out = render.trace(tracer, P, V, length, max_crossings, *tolerances, shade=False)
-    return out, least_seconds(tracer, P, V, length, max_crossings, [tolerances], repeat, count)[0]
+    return out, least_seconds(tracer, P, V, length, max_crossings, [tolerances], repeat, count, time.perf_counter)[0]
 
 
-def least_seconds(tracer, P, V, length, max_crossings, settings, repeat, count):
-    """Seconds per ray of each of the tolerance settings, the rays tiled to `count` rays, traced
-    repeat times in turn (interleaved: the machine's load falls on each alike) for the least time."""
+def least_seconds(tracer, P, V, length, max_crossings, settings, repeat, count, clock=time.process_time):
+    """Seconds per ray of each of the tolerance settings (process CPU time, all threads: time the
+    machine's other loads take is not counted), the rays tiled to `count` rays, traced repeat
+    times in turn (interleaved: a drift of the load falls on each alike) for the least time."""
     k = max(1, count // len(P))
     P, V = np.ascontiguousarray(np.tile(P, (k, 1))), np.ascontiguousarray(np.tile(V, (k, 1)))
     best = [math.inf] * len(settings)
     for _ in range(repeat):
         for i, tolerances in enumerate(settings):
-            t0 = time.perf_counter()
+            t0 = clock()
             render.trace(tracer, P, V, length, max_crossings, *tolerances, shade=False)
-            best[i] = min(best[i], time.perf_counter() - t0)
+            best[i] = min(best[i], clock() - t0)
     return [b / len(P) for b in best]
 
 
@@ -395,7 +398,7 @@ def main():
     scales = [float(v) for v in args.scales.split(",")]
     print(f"{args.rays} rays per space, best of {args.repeat}, {os.cpu_count()} CPUs; load average at the start "
           f"{os.getloadavg()[0]:.1f}\n")
-    header = ["space", "setting", "rays", "chords/ray", "µs/ray", "position error (median / p99 / max)",
+    header = ["space", "setting", "rays", "chords/ray", "µs/ray (wall)", "position error (median / p99 / max)",
               "depth error (median / p99 / max)", "disagree", "error in footprints (positions; silhouettes) / bound",
               "within / peer's time against ours at its accuracy"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
@@ -500,41 +503,47 @@ def scale_sweep(space, tracer, P, V, length, reference, refs, radii, scales):
 
 
 def chord_rule(sweep, scales, margin, cases, repeat, count):
-    """The sweep's table; each geometry's derived scale: 1 (where the chords' bound K h^2 / 8
-    keeps silhouettes within the bound), or the largest scale above it with every quality within
-    `margin` of its bound at it and at every scale between; and the time and chords of each derived
-    scale against scale 1 (the rule before), measured side by side."""
+    """The sweep's table; for each geometry the scales that keep every quality of each of its
+    presets within its bound (1, where the chords' bound K h^2 / 8 does it; those above it with
+    every quality within `margin` of its bound, at them and at every scale between), their CPU time
+    measured side by side (interleaved), and the derived scale: the cheapest of them over the four
+    qualities (and the geometry's presets)."""
     lines = ["| space | quality | " + " | ".join(f"scale {s:g}: error / bound, chords/ray" for s in scales) + " |",
              "|---|---|" + "---|" * len(scales)]
-    derived = {}
+    timing = [f"CPU µs per ray (both threads) of each scale that keeps the bounds, interleaved, least of {repeat}:\n",
+              "| space | quality | " + " | ".join(f"scale {s:g}" for s in scales) + " |", "|---|---|" + "---|" * len(scales)]
+    above = [k for k, s in enumerate(scales) if s > 1]
+    one = scales.index(1.0)
+    keep = {}  # geometry: the scales (indices) that keep the bounds in every preset of it
     for sid, found in sweep.items():
         ok = [True] * len(scales)
         for q, cells in found.items():
             lines.append(f"| {sid} | {q} | " + " | ".join(f"{e:.2g}, {c:.2f}" for e, c in cells) + " |")
             ok = [a and e <= margin for a, (e, _) in zip(ok, cells)]
-        above = [k for k, s in enumerate(scales) if s > 1]
-        passing = [scales[k] for k in above if all(ok[j] for j in above if j <= k)]
-        derived[sid] = max(passing, default=1.0)
-    lines.append("\nDerived scales (1, or the largest above it with every quality within " + f"{margin:g} of its bound): " +
-                 ", ".join(f"{sid} **{s:g}** (the geometry's chord_scale: "
-                           f"{spaces.load(sid).geometry.chord_scale:g})" for sid, s in derived.items()) + ".\n")
-    if 1.0 not in scales:
-        return "\n".join(lines)
-    lines += [f"Each derived scale against scale 1 (interleaved, best of {repeat}):\n",
-              "| space | quality | chords/ray (1 → derived) | µs/ray (1 → derived) | time saved | error / bound (1 → derived) |",
-              "|---|---|---|---|---|---|"]
+        name = cases[sid][0].geometry.name
+        kept = {one} | {k for k in above if all(ok[j] for j in above if j <= k)}
+        keep[name] = keep.get(name, kept) & kept
+    micro = {}  # (sid, quality): {scale index: CPU seconds per ray}
     for sid, found in sweep.items():
-        if derived[sid] == 1.0:
-            continue
         space, tracer, P, V, length = cases[sid]
-        one, chosen = scales.index(1.0), scales.index(derived[sid])
-        for q, cells in found.items():
+        kept = sorted(keep[space.geometry.name])
+        for q in found:
             base = np.array(rule_tolerances(space, q))
-            before, after = least_seconds(tracer, P, V, length, 100000, [base, derived[sid] * base], repeat, count)
-            (e1, c1), (e2, c2) = cells[one], cells[chosen]
-            lines.append(f"| {sid} | {q} | {c1:.2f} → {c2:.2f} | {before * 1e6:.2f} → {after * 1e6:.2f} | "
-                         f"{1 - after / before:.0%} | {e1:.2g} → {e2:.2g} |")
-    return "\n".join(lines)
+            micro[sid, q] = dict(zip(kept, least_seconds(tracer, P, V, length, 100000, [scales[k] * base for k in kept],
+                                                         repeat, count)))
+            timing.append(f"| {sid} | {q} | " + " | ".join(f"{micro[sid, q][k] * 1e6:.2f}" if k in micro[sid, q] else "-"
+                                                            for k in range(len(scales))) + " |")
+    saving = []
+    for name, kept in keep.items():
+        sids = [sid for sid in sweep if cases[sid][0].geometry.name == name]
+        total = lambda k: sum(micro[sid, q][k] for sid in sids for q in sweep[sid])
+        best = min(kept, key=total)
+        final = ", ".join(f"{sid} {sweep[sid]['final'][one][1]:.2f} → {sweep[sid]['final'][best][1]:.2f}" for sid in sids)
+        saving.append(f"{name} **{scales[best]:g}** ({1 - total(best) / total(one):.0%} of the CPU time of its presets' four "
+                      f"qualities; chords/ray at final: {final}; its chord_scale is "
+                      f"{cases[sids[0]][0].geometry.chord_scale:g})")
+    return "\n".join(lines + ["", *timing, "", "Derived scales (the cheapest that keeps the bounds; saved against "
+                                "scale 1): " + ", ".join(saving) + "."])
 
 
 def rule_tolerances(space, quality):

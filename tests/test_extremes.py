@@ -67,13 +67,13 @@ def trace(space, scene, P, V, length, tolerances, max_crossings=10**6):
 
 
 def reduce(space, Y):
-    """Cover model points (extended precision) carried into the domain: (X, M); the lattices of
-    the torus, Nil and Sol in closed form first (fast for far points)."""
+    """Cover model points (extended precision is kept) carried into the domain: (X, M); the
+    lattices of the torus, Nil and Sol in closed form first (fast for far points)."""
     if space.id in ("nil", "sol"):
         X, _, M = into_domain(space, Y)
     elif space.id == "torus":
-        shift = np.floor(Y[:, :3] / Y[:, 3:] + ld(0.5))
-        M = np.broadcast_to(np.eye(4, dtype=ld), (len(Y), 4, 4)).copy()
+        shift = np.floor(Y[:, :3] / Y[:, 3:] + 0.5)
+        M = np.broadcast_to(np.eye(4, dtype=Y.dtype), (len(Y), 4, 4)).copy()
         M[:, :3, 3] = -shift
         X = np.einsum("nij,nj->ni", M, Y)
         X, _, R = space.move_inside(X)
@@ -174,7 +174,7 @@ def cover_entry(space, P, V, L, centre, radius, step):
     carried into the domain, and searched from the first that comes within reach of the ball."""
     g = space.geometry
     t = np.arange(0.0, L + step, step)
-    Y, _ = g.geodesic(np.asarray(P, ld)[None], np.asarray(V, ld)[None], t.astype(ld))
+    Y, _ = g.geodesic(np.asarray(P, float)[None], np.asarray(V, float)[None], t)  # float64: the bound is >= 1e-4
     X, M = reduce(space, Y)
     x = np.asarray(g.to_chart(X), float)
     x_next = np.asarray(g.to_chart(np.einsum("kij,kj->ki", M[:-1], Y[1:])), float)
@@ -185,7 +185,7 @@ def cover_entry(space, P, V, L, centre, radius, step):
     k0 = close[0]
 
     def chart(k, s):
-        Z, _ = g.geodesic(np.asarray(P, ld), np.asarray(V, ld), ld(s))
+        Z, _ = g.geodesic(np.asarray(P, float), np.asarray(V, float), s)
         return np.asarray(g.to_chart(M[k0 + k] @ Z), float)
 
     return first_hits(t[k0:], x[k0:], x_next[k0:], chart, [centre], [radius], [radius * BALL_INNER])
