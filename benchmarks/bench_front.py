@@ -139,10 +139,13 @@ class Reference:
         Y, _, M = space.move_inside(X)
         x = np.asarray(g.to_chart(Y), float)
         x_next = np.asarray(g.to_chart(np.einsum("kij,kj->ki", M[:-1], X[1:])), float)
-        return Ray(self._first_hit(path, t, x, x_next, M), self._passages(path, t, x), path)
+        if space.fold is not None:  # a folded space's walk is in its double cover: pieces in f(D) back by f
+            mirrored = space.fold.mirrored(x)
+            x[mirrored] = space.fold.points(x[mirrored])
+            x_next[mirrored[:-1]] = space.fold.points(x_next[mirrored[:-1]])
+        return Ray(self._first_hit(path, t, x, x_next), self._passages(path, t, x), path)
 
-    def _first_hit(self, path, t, x, x_next, M):
-        g = self.space.geometry
+    def _first_hit(self, path, t, x, x_next):
         d = x_next - x[:-1]
         size = np.linalg.norm(d, axis=1)
         ok = size > 0
@@ -153,7 +156,7 @@ class Reference:
             tri = self.triangles[found["primID"][k]]
             n = np.cross(tri[1] - tri[0], tri[2] - tri[0])
             n /= np.linalg.norm(n)
-            chart = lambda s: np.asarray(g.to_chart(M[k] @ path(np.array([s]))[0]), float)
+            chart = lambda s: self._carried(path, t[k], s)[0]
             f = lambda s: n @ (chart(s) - tri[0])
             f0, f1 = f(t[k]), f(t[k + 1])
             if not (f0 * f1 < 0):
@@ -185,10 +188,14 @@ class Reference:
         return sorted(found, key=lambda p: p[1])
 
     def _carried(self, path, s0, s):
-        """Chart points of the path at arclengths s, carried by the isometry that brings s0's in."""
-        g = self.space.geometry
-        _, _, M = self.space.move_inside(path(np.array([s0])))
-        return np.asarray(g.to_chart(path(np.atleast_1d(s)) @ M[0].T), float)
+        """Chart points of the path at arclengths s, carried by the isometry that brings s0's in
+        (and by the fold where that lies in f(D))."""
+        space = self.space
+        Y, _, M = space.move_inside(path(np.array([s0])))
+        x = np.asarray(space.geometry.to_chart(path(np.atleast_1d(s)) @ M[0].T), float)
+        if space.fold is not None and space.fold.mirrored(np.asarray(space.geometry.to_chart(Y), float))[0]:
+            x = space.fold.points(x)
+        return x
 
     def _depth(self, obj, y):
         """The metric distance of the chart point y from ball obj's surface (positive inside):
@@ -346,6 +353,7 @@ def row(sid, name, compared, chords, seconds, pos, depth, disagree, bound, verdi
 def errors(space, out, firsts, radii):
     """The measured numbers over the rays with a reference first hit (firsts[i]: see Ray)."""
     g = space.geometry
+    position = render.own_hits(space, out)[0] if "normal" in out else out["position"]  # a folded space's own points
     pos, depth, footprints, disagree, compared = [], [], [], 0, 0
     for i, first in enumerate(firsts):
         if first is None:
@@ -359,7 +367,7 @@ def errors(space, out, firsts, radii):
         if not (hit and same_passage(first, int(out["object"][i]), float(out["depth"][i]), 2 * radii[obj])):
             disagree += 1
             continue
-        e = float(g.chord_distance(g.to_model(h), g.to_model(out["position"][i].astype(float))))
+        e = float(g.chord_distance(g.to_model(h), g.to_model(position[i].astype(float))))
         pos.append(e)
         depth.append(abs(float(out["depth"][i]) - s))
         footprints.append(e / render.footprint(space, render.REFERENCE_PIXEL_ANGLE, s))
@@ -368,11 +376,12 @@ def errors(space, out, firsts, radii):
 
 def silhouettes(reference, out, refs, radii):
     """The largest silhouette error (Reference.silhouette_error) over the rays, in footprints."""
+    position = render.own_hits(reference.space, out)[0]
     worst = 0.0
     for i, ray in enumerate(refs):
         hit, obj = out["stop"][i] == 0, int(out["object"][i])
-        worst = max(worst, reference.silhouette_error(ray, hit, obj, float(out["depth"][i]),
-                                                      out["position"][i].astype(float), 2 * radii[obj]))
+        worst = max(worst, reference.silhouette_error(ray, hit, obj, float(out["depth"][i]), position[i].astype(float),
+                                                      2 * radii[obj]))
     return worst
 
 
@@ -479,7 +488,7 @@ def main():
     out.mkdir(exist_ok=True)
     (out / "front.md").write_text(
         "# The error/time front (benchmarks/bench_front.py)\n\n" + "\n\n".join(__doc__.split("\n\n")[1:3]) +
-        f"\n\n{len(P)} rays per space, {args.balls} balls, best of {args.repeat}; load average "
+        f"\n\nMeasured {time.strftime('%Y-%m-%d')}: {len(P)} rays per space, {args.balls} balls, best of {args.repeat}; load average "
         f"{os.getloadavg()[0]:.1f} at the end.\n\n" + table + "\n\n## The chord rule\n\n" +
         __doc__.split("\n\n")[3] + "\n\n" + rule + "\n")
     plot(front, out / "front.png")
