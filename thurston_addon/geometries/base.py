@@ -42,9 +42,9 @@ class Geometry:
     # the copies within a reach grow slowly
     light_reach_circumradii = 1.0
     # The chord tolerance of a quality in units of its error bound (render.Settings.tolerances):
-    # 1, where the chords' bound K h^2 / 8 keeps silhouettes within the bound; more where the
-    # error/time front shows every quality within half its bound at it (benchmarks/bench_front.py,
-    # docs/front.md "The chord rule"; E3, S3 and H3 have exact chords and no tolerance)
+    # 1, where the chords' bound K h^2 / 8 keeps silhouettes within the bound; up to 4 where the
+    # error/time front shows every quality within half its bound at it and the time it saves
+    # (benchmarks/bench_front.py, docs/front.md "The chord rule"; E3, S3 and H3 have exact chords)
     chord_scale = 1.0
 
     def chart_geodesic(self, x, u, t):

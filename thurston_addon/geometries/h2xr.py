@@ -53,7 +53,7 @@ class H2xR(Geometry):
     copy_rings = 1  # hyperbolic rings of copies grow too fast for more
     sums_light_copies = True  # one geodesic per copy, in closed form
     light_reach_circumradii = 1.0  # the copies within R grow like exp(R)
-    chord_scale = 8.0  # its chords stray far less than K h^2 / 8 (docs/front.md, "The chord rule")
+    chord_scale = 4.0  # its chords stray far less than K h^2 / 8 (docs/front.md, "The chord rule")
     # Far in the cover the disk coordinates grow like e^t, as in H3 (see Hyperbolic).
     reference_depth = Hyperbolic.reference_depth
     # the volume density (1 - r^2)^(-3/2) peaks at the octagon's vertices (r = 0.985): 32 points

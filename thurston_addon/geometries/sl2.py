@@ -246,7 +246,7 @@ class SL2(Geometry):
     diameter = math.inf
     plane_chart_is_chart = False  # face planes are planes of (Klein(w), phi)
     copy_rings = 1  # hyperbolic rings of copies grow too fast for more
-    chord_scale = 4.0  # its chords stray less than K h^2 / 8 (docs/front.md, "The chord rule")
+    chord_scale = 4.0  # its chords stray far less than K h^2 / 8 (docs/front.md, "The chord rule")
     # far in the cover the model's SU(1,1) entries grow like e^(t/2), half H3's rate (cosh of half
     # the horizontal distance), so its words agree to H3's accuracy at twice H3's depth
     reference_depth = 2 * Hyperbolic.reference_depth
