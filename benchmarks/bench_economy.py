@@ -26,7 +26,9 @@ sphere). Rays: the default view's frame at --size, one ray per pixel (render.cam
 4. Object copies only where objects cross the domain (render.compile_scene: the copies g(object)
    of the domain's neighbours that reach it, their triangles wholly beyond a face dropped) against
    every neighbour's whole copy: triangles given to the core, the arrays' MiB, the build seconds
-   and CPU µs per ray.
+   and CPU µs per ray. (SL2~'s chart holds phi modulo 4 pi: whole copies of the dense scene's
+   tubes along the fibre wrap across it, some of their triangles spanning 4 pi through the domain,
+   so there "every" is not the same scene; its costs still compare.)
 
 Run: .venv/bin/python benchmarks/bench_economy.py [--size 160x90] [--repeat 3] [--spaces torus,...]
      [--out docs/economy.md]
