@@ -281,6 +281,8 @@ class _Surfaces:
             material_color_texture=np.array([texture_index(m.color_texture) for m in self.materials], np.int32),
             material_emission_texture=np.array([texture_index(m.emission_texture) for m in self.materials], np.int32),
             material_one_sided=np.array([m.one_sided for m in self.materials], np.int32),
+            material_scattering=np.array([[m.roughness, m.metallic, m.specular, m.ior] for m in self.materials],
+                                         np.float32).reshape(-1, 4),
             textures=[np.ascontiguousarray(t, np.float32) for t in self.textures.values()],
         )
         if self.with_uvs:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import tomllib
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -50,19 +50,40 @@ def _texture(value, what: str):
 @dataclass
 class Material:
     """Base colour and emission (linear RGB); a texture (an image file or a linear float image,
-    rows top-down, v = 0 the bottom row) multiplies its colour at the surface's UV."""
+    rows top-down, v = 0 the bottom row) multiplies its colour at the surface's UV. How it scatters,
+    as Blender's Principled BSDF: roughness, metallic, specular (its Specular IOR Level: 0.5 the
+    IOR's own reflectance, 0 no specular layer) and ior. The defaults (metallic and specular 0)
+    are a Lambert surface."""
     color: np.ndarray = field(default_factory=lambda: np.array(DEFAULT_COLOR))
     emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
     color_texture: np.ndarray | str | Path | None = None
     emission_texture: np.ndarray | str | Path | None = None
     name: str = ""
     one_sided: bool = False  # emits from the front only (the side of its triangles' winding normal)
+    roughness: float = 0.5
+    metallic: float = 0.0
+    specular: float = 0.0
+    ior: float = 1.5
 
     def __post_init__(self):
         self.color = np.asarray(self.color, dtype=np.float64).reshape(3)
         self.emission = np.asarray(self.emission, dtype=np.float64).reshape(3)
         self.color_texture = _texture(self.color_texture, f"material {self.name!r}: base colour")
         self.emission_texture = _texture(self.emission_texture, f"material {self.name!r}: emission")
+        for key, low, high in SCATTERING:
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) or \
+                    not low <= value <= high:
+                raise SceneError(f"material {self.name!r}: {key} must be a number in [{low}, {high}], got {value!r}")
+            setattr(self, key, float(value))
+
+    @property
+    def glossy(self) -> bool:
+        return self.metallic > 0 or (self.specular > 0 and self.ior > 1)
+
+
+# The scattering parameters of a material and their ranges (Blender's Principled BSDF's).
+SCATTERING = (("roughness", 0.0, 1.0), ("metallic", 0.0, 1.0), ("specular", 0.0, math.inf), ("ior", 1.0, math.inf))
 
 
 @dataclass
@@ -326,7 +347,9 @@ def _read_obj(path: Path) -> list[SceneObject]:
 
 def _read_mtl(path: Path) -> dict[str, Material]:
     """Kd, Ke and map_Kd (a path relative to the library; as Blender imports it, the texture
-    replaces Kd) of each material."""
+    replaces Kd) of each material, and its scattering as Blender's importer reads it: roughness Pr
+    (else from the exponent Ns, 1 - sqrt(Ns / 1000)), metallic Pm, the specular level the mean of
+    Ks, the index Ni (where it is one, >= 1)."""
     if not path.exists():
         warnings.warn(f"material library {path} not found; using default colours", stacklevel=3)
         return {}
@@ -337,9 +360,14 @@ def _read_mtl(path: Path) -> dict[str, Material]:
         parts = raw.split("#", 1)[0].split()
         if len(parts) >= 2 and parts[0] == "newmtl":
             current = specs.setdefault(parts[1], {})
-        elif current is not None and len(parts) >= 4 and parts[0] in ("Kd", "Ke"):
+        elif current is not None and len(parts) >= 4 and parts[0] in ("Kd", "Ke", "Ks"):
             try:
                 current[parts[0]] = np.array([float(p) for p in parts[1:4]])
+            except ValueError:
+                raise SceneError(f"{path}:{lineno}: cannot parse {raw.strip()!r}") from None
+        elif current is not None and len(parts) >= 2 and parts[0] in ("Pr", "Pm", "Ns", "Ni"):
+            try:
+                current[parts[0]] = float(parts[1])
             except ValueError:
                 raise SceneError(f"{path}:{lineno}: cannot parse {raw.strip()!r}") from None
         elif current is not None and len(parts) >= 2 and parts[0] == "map_Kd":
@@ -349,8 +377,17 @@ def _read_mtl(path: Path) -> dict[str, Material]:
     for name, spec in specs.items():
         texture = spec.get("map_Kd")
         color = np.ones(3) if texture is not None else spec.get("Kd", DEFAULT_COLOR)
+        scattering = {}
+        if "Pr" in spec or "Ns" in spec:
+            scattering["roughness"] = spec["Pr"] if "Pr" in spec else 1 - math.sqrt(min(max(spec["Ns"], 0), 1000) / 1000)
+        if "Pm" in spec:
+            scattering["metallic"] = spec["Pm"]
+        if "Ks" in spec:
+            scattering["specular"] = float(np.mean(spec["Ks"]))
+        if spec.get("Ni", 0) >= 1:  # exporters write Ni 0 (or 0.001) for no index
+            scattering["ior"] = spec["Ni"]
         try:
-            out[name] = Material(color, spec.get("Ke", np.zeros(3)), texture, name=name)
+            out[name] = Material(color, spec.get("Ke", np.zeros(3)), texture, name=name, **scattering)
         except SceneError as exc:
             raise SceneError(f"{path}: {exc}") from None
     return out
@@ -384,8 +421,13 @@ def _trimesh_objects(path: Path) -> list[SceneObject]:
         color, emission = _trimesh_material(mesh)
         material = getattr(mesh.visual, "material", None)
         texture = textures.get(getattr(material, "name", None))
+        name = str(getattr(material, "name", ""))
+        try:
+            materials = [Material(color, emission, texture, name=name, **_gltf_scattering(material))]
+        except SceneError as exc:
+            raise SceneError(f"{path}: {exc}") from None
         out.append(SceneObject(str(node), V, F, color, emission, corner_normals=normals, corner_uvs=uvs,
-                               materials=[Material(color, emission, texture, name=str(getattr(material, "name", "")))]))
+                               materials=materials))
     return out
 
 
@@ -443,6 +485,19 @@ def _gltf_base_textures(path: Path, header: dict, binary: bytes) -> dict[str, np
             except ValueError:
                 raise SceneError(f"{where}: its base colour image cannot be decoded") from None
     return out
+
+
+def _gltf_scattering(material) -> dict:
+    """A glTF material's metallic and roughness factors (absent: 1, as the format says) over its
+    dielectric's normal reflectance 0.04 (IOR 1.5 at Blender's specular level 0.5); Lambert for
+    the other formats' materials."""
+    from trimesh.visual.material import PBRMaterial
+
+    if not isinstance(material, PBRMaterial):
+        return {}
+    metallic, roughness = material.metallicFactor, material.roughnessFactor
+    return dict(metallic=1.0 if metallic is None else float(metallic),
+                roughness=1.0 if roughness is None else float(roughness), specular=0.5, ior=1.5)
 
 
 def _trimesh_material(mesh):
@@ -504,6 +559,10 @@ def load_scene_file(path: str | Path) -> Scene:
         file = "knot.glb"     # every object of the file, in its order
         color = [0.9, 0.3, 0.2]      # optional: overrides the file's materials and textures
         emission = [0, 0, 0]
+        roughness = 0.3       # optional, as Blender's Principled BSDF (overriding the file's):
+        metallic = 1.0        # roughness, metallic, specular (its Specular IOR Level; 0: no
+        specular = 0.5        # specular layer) and ior; without them (and in files without
+        ior = 1.5             # them) a Lambert surface
         [[object]]
         primitive = "sphere"  # sphere (radius), box (size), torus (radius, tube)
         center = [0.2, 0, 0]
@@ -564,6 +623,9 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
                 o.emission = _vec(spec["emission"], f"{where}: emission")
                 for m in o.materials:
                     m.emission, m.emission_texture = o.emission, None
+            scattering = {key: spec[key] for key, _, _ in SCATTERING if key in spec}
+            if scattering:
+                _scatter(o, scattering, where)
         if "transforms" in spec:
             for o in objs:
                 try:
@@ -604,6 +666,17 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
             clip_end=_number(c, "clip_end", 0.0, f"{path}: camera") if "clip_end" in c else None,
         )
     return scene
+
+
+def _scatter(obj: SceneObject, scattering: dict, where: str):
+    """Sets the scattering keys (Material's roughness, metallic, specular, ior) on every material of
+    the object (its one material made explicit where it has none)."""
+    if not obj.materials:
+        obj.materials = [Material(obj.color, obj.emission, name=obj.name)]
+    try:
+        obj.materials = [replace(m, **scattering) for m in obj.materials]
+    except (SceneError, TypeError) as exc:
+        raise SceneError(f"{where}: {exc}") from None
 
 
 def _area_light(spec: dict, position, where: str) -> SceneObject:
