@@ -223,7 +223,7 @@ def build_parser():
     r.add_argument("--light-samples", type=int, default=render.Settings.light_samples,
                    help="points sampled on the emissive meshes (and area lights) per shaded point and sample")
     r.add_argument("--bounces", type=int, default=render.Settings.bounces,
-                   help="diffuse bounces after each camera hit: global illumination by path tracing "
+                   help="bounces after each camera hit: global illumination by path tracing, any quality "
                         "(default 0: direct light only)")
     r.add_argument("--out", required=True, metavar="FILE")
     r.set_defaults(run=cmd_render)

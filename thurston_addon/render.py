@@ -88,7 +88,7 @@ class Settings:
     threads: int = 0
     tolerance: float | None = None  # chord tolerance in chart units (S2xR: metric); None: the quality's bound
     light_samples: int = 4  # points sampled on the emissive meshes per shaded point (each sample)
-    bounces: int = 0  # diffuse bounces after each camera hit (path tracing); 0: direct light only
+    bounces: int = 0  # bounces after each camera hit (path tracing, any quality); 0: direct light only
     seed: int = 0  # sample k's random numbers (light samples, bounces) come from seed + k
     transparent: bool = False  # alpha: the share of a pixel's samples that hit something (else 1)
     # (x, y, w, h): render only this window of the width x height image, x, y its top-left pixel

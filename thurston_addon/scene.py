@@ -70,20 +70,19 @@ class Material:
         self.emission = np.asarray(self.emission, dtype=np.float64).reshape(3)
         self.color_texture = _texture(self.color_texture, f"material {self.name!r}: base colour")
         self.emission_texture = _texture(self.emission_texture, f"material {self.name!r}: emission")
-        for key, low, high in SCATTERING:
+        for key, (low, high), meaning in SCATTERING:
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) or \
-                    not low <= value <= high:
-                raise SceneError(f"material {self.name!r}: {key} must be a number in [{low}, {high}], got {value!r}")
+                    not (low <= value <= high and (key != "ior" or value > 0)):
+                raise SceneError(f"material {self.name!r}: {key} must be {meaning}, got {value!r}")
             setattr(self, key, float(value))
 
-    @property
-    def glossy(self) -> bool:
-        return self.metallic > 0 or (self.specular > 0 and self.ior > 1)
 
 
-# The scattering parameters of a material and their ranges (Blender's Principled BSDF's).
-SCATTERING = (("roughness", 0.0, 1.0), ("metallic", 0.0, 1.0), ("specular", 0.0, math.inf), ("ior", 1.0, math.inf))
+# The scattering parameters of a material, their ranges (as Cycles clamps the Principled BSDF's) and
+# what the error says.
+SCATTERING = (("roughness", (0.0, 1.0), "a number in [0, 1]"), ("metallic", (0.0, 1.0), "a number in [0, 1]"),
+              ("specular", (0.0, math.inf), "a number >= 0"), ("ior", (0.0, math.inf), "a number > 0"))
 
 
 @dataclass

@@ -187,7 +187,7 @@ std::vector<Principled> make_scattering(const OptionalArray& given, std::int64_t
     if (!(r[0] >= 0.0f && r[0] <= 1.0f)) throw bad("roughness must be in [0, 1]");
     if (!(r[1] >= 0.0f && r[1] <= 1.0f)) throw bad("metallic must be in [0, 1]");
     if (!(r[2] >= 0.0f)) throw bad("the specular IOR level must be >= 0");
-    if (!(r[3] >= 1.0f)) throw bad("the IOR must be >= 1");
+    if (!(r[3] > 0.0f)) throw bad("the IOR must be > 0");
     out[m] = Principled::from(r[0], r[1], r[2], r[3]);
   }
   return out;

@@ -87,7 +87,8 @@ inline double schlick_fresnel(double f0, double cos_i) {
 }
 
 // Blender's Specular IOR Level: the normal reflectance F0 of the index scaled by 2 level, turned
-// back into an index (level 0.5: the index itself; 0: no specular layer, index 1).
+// back into an index (level 0.5: the index itself, or its inverse where it is below 1; 0: no
+// specular layer, index 1).
 inline double layer_index(double ior, double level) {
   const double r = (ior - 1.0) / (ior + 1.0);
   const double f0 = std::min(r * r * 2.0 * level, 0.999999);
@@ -147,7 +148,7 @@ struct Principled {
     p.metallic = std::clamp(metallic, 0.0, 1.0);
     const double alpha = std::max(roughness * roughness, kMinAlpha);
     p.ggx.alpha2 = alpha * alpha;
-    p.eta = p.metallic < 1.0 && level > 0.0 && ior > 1.0 ? layer_index(ior, level) : 1.0;
+    p.eta = p.metallic < 1.0 && level > 0.0 && ior != 1.0 ? layer_index(ior, level) : 1.0;
     if (p.eta > 1.0) p.albedo = layer_albedo(p.ggx, p.eta);
     return p;
   }
