@@ -617,12 +617,12 @@ class KernelTracer final : public Tracer {
       WalkContext shadows = context;
       shadows.tolerance = context.tolerance_at(out.depth[i]);
       shadows.tolerance_per_distance = 0.0;
-      const Vertex vertex = vertex_at(h.X, surface, options.bounces > 0);
+      const Vertex vertex = vertex_at(h.X, surface, 0, options);
       const Reflected direct = illumination(shadows, vertex, options, stats, hints, random);
       albedo = diffuse_albedo(vertex);
       light = direct.diffuse;
       glossy = direct.specular;
-      if ((options.bounces > 0 || options.emitter_sampling == EmitterSampling::kBounces) && !context.stopped())
+      if (vertex.bounce_follows && !context.stopped())
         bounced = bounce(shadows, vertex, options, stats, hints, random);
       if (context.stopped()) {  // a shadow or bounce walk may have been cut short: the light is not known
         write_miss(out, i, kCancelled, 0, 0.0, found.chords);
@@ -760,7 +760,11 @@ class KernelTracer final : public Tracer {
   // the ray that met it), whether it is opaque (emitters are not), its base colour, and whether a
   // bounce will leave it (then the emitters' samples there are weighed against the bounce's
   // density: multiple importance sampling). Glossy materials have their BSDF, in `frame`;
-  // Lambert's (base / pi) needs neither.
+  // Lambert's (base / pi) needs neither. A vertex `depth` bounces from the camera is left by a
+  // bounce below the bounce limit; at the limit, one that gathers emission only where the
+  // emitters' light is gathered by bounces alone, or by MIS at a glossy vertex (whose highlights of
+  // emitters the samples on them find poorly), so that direct light only stays as it was on
+  // Lambert surfaces.
   struct Vertex {
     Vec4 X, N, S;
     bool opaque, bounce_follows;
@@ -768,13 +772,16 @@ class KernelTracer final : public Tracer {
     Frame frame{};
     std::optional<Bsdf> bsdf;
   };
-  Vertex vertex_at(const Vec4& X, const Surface& s, bool bounce_follows) const {
-    Vertex v{X, s.N, s.S, !s.emits, bounce_follows, s.base, {}, std::nullopt};
+  Vertex vertex_at(const Vec4& X, const Surface& s, int depth, const TraceOptions& options) const {
+    Vertex v{X, s.N, s.S, !s.emits, depth < options.bounces, s.base, {}, std::nullopt};
     const Principled& scattering = s.material->scattering;
     if (scattering.glossy()) {
       v.frame = frame_at(X, s.S);
       v.bsdf.emplace(scattering, Color{s.base[0], s.base[1], s.base[2]}, local(X, v.frame, scaled(-1.0, s.V)));
     }
+    v.bounce_follows |= depth == options.bounces && !emitters_.triangles.empty() &&
+                        (options.emitter_sampling == EmitterSampling::kBounces ||
+                         (options.emitter_sampling == EmitterSampling::kMis && v.bsdf));
     return v;
   }
   // What the Lambert part of a vertex's BSDF reflects (of the light summed by illumination's
@@ -805,14 +812,13 @@ class KernelTracer final : public Tracer {
   // a mixture of that and GGX's visible normals, the throughput f cos / density), its geodesic
   // traced as camera rays are, with the fog along it; its hit adds the throughput times the
   // emission met there (weighed against the emitters' samples of that geodesic, MIS) and times
-  // the light its next-event estimate reflects. Without the emitters' samples (kBounces) one more
-  // bounce gathers the emission that the last vertex's samples would have.
+  // the light its next-event estimate reflects. A bounce beyond the limit (vertex_at) gathers
+  // emission only.
   Rgb bounce(const WalkContext& context, Vertex v, const TraceOptions& options, TraceStats& stats,
              LightHints& hints, Random& random) const {
     Color throughput{1.0, 1.0, 1.0};
     Rgb sum{0.0f, 0.0f, 0.0f};
-    const int last = options.bounces + (options.emitter_sampling == EmitterSampling::kBounces);
-    for (int b = 1; b <= last; ++b) {
+    for (int b = 1; v.bounce_follows; ++b) {
       Vec4 V;
       double density;
       if (v.bsdf) {
@@ -850,7 +856,7 @@ class KernelTracer final : public Tracer {
         for (int a = 0; a < 3; ++a) sum[a] += float(throughput[a] * s.emission[a] * weight);
       }
       if (b > options.bounces) break;
-      Vertex next = vertex_at(f.hit.X, s, b < options.bounces);
+      Vertex next = vertex_at(f.hit.X, s, b, options);
       const Reflected light = illumination(context, next, options, stats, hints, random);
       const Rgb albedo = diffuse_albedo(next);
       for (int a = 0; a < 3; ++a)
