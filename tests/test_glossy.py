@@ -38,62 +38,65 @@ def layer_eta(ior, level):
     return (1 + math.sqrt(f0)) / (1 - math.sqrt(f0))
 
 
-def specular_brdf(cos_o, wi, alpha, fresnel):
-    """The GGX BRDF (one colour channel) from wo = (sin, 0, cos_o) to the unit directions wi
-    (..., 3) above the surface: fresnel(wo.h) D(h) G2 / (4 cos_i cos_o)."""
-    wo = np.array([math.sqrt(1 - cos_o ** 2), 0.0, cos_o])
-    h = wi + wo
-    h = h / np.linalg.norm(h, axis=-1, keepdims=True)
-    a2 = alpha ** 2
-    D = a2 / (np.pi * (h[..., 2] ** 2 * (a2 - 1) + 1) ** 2)
-
-    def smith_lambda(c):
-        return 0.5 * (np.sqrt(1 + a2 * (1 / c ** 2 - 1)) - 1)
-
-    G = 1 / (1 + smith_lambda(cos_o) + smith_lambda(wi[..., 2]))
-    return fresnel(h @ wo) * D * G / (4 * wi[..., 2] * cos_o)
-
-
-def hemisphere(n_theta=400, n_phi=96):
-    """Gauss-Legendre nodes over the upper hemisphere: directions (n_theta, n_phi, 3) and weights
-    of the solid angle."""
+def half_vectors(n_theta=160, n_phi=64):
+    """Microfacet normals h over the upper hemisphere (Gauss-Legendre in the polar angle, where
+    GGX's D peaks at 0; uniform in the azimuth) and their solid-angle weights."""
     x, w = roots_legendre(n_theta)
     theta, w_theta = (x + 1) * math.pi / 4, w * math.pi / 4
-    y, v = roots_legendre(n_phi)
-    phi, w_phi = (y + 1) * math.pi, v * math.pi
+    phi = 2 * math.pi * np.arange(n_phi) / n_phi
     T, P = np.meshgrid(theta, phi, indexing="ij")
-    wi = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1)
-    return wi, np.outer(w_theta * np.sin(theta), w_phi)
+    h = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1)
+    return h, np.outer(w_theta * np.sin(theta), np.full(n_phi, 2 * math.pi / n_phi))
 
 
 class Principled:
     """The reference BSDF of a material (one colour channel): Lambert base of albedo rho under a
-    dielectric GGX layer of index eta (eta None: none), or metallic GGX with Schlick's Fresnel from
-    f0 = rho."""
+    dielectric GGX layer of index eta, dimmed by the layer's albedo (dimmed=False: not), or a
+    metal (GGX, Schlick's Fresnel from f0 = rho). Its specular part is integrated over the
+    microfacet normals h, wi the mirror image of wo about h: dw_i = 4 (wo.h) dw_h, and f_spec cos_i
+    dw_i = fresnel(wo.h) D(h) G2 (wo.h) / cos_o dw_h."""
 
     def __init__(self, rho, roughness, metallic, eta=None, dimmed=True):
         self.rho, self.alpha, self.metallic, self.eta, self.dimmed = rho, roughness ** 2, metallic, eta, dimmed
-        self.wi, self.weights = hemisphere()
+        self.h, self.weights = half_vectors()
+        x, w = roots_legendre(200)  # cos_i over [0, 1], for the Lambert part
+        self.mu, self.mu_weights = (x + 1) / 2, w / 2
+
+    def fresnel(self, c):
+        if self.metallic:
+            return self.rho + (1 - self.rho) * (1 - c) ** 5
+        return fresnel_dielectric(c, self.eta)
 
     def specular(self, cos_o):
-        if self.metallic:
-            return specular_brdf(cos_o, self.wi, self.alpha, lambda c: self.rho + (1 - self.rho) * (1 - c) ** 5)
-        return specular_brdf(cos_o, self.wi, self.alpha, lambda c: fresnel_dielectric(c, self.eta))
+        """(cos_i of the reflected directions, f_spec cos_i dw_i / dw_h) at the normals h."""
+        wo = np.array([math.sqrt(1 - cos_o ** 2), 0.0, cos_o])
+        c = self.h @ wo
+        cos_i = 2 * c * self.h[..., 2] - cos_o
+        a2 = self.alpha ** 2
+        D = a2 / (np.pi * (self.h[..., 2] ** 2 * (a2 - 1) + 1) ** 2)
 
-    def brdf(self, cos_o):
-        """f(wi, wo) cos_i at the hemisphere's nodes."""
-        spec = self.specular(cos_o)
-        if self.metallic:
-            return spec * self.wi[..., 2]
-        layer = np.sum(spec * self.wi[..., 2] * self.weights) if self.dimmed else 0.0  # the layer's albedo
-        return (spec + self.rho * (1 - layer) / math.pi) * self.wi[..., 2]
+        def smith_lambda(u):
+            return 0.5 * (np.sqrt(1 + a2 * (1 / u ** 2 - 1)) - 1)
+
+        up = (cos_i > 0) & (c > 0)
+        G = np.where(up, 1 / (1 + smith_lambda(cos_o) + smith_lambda(np.where(up, cos_i, 1.0))), 0.0)
+        return cos_i, self.fresnel(np.abs(c)) * D * G * c / cos_o
 
     def albedo(self, cos_o):
-        return float(np.sum(self.brdf(cos_o) * self.weights))
+        _, spec = self.specular(cos_o)
+        layer = np.sum(spec * self.weights)
+        if self.metallic:
+            return layer
+        return layer + self.rho * (1 - (layer if self.dimmed else 0.0))
 
     def bounce(self, cos_o, albedo):
         """The integral of f cos albedo(cos_i): one bounce's light in the furnace."""
-        return float(np.sum(self.brdf(cos_o) * albedo(self.wi[..., 2]) * self.weights))
+        cos_i, spec = self.specular(cos_o)
+        total = np.sum(spec * albedo(np.clip(cos_i, 0, 1)) * self.weights)
+        if not self.metallic:  # the Lambert part: rho (1 - E) / pi cos over the hemisphere
+            layer = np.sum(spec * self.weights) if self.dimmed else 0.0
+            total += self.rho * (1 - layer) * 2 * np.sum(self.mu * albedo(self.mu) * self.mu_weights)
+        return float(total)
 
 
 def furnace_truth(reference, cos_o, bounces):
