@@ -8,9 +8,10 @@ the render's own noise estimate (the standard error of its pixel means from thei
 direct-only row's difference is mostly bias: the light the bounces bring. The reference's own noise
 (its estimate, printed) sets the floor of the RMS column.
 
-Table 2, the emitters' light: the default scene with its point light replaced by a small bright
-emissive ball, the ring a metal (roughness 0.2) and the sphere varnished (a dielectric specular
-layer, roughness 0.3), path traced at --emitter-samples samples per pixel with the emitters' light
+Table 2, the emitters' light: the default scene with its point light replaced by an emissive ball
+("lamp": radius 0.04 of the inradius, the ring a metal of roughness 0.2 and the sphere varnished, a
+dielectric specular layer of roughness 0.3; "metal": radius 0.15, every object a metal of roughness
+0.15; --emitter-scenes), path traced at --emitter-samples samples per pixel with the emitters' light
 gathered by multiple importance sampling, by the emitters' samples alone and by the bounces alone
 (the tracer's emitter_sampling), with the distance limit at the light reach, so that the three
 reach the same copies of the emitter. Each twice with other random numbers: the noise is the RMS over
@@ -24,7 +25,7 @@ Table 3, the glossy BSDF's cost: the same scene direct-only and path traced with
 Lambert (metallic and specular 0) and glossy, --emitter-samples samples per pixel (noise as in
 table 2).
 Run: .venv/bin/python benchmarks/bench_gi.py [--size 160x90] [--spaces poincare,torus] [--bounces 4]
-     [--tables 1,2,3]
+     [--tables 1,2,3] [--emitter-scenes lamp,metal]
 """
 import argparse
 import math
@@ -53,20 +54,28 @@ class Sampling:
         return getattr(self._tracer, name)
 
 
-def lamp_scene(space, glossy=True):
-    """The default scene, its point light replaced by an emissive ball of radius 0.04 of the inradius
-    where the light was (radiance giving about the light's power), the ring metal and the sphere
-    varnished (glossy=False: all Lambert)."""
+# The emitter scenes: the lamp's radius (of the inradius) and each object's finish (None: Lambert).
+EMITTER_SCENES = {
+    "lamp": (0.04, lambda name: dict(ring=dict(roughness=0.2, metallic=1.0),
+                                     sphere=dict(roughness=0.3, specular=0.5)).get(name)),
+    "metal": (0.15, lambda name: dict(roughness=0.15, metallic=1.0)),
+}
+
+
+def lamp_scene(space, kind="lamp", glossy=True):
+    """The default scene, its point light replaced by an emissive ball where the light was
+    (radiance giving about the light's power), the objects finished as EMITTER_SCENES[kind] says
+    (glossy=False: all Lambert)."""
     scene = scenes.default_scene(space)
     light = scene.lights[0]
-    inr = space.chart_inradius
-    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.04 * inr)
+    radius, finish_of = EMITTER_SCENES[kind]
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=radius * space.chart_inradius)
     # a far ball of radiance Le and metric radius r lights as a point light of intensity Le pi r^2
-    radiance = light.power / (0.04 * space.inradius) ** 2
+    radiance = light.power / (radius * space.inradius) ** 2
     lamp = scenes.SceneObject("lamp", ball.vertices + light.position, ball.faces, (0, 0, 0), (radiance,) * 3)
     objects = []
     for obj in scene.objects:
-        finish = dict(ring=dict(roughness=0.2, metallic=1.0), sphere=dict(roughness=0.3, specular=0.5)).get(obj.name)
+        finish = finish_of(obj.name)
         if finish and glossy:
             obj = replace(obj, materials=[scenes.Material(obj.color, name=obj.name, **finish)])
         objects.append(obj)
@@ -121,9 +130,9 @@ def point_light_table(sid, args, w, h):
           f"{ref_seconds / direct_seconds:>9.2f} {'':>11} {reference.stats['noise']:>11.4f}")
 
 
-def emitter_table(sid, args, w, h):
+def emitter_table(sid, kind, args, w, h):
     space = spaces.load(sid)
-    scene = lamp_scene(space)
+    scene = lamp_scene(space, kind)
     tracer = render.make_tracer(space, scene)
     lamp = len(scene.objects) - 1
     rows = [(mode, *twice(space, scene, Sampling(tracer, mode), w, h, args.emitter_samples, args.bounces, lamp))
@@ -131,15 +140,15 @@ def emitter_table(sid, args, w, h):
     mis_seconds = rows[0][1]
     for mode, seconds, noise, mean in rows:
         label = {"mis": "MIS", "light": "emitter samples only", "bounce": "bounces only"}[mode]
-        print(f"{sid:<10} {label:<24} {seconds:>8.2f} {noise:>11.4f} {noise * math.sqrt(seconds / mis_seconds):>11.4f} "
-              f"{mean:>11.4f}")
+        print(f"{sid:<10} {kind:<6} {label:<22} {seconds:>8.2f} {noise:>11.4f} "
+              f"{noise * math.sqrt(seconds / mis_seconds):>11.4f} {mean:>11.4f}")
 
 
 def glossy_table(sid, args, w, h):
     space = spaces.load(sid)
     rows = []
     for glossy in (False, True):
-        scene = lamp_scene(space, glossy)
+        scene = lamp_scene(space, glossy=glossy)
         tracer = render.make_tracer(space, scene)
         for bounces in (0, args.bounces):
             seconds, noise, mean = twice(space, scene, tracer, w, h, args.emitter_samples, bounces, len(scene.objects) - 1)
@@ -158,6 +167,7 @@ def main():
     ap.add_argument("--direct-samples", type=int, default=16)
     ap.add_argument("--emitter-samples", type=int, default=16)
     ap.add_argument("--reference-samples", type=int, default=256)
+    ap.add_argument("--emitter-scenes", default="lamp,metal")
     ap.add_argument("--tables", default="1,2,3")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))
@@ -167,9 +177,11 @@ def main():
         for sid in args.spaces.split(","):
             point_light_table(sid, args, w, h)
     if "2" in tables:
-        print(f"\n{'space':<10} {'emitters lit by':<24} {'seconds':>8} {'noise':>11} {'equal time':>11} {'mean':>11}")
+        print(f"\n{'space':<10} {'scene':<6} {'emitters lit by':<22} {'seconds':>8} {'noise':>11} {'equal time':>11} "
+              f"{'mean':>11}")
         for sid in args.spaces.split(","):
-            emitter_table(sid, args, w, h)
+            for kind in args.emitter_scenes.split(","):
+                emitter_table(sid, kind, args, w, h)
     if "3" in tables:
         print(f"\n{'space':<10} {'materials':<24} {'seconds':>8} {'x Lambert':>9} {'noise':>11}")
         for sid in args.spaces.split(","):
