@@ -83,7 +83,7 @@ class Settings:
     max_distance: float | None = None  # None: the space's default
     max_crossings: int | None = None
     fog: float | None = None  # distance at which colour falls to 1/e; None: no fog
-    # geodesics to lights longer than this are not summed (E3, S3, H3); None: default_light_reach
+    # geodesics to lights longer than this are not summed; None: default_light_reach
     light_reach: float | None = None
     threads: int = 0
     tolerance: float | None = None  # chord tolerance in chart units (S2xR: metric); None: the quality's bound
@@ -186,8 +186,6 @@ def illumination_summary(s: dict) -> str:
 def light_summary(s: dict) -> str:
     emitters = (f"; {s['emitter_triangles']} emissive triangles in {s['emitter_copies']} copies, "
                 f"{s['light_samples']} points sampled on them per shaded point" if s["emitter_triangles"] else "")
-    if s["light_reach"] is None:
-        return f"light: each light's nearest of {s['light_copies']} copies{emitters}"
     return (f"light: {s['light_copies']} copies within reach {s['light_reach']:.3g} ({s['light_paths_per_point']:.1f} "
             f"geodesics per shaded point), energy beyond the reach up to the distance limit about "
             f"{s['light_energy_left_out']:.3g} x the summed (estimate){emitters}")
@@ -381,22 +379,13 @@ def _instance_copies(space: Space, obj, C):
     return np.concatenate(instances) if instances else np.zeros((0, 4, 4)), flat, missing, beyond
 
 
-def sums_light_copies(space: Space) -> bool:
-    """Whether the tracer sums the light of every copy within the reach along every geodesic to it
-    (the closed-form connecting geodesics of E3, S3, H3, H2xR, S2xR); elsewhere (Nil, Sol) each
-    light's nearest copy among space.light_elements() lights."""
-    return space.geometry.sums_light_copies
-
-
 def default_light_reach(space: Space) -> float:
     """A finite group (S3): everything, both arcs (the long arcs are shorter than 2 pi). Else the
-    geometry's multiple of the circumradius: E3 and S2xR twice it (E3: the domain's diameter at most,
-    so every point has its light's own copy and the ring around it; S2xR: the copies one period up
-    and down and the arcs round the sphere both ways), H3 and H2xR once (the light's nearest copy
-    for a light near the centre), as the copies within R grow as exp(2R), exp(R). The cost:
-    benchmarks/bench_light.py."""
-    if not sums_light_copies(space):
-        return math.inf  # the nearest copy, wherever it is
+    geometry's multiple of the circumradius (light_reach_circumradii): E3 and S2xR twice it (E3: the
+    domain's diameter at most, so every point has its light's own copy and the ring around it;
+    S2xR: the copies one period up and down and the arcs round the sphere both ways), H3 and H2xR
+    once (the light's nearest copy for a light near the centre), as the copies within R grow as
+    exp(2R), exp(R); Nil, Sol and SL2 as their modules say. The cost: benchmarks/bench_light.py."""
     if space.group_order is not None:
         return 2 * space.geometry.diameter
     return space.geometry.light_reach_circumradii * space.circumradius
@@ -410,13 +399,10 @@ def light_reach_for(space: Space, settings: Settings) -> float:
 
 def light_copies(space: Space, L, reach: float) -> np.ndarray:
     """The elements g (N,4,4) whose copies g L of the light L (a model point in the domain D) the
-    tracer lights with: where it sums every copy, those that can lie within `reach` of D (in E3 and
-    H3 those in tiles gD within reach of D (light_tiles) with every face plane of D within reach,
-    in the coordinate domains of H2xR and S2xR those within reach (cover_copies), in S3 all);
-    elsewhere (Nil, Sol, SL2) those around the domain, among which it takes the nearest."""
+    tracer lights with, those that can lie within `reach` of D: in E3 and H3 those in tiles gD
+    within reach of D (light_tiles) with every face plane of D within reach, in the coordinate
+    domains (H2xR, S2xR, Nil, Sol, SL2) those within reach (cover_copies), in S3 all."""
     g = space.geometry
-    if not sums_light_copies(space):
-        return np.array(space.light_elements())
     if space.group_order is not None:  # finite (S3): all of it
         return np.array(space.elements_within(g.diameter + 1e-6))
     if not g.projective:
@@ -433,7 +419,9 @@ def cover_copies(space: Space, L, reach: float) -> np.ndarray:
     copy g L within reach passes through a chain of face-neighbouring tiles D, t1 D, t1 t2 D, ...,
     g D (g = t1 ... tk), and the walk reaches g L through the copies of the suffixes,
     tj ... tk L = (t1 ... tj-1)^-1 g L, each as near D as g L is to the tile t1 ... tj-1 D, which
-    the geodesic crosses: within its length d(L, g L) <= reach + rho. Cached per light and reach."""
+    the geodesic crosses: within its length d(L, g L) <= reach + rho. A lower bound of the distance
+    to D serves as well (the walk then passes more copies, and keeps more: the tracer drops those
+    out of reach), and an upper bound of rho. Cached per light and reach."""
     def key(Y):  # relative: far copies have large model vectors, known to ~1e-16 of their size
         return tuple(np.round(Y / np.linalg.norm(Y), 8))
 
@@ -472,7 +460,8 @@ def _walk_cover_copies(space: Space, L, reach: float, key) -> np.ndarray:
     # a copy whose key rounded two ways would light twice: keep one of each point
     kept = np.array(kept)
     Y = g.normalize_point(kept @ L)
-    near = g.distance(Y[:, None], Y[None]) < 1e-6
+    Y = Y / np.linalg.norm(Y, axis=1)[:, None]
+    near = np.linalg.norm(Y[:, None] - Y[None], axis=2) < 1e-6
     return kept[~np.any(np.triu(near, 1), axis=0)]
 
 
@@ -529,16 +518,15 @@ def geodesic_loop(space: Space) -> float:
 
 def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
     """Tracer arrays: triangles of every object and of its copies g(object) that can reach the domain
-    (parts sticking out re-enter through the paired faces), and the lights' copies: in E3, S3, H3,
-    H2xR and S2xR every copy within light_reach of the domain (None: the default within the distance
-    limit; each lights every point within its reach: an infinite reach needs a finite group), in
-    Nil and Sol those around the domain (the tracer takes each light's nearest copy among them)."""
+    (parts sticking out re-enter through the paired faces), and the lights' copies: every copy
+    within light_reach of the domain (None: the default within the distance limit; each lights
+    every point within its reach: an infinite reach needs a finite group)."""
     g = space.geometry
     C = space.domain.covectors()
     C = C / np.linalg.norm(C, axis=1)[:, None]
     if light_reach is None:
         light_reach = light_reach_for(space, Settings())
-    if sums_light_copies(space) and space.group_order is None and not math.isfinite(light_reach):
+    if space.group_order is None and not math.isfinite(light_reach):
         raise RenderError(f"{space.name}: an infinite group needs a finite light reach")
     flat, meshes = [], []  # flat: (object index, source object, Y, kept, M); meshes: (index, chart maps)
     for index, obj in enumerate(scene.objects):
@@ -682,8 +670,7 @@ def _emitter_arrays(space: Space, scene: Scene, reach: float) -> dict:
                 raise SceneError(f"object {obj.name!r}: {exc}") from None
             used = np.unique(placed.triangles[emitting])
             X = g.normalize_point(g.to_model(placed.vertices[used]) @ M0.T)
-            # the reach bounds the copies where they are summed (elsewhere the nearest is taken)
-            radius = EMITTER_RADIUS_MARGIN * float(np.max(g.distance(L, X))) if sums_light_copies(space) else 0.0
+            radius = EMITTER_RADIUS_MARGIN * float(np.max(g.distance_bound(L, X)))
             corners = np.zeros((len(placed.vertices), 3))
             corners[used] = g.mesh_to_chart(X)
             triangles.append(corners[placed.triangles[emitting]])
@@ -1022,12 +1009,10 @@ def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: fl
     over the points of the space, the geodesics from the light of lengths in [r, r + dr] bring
     4 pi dr p / vol (the exponential map's Jacobian, which the falloff divides by, is the change of
     variables from the light's directions to the points). Without the limit the sum diverges
-    (Olbers) wherever it is not cut at S3's two arcs. Nil, Sol: each light's nearest copy, no estimate."""
+    (Olbers) wherever it is not cut at S3's two arcs."""
     stats = {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0,
              "emitter_triangles": tracer.num_emitter_triangles, "emitter_copies": tracer.num_emitter_copies,
              "light_samples": settings.light_samples}
-    if not sums_light_copies(space):
-        return {**stats, "light_reach": None, "light_energy_left_out": None}
     reach = tracer.light_reach
     longest = min(settings.max_distance or space.max_distance, 2 * space.geometry.diameter)
     if reach >= longest:

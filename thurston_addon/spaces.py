@@ -257,10 +257,6 @@ class Space:
         cached[levels] = self._search(inner, steps, touches, f"around the domain at level {levels}")
         return cached[levels]
 
-    def light_elements(self) -> list[np.ndarray]:
-        """The copies of a light the tracer chooses among: those around the domain."""
-        return self.neighbourhood(1)
-
     @cached_property
     def extent(self) -> float:
         """The domain's largest extent along a chart axis."""
@@ -499,12 +495,6 @@ class DirichletSpace(Space):
             return None
         return len(self.elements_within(self.geometry.diameter + 1e-6))
 
-    def light_elements(self) -> list[np.ndarray]:
-        """A finite group (S3): all of it, so that the nearest copy of a light is always among them."""
-        if self.group_order is not None:
-            return self.elements_within(self.geometry.diameter + 1e-6)
-        return super().light_elements()
-
     # --- the Dirichlet domain --------------------------------------------------------------------
     def _dirichlet_domain(self) -> Domain:
         """Grow the set of elements until the polyhedron of their bisectors passes Poincaré's
@@ -709,14 +699,14 @@ class CoordinateSpace(Space):
     group_order = None  # lattices and bundles: infinite
 
     def farthest_distance(self, X) -> float:
-        """The largest distance from the model point X to the domain's points: at a vertex, the domain
-        being the convex hull of its vertices in a geometry whose distance functions are convex (H2xR)."""
-        g = self.geometry
-        return float(np.max(g.distance(X, g.to_model(self.domain.vertices))))
+        """The largest distance from the model point X to the domain's points, or an upper bound of it
+        (the geometry's farthest_distance)."""
+        return self.geometry.farthest_distance(X, self.domain)
 
     @cached_property
     def circumradius(self) -> float:
-        """The largest distance from the chart origin (the domain's centre) to the domain."""
+        """The largest distance from the chart origin (the domain's centre) to the domain (or the
+        geometry's upper bound of it)."""
         return self.farthest_distance(self.geometry.to_model(np.zeros(3)))
 
     @property
