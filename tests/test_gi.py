@@ -36,17 +36,15 @@ def random_rays(space, centre, n, seed):
 
 def furnace_tracer(space, rho):
     """A finely divided chart sphere (sharp edges make the emitters' estimate heavy-tailed) around
-    the default camera point, and a light reach over its metric diameter where copies are summed
-    (farther copies are hidden behind it)."""
+    the default camera point, and a light reach over its metric diameter (farther copies are hidden
+    behind it)."""
     centre = np.asarray(space.camera.position, float)
     radius = 0.4 * space.chart_inradius
     ball = trimesh.creation.icosphere(subdivisions=3, radius=radius)
     walls = SceneObject("walls", ball.vertices + centre, ball.faces, (rho,) * 3, (LE,) * 3)
-    reach = None  # the nearest copy (Nil, Sol, SL2)
-    if render.sums_light_copies(space):
-        g = space.geometry
-        ends = g.to_model(centre + radius * np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]))
-        reach = 1.5 * float(max(g.distance(ends[2 * a], ends[2 * a + 1]) for a in range(3)))
+    g = space.geometry
+    ends = g.to_model(centre + radius * np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]))
+    reach = 1.5 * float(max(g.distance_bound(ends[2 * a], ends[2 * a + 1]) for a in range(3)))
     return render.make_tracer(space, Scene(objects=[walls], lights=[]), threads=2, light_reach=reach), centre
 
 

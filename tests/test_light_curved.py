@@ -377,3 +377,108 @@ def test_lit_colour_sums_every_copy_along_every_geodesic(space_id):
     np.testing.assert_allclose(colour, GLOW + RHO * terms.sum(), rtol=rtol)
     print(f"{len(terms)} geodesics; smallest term / colour", RHO * terms[terms > 0].min() / colour.max())
     assert RHO * terms[terms > 0].min() > 20 * rtol * colour.max()
+
+
+WIDE_NIL = """name = "wide Heisenberg manifold"
+description = "Nil / the integer Heisenberg group dilated by 12 (the automorphism (12 x, 12 y, 144 z))"
+geometry = "Nil"
+covolume = 20736
+max_distance = 20
+max_crossings = 64
+
+[[generator]]
+name = "x"
+matrix = [[1, 0, 0, 12], [0, 1, 0, 0], [0, 12, 1, 0], [0, 0, 0, 1]]
+face = [1, 0, 0, -6]
+
+[[generator]]
+name = "y"
+matrix = [[1, 0, 0, 0], [0, 1, 0, 12], [0, 0, 1, 0], [0, 0, 0, 1]]
+face = [0, 1, 0, -6]
+
+[[generator]]
+name = "z"
+matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 144], [0, 0, 0, 1]]
+face = [0, 0, 1, -72]
+"""
+
+
+def test_second_geodesics_light_too(tmp_path):
+    """Nil with a lattice wide enough that within a reach of 8.2 a point sees one copy of the light
+    (the others lie 11.5 or more away across, 136 or more up or down: may_reach), the light 8 above
+    the point, a little aside: three geodesics reach it, of branch 0 and both of branch 1 (turning
+    by more than 2 pi), and the colour is the sum over the three; each term exceeds the tolerance 20
+    times over, so a missing second geodesic fails it."""
+    path = tmp_path / "wide_nil.toml"
+    path.write_text(WIDE_NIL)
+    space = spaces.load(path)
+    g, reach, power = space.geometry, 8.2, 0.6
+    centre, light = np.array([0.0, 0.0, -4.0]), np.array([0.25, 0.1, 4.0])
+    colour, H, N, out = shade_one(space, ball_scene(centre, light, power), centre + [0.0, -0.3, 0.1], centre, reach)
+    x, n = np.asarray(g.to_chart(H), float), np.asarray(g.tangent_to_chart(H, N), float)
+    neighbours = np.array([g.to_chart(g.left_multiplication(np.array(k, float) * [12, 12, 144]) @ g.to_model(light))
+                           for k in itertools.product((-1, 0, 1), repeat=3)])
+    assert np.count_nonzero(may_reach("Nil", x, neighbours, reach)) == 1
+    (found,) = geodesics_to("Nil", x, light, reach)
+    assert len(found) == 3
+    G = metric("Nil", x)
+    terms = np.array([max(n @ G @ w, 0.0) / math.sqrt(w @ G @ w) * power * falloff("Nil", x, w) for w in found])
+    assert out["light_paths"] == 3
+    np.testing.assert_allclose(colour, GLOW + RHO * terms.sum(), rtol=2e-5)
+    assert RHO * terms.min() > 20 * 2e-5 * colour.max()
+
+
+# --- the bounds the copies of a light are found by ------------------------------------------------------
+
+def domain_points(space, n, rng):
+    """n points of the domain (its vertices first): convex combinations of the vertices of Nil's and
+    Sol's chart polyhedra; SL2's octagon (convex in the Klein disk) times its fibre interval."""
+    V = space.domain.vertices
+    if space.geometry.name != "SL2":
+        return np.concatenate([V, rng.dirichlet(np.ones(len(V)), n - len(V)) @ V])
+    C = space.domain.covectors()
+    sides = C[C[:, 2] == 0][:, [0, 1, 3]]
+    k = rng.uniform(-1, 1, (20 * n, 2))
+    k = k[np.all(np.c_[k, np.ones(len(k))] @ sides.T <= 0, axis=1)][: n - len(V)]
+    w = k / (1 + np.sqrt(1 - np.sum(k * k, axis=1)))[:, None]
+    return np.concatenate([V, np.c_[w, rng.uniform(-math.pi, math.pi, len(w))]])
+
+
+@pytest.mark.parametrize("space_id", ["nil", "sol", "sl2"])
+def test_the_bounds_of_distances_hold(space_id):
+    """What render.cover_copies relies on to miss no copy of a light: domain_distance at most the
+    distance from a point to the domain, farthest_distance at least the distance from a point of
+    the domain to its farthest one (SL2's walk is in H^2: there it is the disk's, exact at a
+    vertex), and distance_bound at least the distance (an emitter's copies reach as far as its
+    points' do); distances being the shortest connecting geodesics (whose enumeration
+    test_every_connecting_geodesic_and_its_falloff checks), between 300 points of the domain and
+    points of it and of its neighbouring copies."""
+    rng = np.random.default_rng(11)
+    space = spaces.load(space_id)
+    g = space.geometry
+    inside = domain_points(space, 300, rng)
+    letters = [*space.generators, *(np.linalg.inv(M) for M in space.generators)]
+    outside = [np.asarray(g.to_chart(g.normalize_point(letters[i] @ g.to_model(p))), float)
+               for p, i in zip(inside[-12:], rng.integers(0, len(letters), 12))]
+    connect = thurston_core.Connections(g.name, 8.0)
+
+    def distances(x):
+        return np.array([min(connect(x, q)[1], default=0.0 if np.array_equal(x, q) else np.inf) for q in inside])
+
+    for x in [*inside[:8], *inside[-4:], *outside]:
+        d = distances(x)
+        X = g.to_model(x)
+        assert np.all(np.isfinite(d))
+        assert g.domain_distance(X, space.domain) <= d.min() + 1e-9
+        assert np.all(np.asarray(g.distance_bound(X, g.to_model(inside)), float) >= d - 1e-9)
+        if g.name != "SL2":
+            assert g.farthest_distance(X, space.domain) >= d.max() - 1e-9
+    assert max(float(g.domain_distance(g.to_model(x), space.domain)) for x in outside) > 0.3
+
+
+@pytest.mark.parametrize("geometry, reach, message", [("Nil", -1.0, "reach"), ("Sol", math.nan, "reach"),
+                                                      ("SL2", math.inf, "reach"), ("E3", 1.0, "no marching flow"),
+                                                      ("Heisenberg", 1.0, "unknown geometry")])
+def test_bad_connections_are_one_clear_error(geometry, reach, message):
+    with pytest.raises(ValueError, match=message):
+        thurston_core.Connections(geometry, reach)
