@@ -280,9 +280,11 @@ def test_every_connecting_geodesic_and_its_falloff(case):
 
 # --- the lit colour: every copy of the light along every geodesic -------------------------------------
 
-def may_reach(name, h, x, reach):
+def may_reach(name, h, x, reach, fibre=True):
     """Whether a point x may lie within reach of h (necessary conditions): no curve outruns its
-    projection to Nil's (x, y) plane, SL2's hyperbolic plane or Sol's z axis; in Nil a curve of
+    projection to Nil's (x, y) plane, SL2's hyperbolic plane or Sol's z axis; in SL2 (where `fibre`:
+    the universal cover's chart, not the model's) phi' = c - lam Im(conj(w) w') changes at most by
+    |c| + |w| a < sqrt 2 per unit length (a, c the body speeds, a^2 + c^2 = 1); in Nil a curve of
     length L rises by at most L + L^2 / pi in the symmetric height z - x y / 2 seen from its start
     (its vertical part, and the area its shadow encloses with the chord, isoperimetric); in Sol, at
     arclength s of a curve of length L ending dz above its start, z - z_h lies between
@@ -302,7 +304,8 @@ def may_reach(name, h, x, reach):
         spread_y = 1.01 * np.trapz(np.exp(above), s, axis=0) * math.exp(h[2])
         return (np.abs(d[:, 2]) <= reach) & (np.abs(d[:, 0]) <= spread_x) & (np.abs(d[:, 1]) <= spread_y)
     w, v = h[0] + 1j * h[1], x[:, 0] + 1j * x[:, 1]
-    return 2 * np.arctanh(np.abs((v - w) / (1 - np.conj(w) * v))) <= reach
+    along = np.abs(d[:, 2]) <= math.sqrt(2) * reach if fibre else True
+    return along & (2 * np.arctanh(np.abs((v - w) / (1 - np.conj(w) * v))) <= reach)
 
 
 def group_copies(space, L, h, reach, margin):
@@ -319,14 +322,14 @@ def group_copies(space, L, h, reach, margin):
         for M in frontier:
             x = np.asarray(g.to_chart(g.normalize_point(M @ L)), float)
             key = tuple(np.round(x, 7))
-            if key in seen or not may_reach(g.name, h, x, reach + margin)[0]:
+            if key in seen or not may_reach(g.name, h, x, reach + margin, fibre=False)[0]:
                 continue
             seen.add(key)
             points.append(x)
             following += [A @ M for A in letters]
         frontier = following
     points = np.array(points)
-    return points[may_reach(g.name, h, points, reach)]
+    return points[may_reach(g.name, h, points, reach, fibre=False)]
 
 
 SCENES = {  # space: (light, ball centre, the ray's start offset, the domain's diameter at most)
@@ -360,6 +363,8 @@ def test_lit_colour_sums_every_copy_along_every_geodesic(space_id):
     if name == "SL2":
         turned = np.repeat([True, False, True], len(copies))
         copies = sl2_lifts(copies)
+        near = may_reach(name, x, copies, reach)
+        copies, turned = copies[near], turned[near]
     found = geodesics_to(name, x, copies, reach, most=3)
     if name == "SL2":
         assert any(f for f, t in zip(found, turned) if t)  # the model's other lift lights it

@@ -422,36 +422,42 @@ def cover_copies(space: Space, L, reach: float) -> np.ndarray:
     the geodesic crosses: within its length d(L, g L) <= reach + rho. A lower bound of the distance
     to D serves as well (the walk then passes more copies, and keeps more: the tracer drops those
     out of reach), and an upper bound of rho. Cached per light and reach."""
-    def key(Y):  # relative: far copies have large model vectors, known to ~1e-16 of their size
-        return tuple(np.round(Y / np.linalg.norm(Y), 8))
-
     cached = space.__dict__.setdefault("_cover_copies", {})  # the viewport renders one scene again and again
-    if (key(L), reach) not in cached:
+    (light,) = _copy_keys(np.asarray(L, float)[None])
+    if (light, reach) not in cached:
         if len(cached) >= COVER_COPIES_CACHED:
             cached.pop(next(iter(cached)))
-        cached[key(L), reach] = _walk_cover_copies(space, L, reach, key)
-    return cached[key(L), reach]
+        cached[light, reach] = _walk_cover_copies(space, L, reach)
+    return cached[light, reach]
+
+
+def _copy_keys(Y) -> list[tuple]:
+    """Keys of model points (rows): relative, as far copies have large model vectors, known to ~1e-16
+    of their size."""
+    return list(map(tuple, np.round(Y / np.linalg.norm(Y, axis=1)[:, None], 8).tolist()))
 
 
 COVER_COPIES_CACHED = 64  # lights and reaches whose copies a space keeps
 
 
-def _walk_cover_copies(space: Space, L, reach: float, key) -> np.ndarray:
+def _walk_cover_copies(space: Space, L, reach: float) -> np.ndarray:
     g = space.geometry
     rho = space.farthest_distance(L)
     steps = np.array([f.element for f in space.domain.faces])
 
-    found = {key(L)}
+    found = set(_copy_keys(np.asarray(L, float)[None]))
     kept = [np.eye(4)]
     frontier = np.eye(4)[None]
     while len(frontier):
         candidates = {}
-        for M in np.einsum("sij,njk->nsik", steps, frontier).reshape(-1, 4, 4):
-            candidates.setdefault(key(g.normalize_point(M @ L)), M)
-        new = np.array([M for k, M in candidates.items() if k not in found]).reshape(-1, 4, 4)
+        products = np.einsum("sij,njk->nsik", steps, frontier).reshape(-1, 4, 4)
+        for k, M in zip(_copy_keys(g.normalize_point(products @ L)), products):
+            candidates.setdefault(k, M)
+        fresh = [k for k in candidates if k not in found]
+        new = np.array([candidates[k] for k in fresh]).reshape(-1, 4, 4)
         distance = g.domain_distance(g.normalize_point(new @ L), space.domain)
         walk = distance <= reach + rho + 1e-9
-        found.update(key(g.normalize_point(M @ L)) for M in new[walk])
+        found.update(k for k, w in zip(fresh, walk) if w)
         kept += list(new[walk & (distance <= reach + 1e-9)])
         frontier = new[walk]
         if len(found) > LIGHT_TILE_LIMIT:

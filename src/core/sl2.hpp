@@ -136,7 +136,6 @@ struct SL2Flow : ClosedForm<SL2Flow> {
       if (f_parabolic >= 0.0) {
         const double c = bracketed_root(f_below, 0.0, parabolic, -P, f_parabolic, tolerance);
         add(c, below(c));
-        continue;
       }
       // above it (and the components n >= 1): c and t from u
       const auto c_of = [&](double u) {
@@ -156,7 +155,7 @@ struct SL2Flow : ClosedForm<SL2Flow> {
           add(c_of(u), t_of(u));
         }
       };
-      root(0.0, f_parabolic, kPi);
+      if (f_parabolic < 0.0) root(0.0, f_parabolic, kPi);
       for (int n = 1; 2.0 * kPi * n <= reach; ++n) {
         const double lo = kPi * n, hi = lo + kPi;
         const double bottom = unimodal_minimum(f_above, lo, hi, 1e-12 * hi), f_bottom = f_above(bottom);
