@@ -73,7 +73,8 @@ class ExpTable {
       const Node& node = nodes_[stack[--top]];
       if (!node.holds(T)) continue;
       if (node.count > 0) {
-        for (std::uint32_t c = node.first; c < node.first + node.count; ++c) cell_seeds(cells_[c], T, margin, seeds);
+        for (std::uint32_t c = node.first; c < node.first + node.count; ++c)
+          cell_seeds(cells_[c], T, margin, seeds);
       } else if (top + 2 <= int(stack.size())) {
         stack[top++] = node.first;
         stack[top++] = node.first + 1;
@@ -95,7 +96,9 @@ class ExpTable {
       add(b.hi);
     }
     bool holds(const Vec3& x) const {
-      return x[0] >= lo[0] && x[0] <= hi[0] && x[1] >= lo[1] && x[1] <= hi[1] && x[2] >= lo[2] && x[2] <= hi[2];
+      for (int a = 0; a < 3; ++a)
+        if (!(x[a] >= lo[a] && x[a] <= hi[a])) return false;
+      return true;
     }
   };
   // A cell: face f, direction (i, j) to (i + 1, j + 1), shells k to k + 1; the box of its image.
@@ -104,7 +107,8 @@ class ExpTable {
     std::uint16_t f, i, j, k;
   };
   struct Node : Box {
-    std::uint32_t first = 0, count = 0;  // leaves: cells [first, first + count); inner: children first, first + 1
+    // leaves: cells [first, first + count); inner nodes (count 0): children first, first + 1
+    std::uint32_t first = 0, count = 0;
   };
 
   std::size_t direction_index(int f, int i, int j) const {
@@ -112,7 +116,8 @@ class ExpTable {
   }
   // The unit direction of node (i, j) of cube face f (equal angles along each axis of the face).
   Vec3 cube_sphere(int f, int i, int j) const {
-    const double u = std::tan(0.25 * kPi * (2.0 * i / n_ - 1.0)), v = std::tan(0.25 * kPi * (2.0 * j / n_ - 1.0));
+    const double u = std::tan(0.25 * kPi * (2.0 * i / n_ - 1.0));
+    const double v = std::tan(0.25 * kPi * (2.0 * j / n_ - 1.0));
     const double s = f % 2 == 0 ? 1.0 : -1.0;
     Vec3 p;
     switch (f / 2) {
@@ -142,7 +147,8 @@ class ExpTable {
       const double det = dot3(dx[0], cross3(dx[1], dx[2]));
       if (!(std::abs(det) > 1e-13 * norm3(dx[0]) * norm3(dx[1]) * norm3(dx[2]))) continue;  // degenerate
       // rows of X^-1: the cross products of its columns over the determinant
-      const Vec3 rows[3] = {scaled3(1.0 / det, cross3(dx[1], dx[2])), scaled3(1.0 / det, cross3(dx[2], dx[0])),
+      const Vec3 rows[3] = {scaled3(1.0 / det, cross3(dx[1], dx[2])),
+                            scaled3(1.0 / det, cross3(dx[2], dx[0])),
                             scaled3(1.0 / det, cross3(dx[0], dx[1]))};
       const Vec3 d = sub3(T, x[0]);
       const Vec3 mu{dot3(rows[0], d), dot3(rows[1], d), dot3(rows[2], d)};

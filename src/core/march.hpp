@@ -1,11 +1,11 @@
 // The marching kernel: geodesics that bend in the chart, followed in chords whose deviation from
 // the true curve is bounded by the walk's tolerance.
 //
-// MarchingKernel<Flow> turns a geometry's flow (nil.hpp, sol.hpp, h2xr.hpp, s2xr.hpp, sl2.hpp) into the kernel
-// interface of kernel.hpp. Points and tangent vectors are chart 4-vectors (x, 1) and (v, 0); the
-// domain is bounded by faces (chart planes, or what the flow's side functions make of the
-// covectors: S2xR's spheres) whose face maps need not map faces onto faces: after every crossing
-// the point is reduced into the domain by the maps of the faces it lies outside of.
+// MarchingKernel<Flow> turns a geometry's flow (nil.hpp, sol.hpp, h2xr.hpp, s2xr.hpp, sl2.hpp) into
+// the kernel interface of kernel.hpp. Points and tangent vectors are chart 4-vectors (x, 1) and
+// (v, 0); the domain is bounded by faces (chart planes, or what the flow's side functions make of
+// the covectors: S2xR's spheres) whose face maps need not map faces onto faces: after every
+// crossing the point is reduced into the domain by the maps of the faces it lies outside of.
 //
 // A Flow provides the meeting of its model with the chart (AffineChart where they are one):
 //   static bool to_chart(Vec4& P, Vec4& V)   a ray's model point and tangent as chart 4-vectors;

@@ -94,10 +94,12 @@ struct NilFlow : AffineChart, ClosedForm<NilFlow> {
       if (!(t <= reach) || !(t > 0.0)) return;
       // at the origin: (c cos a, c sin a) = (X + iY) e^{-i theta/2} / (t S), w = theta / t
       const double ch = std::cos(half), sh = std::sin(half), w = theta / t, c2 = sq(lateral / t);
-      const double vx = axis ? 0.0 : (X * ch + Y * sh) / (t * S), vy = axis ? 0.0 : (Y * ch - X * sh) / (t * S);
+      const double vx = axis ? 0.0 : (X * ch + Y * sh) / (t * S);
+      const double vy = axis ? 0.0 : (Y * ch - X * sh) / (t * S);
       const double F = excess(theta), dF = excess_derivative(theta), dS = sin_over_derivative(half);
       const double rho_t = c2 * t * S * ch, rho_w = t * t * S * (0.5 * c2 * t * dS - w * S);  // times rho
-      const double z_t = w + c2 * t * (F + 0.5 * theta * dF), z_w = t - w * t * t * F + 0.5 * c2 * t * t * t * dF;
+      const double z_t = w + c2 * t * (F + 0.5 * theta * dF);
+      const double z_w = t - w * t * t * F + 0.5 * c2 * t * t * t * dF;
       paths.push_back({vector4({vx, vy, w + h[0] * vy}), t,
                        floored_falloff(std::abs(rho_t * z_w - rho_w * z_t))});
     };

@@ -245,13 +245,12 @@ struct SolFlow : AffineChart {
     seeds.clear();
     found.clear();
     table_->seeds(T, kSeedMargin, seeds);
+    const auto near = [&](const Vec3& w, double within) {  // a geodesic found already
+      return std::any_of(found.begin(), found.end(), [&](const Vec3& f) { return norm3(sub3(f, w)) <= within; });
+    };
     int missed = 0;
     for (const ExpTable::Seed& seed : seeds) {
-      // a seed beside a geodesic already found leads to it
-      const auto near = [&](const Vec3& w, double within) {
-        return std::any_of(found.begin(), found.end(), [&](const Vec3& f) { return norm3(sub3(f, w)) <= within; });
-      };
-      if (near(seed.w, kSameSeed * table_->cell())) continue;
+      if (near(seed.w, kSameSeed * table_->cell())) continue;  // a seed beside one leads to it
       Vec3 w;
       std::array<Vec3, 3> J;
       if (!shoot(T, seed, w, J)) {
