@@ -4,7 +4,6 @@ render's statistics (cost and accuracy)."""
 from __future__ import annotations
 
 import math
-import os
 import time
 import warnings
 from dataclasses import dataclass, field, replace
@@ -12,6 +11,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import checks
+from .files import physical_memory
 from .scene import Camera, Scene, SceneError
 from .spaces import Space, SpaceError
 
@@ -54,14 +54,6 @@ MAX_THREADS = 4096
 
 def memory_needed(width: int, height: int) -> int:
     return BYTES_PER_PIXEL * int(width) * int(height)
-
-
-def physical_memory() -> int | None:
-    """Bytes of physical memory, None where the system does not tell (no sysconf)."""
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):
-        return None
 
 
 class RenderError(ValueError):
