@@ -111,6 +111,7 @@ def cmd_render(args):
                                light_samples=args.light_samples, bounces=args.bounces, threads=args.threads,
                                tolerance=args.tolerance)
     lambert = settings.shading == "lambert"
+    render.camera_frame(space, camera)  # a camera that cannot be used is refused before the notes on it
     for note in checks.before_render(space, scene, camera, lambert):
         warnings.warn(note.message)
     result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
@@ -124,11 +125,7 @@ def cmd_render(args):
 def cmd_trace(args):
     out = files.check_output(args.out, args.overwrite)
     space, scene = _load_world(args)
-    files.check_input(args.rays, "rays file", CommandError)
-    try:
-        rays = np.load(args.rays, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise CommandError(f"cannot read rays file {args.rays!r} as a .npy array: {exc}") from None
+    rays = files.load_npy(args.rays, "rays file", CommandError)
     if rays.ndim != 2 or rays.shape[1] != 6 or rays.dtype != np.float64:
         raise CommandError(f"{args.rays}: expected a float64 array of shape (N, 6), got {rays.dtype} {rays.shape}")
     bad = ~np.all(np.isfinite(rays), axis=1)
@@ -138,13 +135,24 @@ def cmd_trace(args):
     outside = ~g.in_chart(rays[:, :3])
     if outside.any():
         raise CommandError(f"{args.rays}: ray {int(np.argmax(outside))} starts outside the chart of {g.name}")
-    if np.any(np.linalg.norm(rays[:, 3:], axis=1) == 0):
-        raise CommandError(f"{args.rays}: ray {int(np.argmax(np.linalg.norm(rays[:, 3:], axis=1) == 0))} has a zero direction")
-    # moved in with extended precision: far origins (Sol at |z| = 20) would lose digits in float64
+    largest = np.max(np.abs(rays[:, 3:]), axis=1)
+    if np.any(largest == 0):
+        raise CommandError(f"{args.rays}: ray {int(np.argmax(largest == 0))} has a zero direction")
+    # moved in with extended precision: far origins (Sol at |z| = 20) would lose digits in float64;
+    # directions scaled to at most 1 first, so that normalising them cannot overflow
     x = np.asarray(rays[:, :3], np.longdouble)
-    X = g.to_model(x)
-    V = g.normalize_tangent(X, g.tangent_to_model(x, np.asarray(rays[:, 3:], np.longdouble)))
-    X, V, _ = space.move_inside(X, V)
+    with np.errstate(all="ignore"):
+        X = g.to_model(x)
+        V = g.normalize_tangent(X, g.tangent_to_model(x, np.asarray(rays[:, 3:] / largest[:, None], np.longdouble)))
+        overflows = ~np.all(np.isfinite(g.normalize_point(X)), axis=1)
+    if overflows.any():
+        i = int(np.argmax(overflows))
+        raise CommandError(f"{args.rays}: ray {i} ({rays[i, :3].tolist()}) is too far out in the chart of {g.name} "
+                           "(its model point overflows)")
+    try:
+        X, V, _ = space.move_inside(X, V, label="ray")
+    except spaces.SpaceError as exc:
+        raise CommandError(f"{args.rays}: {exc}") from None
     settings = render.Settings(max_distance=args.max_distance, max_crossings=args.max_crossings, threads=args.threads,
                                quality=args.quality, tolerance=args.tolerance)
     settings.check()
