@@ -395,14 +395,22 @@ class Space:
         return bool(np.allclose(R @ M, np.eye(4), atol=1e-7))
 
     def _interior_points(self, rng, n):
-        """Random chart points strictly inside the domain."""
+        """Random chart points strictly inside the domain (by a relative margin of 1e-6, less in a
+        domain too thin for that)."""
         g = self.geometry
         lo, hi = self.domain.vertices.min(axis=0), self.domain.vertices.max(axis=0)
         out = np.zeros((0, 3))
+        margin, empty = 1e-6, 0
         while len(out) < n:
             x = rng.uniform(lo, hi, (4 * n, 3))
             x = x[g.in_chart(x)]  # the chart's own points only (the Klein disk's box reaches outside it)
-            out = np.vstack([out, x[self.domain.contains(g.to_model(x), tol=-1e-6)]])
+            found = x[self.domain.contains(g.to_model(x), tol=-margin)]
+            out = np.vstack([out, found])
+            empty = 0 if len(found) else empty + 1
+            if empty == 8:
+                if margin < 1e-12:
+                    raise SpaceError(f"{self.source}: the domain has no interior (its faces leave it flat)")
+                margin, empty = margin / 100, 0
         return out[:n]
 
     def unfolded(self, x, v=None):
