@@ -64,7 +64,7 @@ def read_text(path: str | Path, what: str, error: type[Exception], limit: str) -
 
 
 def size_text(n: int) -> str:
-    for unit, size in (("GiB", GiB), ("MiB", MiB), ("KiB", 1024)):
+    for unit, size in (("TiB", 2**40), ("GiB", GiB), ("MiB", MiB), ("KiB", 1024)):
         if n >= size:
             return f"{n / size:.3g} {unit}"
     return f"{n} bytes"

@@ -297,7 +297,8 @@ def degenerate(corners) -> np.ndarray:
     object, or the object's size, changes nothing)."""
     P = np.asarray(corners, np.float64)
     edges = P[:, [1, 2, 0]] - P
-    with np.errstate(over="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):  # (a triangle of one point: 0 / 0, degenerate)
+        edges /= np.max(np.abs(edges), axis=(1, 2))[:, None, None]  # scaled to 1: no under- or overflow
         area2 = np.linalg.norm(np.cross(edges[:, 0], -edges[:, 2]), axis=1)
         longest = np.max(np.sum(edges * edges, axis=2), axis=1)
         return ~(area2 > 1e-14 * longest)
