@@ -9,8 +9,10 @@ Objects are numbered in the order given: files in order, inside a file in the fi
 """
 from __future__ import annotations
 
+import json
 import math
 import numbers
+import struct
 import tomllib
 import warnings
 from dataclasses import dataclass, field
@@ -430,8 +432,8 @@ def _trimesh_objects(path: Path) -> list[SceneObject]:
     (else flat shading), glTF's TEXCOORD_0 and base colour textures."""
     import trimesh
 
+    header, binary = _gltf_parts(path)  # (first: its own errors are clearer than the reader's)
     loaded = trimesh.load(str(path), force="scene", process=False)
-    header, binary = _gltf_parts(path)
     order = {str(n.get("name", i)): i for i, n in enumerate(header.get("nodes", []))}
     textures = _gltf_base_textures(path, header, binary)
     out = []
@@ -463,9 +465,6 @@ def _trimesh_objects(path: Path) -> list[SceneObject]:
 
 def _gltf_parts(path: Path) -> tuple[dict, bytes]:
     """A glTF/GLB file's JSON and its binary chunk (b"" for .gltf); ({}, b"") for other files."""
-    import json
-    import struct
-
     if path.suffix.lower() not in (".glb", ".gltf"):
         return {}, b""
     data = path.read_bytes()
@@ -476,7 +475,12 @@ def _gltf_parts(path: Path) -> tuple[dict, bytes]:
         length = struct.unpack_from("<I", data, 12)[0]
         binary = data[28 + length:]
         data = data[20:20 + length]
-    header = json.loads(data.decode("utf-8"))
+    try:
+        header = json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path}: its JSON is not UTF-8 text (byte {exc.start})") from None
+    except json.JSONDecodeError as exc:
+        raise SceneError(f"{path}: its JSON is not valid: {exc.msg} (line {exc.lineno}, column {exc.colno})") from None
     if not isinstance(header, dict):
         raise SceneError(f"{path}: the glTF JSON is not an object")
     return header, binary
@@ -550,10 +554,24 @@ def load_mesh_file(path: str | Path) -> list[SceneObject]:
     except SceneError:
         raise
     except Exception as exc:  # trimesh and the file system raise many types
-        raise SceneError(f"cannot read mesh file {str(path)!r}: {exc}") from None
+        raise SceneError(f"cannot read mesh file {str(path)!r}: {_reader_failure(exc)}") from None
     if not objects:
         raise SceneError(f"{path}: the file holds no triangles")
     return [clean(o, str(path)) for o in objects]
+
+
+def _reader_failure(exc: Exception) -> str:
+    """What a mesh reader's exception says about the file, in words about the file where Python's
+    own would show (a corrupt file makes the readers index, look up and decode past its data)."""
+    if isinstance(exc, UnicodeDecodeError):
+        return f"it is not UTF-8 text where text is expected (byte {exc.start})"
+    if isinstance(exc, KeyError):
+        return f"an entry it needs is missing ({exc})"
+    if isinstance(exc, (IndexError, struct.error, EOFError)):
+        return "it refers past the end of its data (truncated or corrupt)"
+    if isinstance(exc, (TypeError, AttributeError)):
+        return "an entry has the wrong type (corrupt)"
+    return str(exc)  # the reader's own words (trimesh's ValueErrors), or the file system's
 
 
 # --- scene files (TOML) ------------------------------------------------------------------------------
@@ -663,7 +681,6 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
     every_object_key = sorted({*OBJECT_KEYS, *FILE_OBJECT_KEYS, *(k for keys in PRIMITIVE_KEYS.values() for k in keys)})
     for i, spec in enumerate(_tables(data, "object", path)):
         where = f"{path}: object {i}"
-        check_keys(spec, every_object_key, where, SceneError)
         if "file" in spec and "primitive" in spec:
             raise SceneError(f"{where}: give 'file' or 'primitive', not both")
         if "file" in spec:
@@ -677,6 +694,7 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
         elif "primitive" in spec:
             objs = [primitive(spec, where)]
         else:
+            check_keys(spec, every_object_key, where, SceneError)  # a misspelt file or primitive
             raise SceneError(f"{where}: needs 'file' or 'primitive'")
         for o in objs:  # overrides apply to every material of the file (textures included)
             if "color" in spec:

@@ -78,7 +78,11 @@ def evaluate(value, where: str) -> float:
         result = ev(ast.parse(value, mode="eval"))
     except SpaceError:
         raise
-    except (SyntaxError, ZeroDivisionError, ValueError, OverflowError, TypeError, RecursionError, MemoryError) as exc:
+    except SyntaxError:
+        raise SpaceError(f"{where}: cannot evaluate {value!r}: it is not an arithmetic expression") from None
+    except (OverflowError, MemoryError, RecursionError):
+        raise SpaceError(f"{where}: cannot evaluate {value!r}: it is too large") from None
+    except (ZeroDivisionError, ValueError, TypeError) as exc:  # division by zero, math domain error
         raise SpaceError(f"{where}: cannot evaluate {value!r}: {exc}") from None
     if not isinstance(result, float) or not math.isfinite(result):
         raise SpaceError(f"{where}: cannot evaluate {value!r}: not a finite real number")
