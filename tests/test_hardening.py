@@ -60,7 +60,7 @@ def space_file(tmp_path, *matrices, name="space.toml", geometry="E3", extra=""):
 
 # --- 4. bounded resources from small inputs ---------------------------------------------------------
 
-@pytest.mark.parametrize("kind, name", [("space file", "big.toml"), ("scene file", "big.toml"), ("mesh file", "big.obj"),
+@pytest.mark.parametrize("kind, name", [("space file", "big.toml"), ("scene file", "big.toml"), ("OBJ file", "big.obj"),
                                         ("mesh file", "big.glb"), ("material library", "big.mtl"),
                                         ("texture", "big.png")])
 def test_an_input_beyond_its_size_limit_is_refused_before_it_is_read(tmp_path, kind, name):
@@ -102,6 +102,17 @@ def test_subdivisions_are_bounded(tmp_path, value):
     path.write_text('[[object]]\nprimitive = "sphere"\nsubdivisions = 2\n')
     (sphere,) = scenes.load_scene_file(path).objects
     assert len(sphere.triangles) == 20 * 4**2  # an icosahedron's 20 faces, each split in 4 twice
+
+
+def test_a_scene_files_primitives_are_bounded_together(tmp_path, monkeypatch):
+    """Many primitives in a small file: their triangles together are bounded (the limit lowered
+    here to two spheres of 1280 triangles, so that the test builds three, not 52 of 327680)."""
+    monkeypatch.setattr(scenes, "MAX_PRIMITIVE_TRIANGLES", 2 * 1280)
+    path = tmp_path / "many.toml"
+    path.write_text('[[object]]\nprimitive = "sphere"\n' * 3)
+    with pytest.raises(scenes.SceneError, match=r"many\.toml: object 2: the file's primitives have more than 2560 "
+                                                r"triangles; place copies of one with `transforms`"):
+        scenes.load_scene_file(path)
 
 
 def npy_header(shape, dtype="<f8") -> bytes:
@@ -259,6 +270,23 @@ def test_the_cli_names_the_file_of_a_float32_overflow(tmp_path, capsys):
     path.write_text("[[light]]\nposition = [0, 0, 0.3]\npower = 1e300\n")
     line = cli_error(["render", "--space", "torus", "--scene", path, "--size", "8x8", "--out", tmp_path / "x.png"], capsys)
     assert line.startswith(f"thurston: error: {path}: light 0: ") and "float32" in line
+
+
+def test_blender_names_the_light_beyond_float32(registered_addon):
+    """The add-on's export: a light whose power times colour passes float32 is an ExportError
+    naming the Blender light (the engine and the operators report it)."""
+    import bpy
+
+    import blender_helpers as bh
+    from thurston_addon import export
+
+    bh.fresh_scene("torus", scale=1.0)
+    light = bpy.data.lights.new("Huge", "POINT")
+    light.energy, light.color = 3e38, (3e38, 1.0, 1.0)
+    bh.link(bpy.data.objects.new("Huge", light))
+    with pytest.raises(export.ExportError, match=r"light 'Huge': light at .*: power times colour has a value of "
+                                                 r"2\.28e\+75, beyond the 3\.4e\+38 of the tracer's float32"):
+        export.export_scene(bpy.context.evaluated_depsgraph_get(), 1.0, [])
 
 
 def test_the_core_refuses_vertices_and_maps_beyond_float32():

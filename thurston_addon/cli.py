@@ -142,15 +142,9 @@ def read_rays(path, space) -> tuple[np.ndarray, np.ndarray]:
     # moved in with extended precision: far origins (Sol at |z| = 20) would lose digits in float64;
     # directions scaled to at most 1 first, so that normalising them cannot overflow
     x = np.asarray(rays[:, :3], np.longdouble)
-    with np.errstate(all="ignore"):
-        X = g.to_model(x)
-        V = g.normalize_tangent(X, g.tangent_to_model(x, np.asarray(rays[:, 3:] / largest[:, None], np.longdouble)))
-        overflows = ~np.all(np.isfinite(g.normalize_point(X)), axis=1)
-    if overflows.any():
-        i = int(np.argmax(overflows))
-        raise CommandError(f"{path}: ray {i} ({rays[i, :3].tolist()}) is too far out in the chart of {g.name} "
-                           "(its model point overflows)")
     try:
+        X = space.to_model(x, label="ray")
+        V = g.normalize_tangent(X, g.tangent_to_model(x, np.asarray(rays[:, 3:] / largest[:, None], np.longdouble)))
         X, V, _ = space.move_inside(X, V, label="ray")
     except spaces.SpaceError as exc:
         raise CommandError(f"{path}: {exc}") from None

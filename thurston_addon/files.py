@@ -16,13 +16,15 @@ from pathlib import Path
 import numpy as np
 
 MiB, GiB = 2**20, 2**30
-# The largest file of each kind that is read, in bytes (parsed text takes several times its size in
-# memory; a mesh file of 1 GiB holds some 30 million triangles).
+# The largest file of each kind that is read, in bytes: parsed text takes several times its size in
+# memory (an OBJ file about 16 times: 4 GiB for the largest), a binary mesh file of 1 GiB holds
+# some 20 million triangles.
 SIZE_LIMITS = {
     "space file": 1 * MiB,
     "scene file": 16 * MiB,  # TOML
     "material library": 16 * MiB,
-    "mesh file": 1 * GiB,
+    "OBJ file": 256 * MiB,
+    "mesh file": 1 * GiB,  # PLY, STL, glTF, GLB and a glTF's buffers
     "texture": 1 * GiB,
 }
 

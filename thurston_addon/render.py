@@ -744,14 +744,9 @@ def camera_frame(space: Space, camera: Camera):
     r = np.cross(f, u)
     if not (np.all(np.isfinite(r)) and np.linalg.norm(r) > 1e-12 * np.linalg.norm(f) * np.linalg.norm(u)):
         raise RenderError(f"camera forward {f.tolist()} and up {u.tolist()} must be finite, non-zero and not parallel")
-    with np.errstate(all="ignore"):
-        X = g.to_model(p)
-        overflows = not np.all(np.isfinite(g.normalize_point(X)))
-    if overflows:
-        raise RenderError(f"camera position {p.tolist()} is too far out in the chart of {g.name} (its model point overflows)")
     frame = [g.tangent_to_model(p, v) for v in (f, r, u)]
     try:
-        X, _, M = space.bring_inside(X)
+        X, _, M = space.bring_inside(space.to_model(p[None], label=None)[0])
     except SpaceError as exc:
         raise RenderError(f"camera: {exc}") from None
     basis = []

@@ -27,6 +27,7 @@ DEFAULT_COLOR = (0.8, 0.8, 0.8)
 # The tracer keeps colours, radiance and (in Embree) vertices as float32: larger values become inf.
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 MAX_SUBDIVISIONS = 7  # an icosphere's: 20 * 4^7 = 327680 triangles
+MAX_PRIMITIVE_TRIANGLES = 2**24  # of a scene file's primitives together (copies: `transforms`)
 
 
 class SceneError(ValueError):
@@ -546,7 +547,7 @@ def _trimesh_material(mesh):
 
 
 def load_mesh_file(path: str | Path) -> list[SceneObject]:
-    path = check_input(path, "scene file", SceneError, "mesh file")
+    path = check_input(path, "scene file", SceneError, "OBJ file" if Path(path).suffix.lower() == ".obj" else "mesh file")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise SceneError(f"{path}: unsupported file type {path.suffix!r} (mesh files: {', '.join(sorted(MESH_SUFFIXES))}; scenes: .toml)")
     try:
@@ -678,6 +679,7 @@ def load_scene_file(path: str | Path) -> Scene:
 def _scene_from_toml(data: dict, path: Path) -> Scene:
     check_keys(data, SCENE_KEYS, str(path), SceneError)
     scene = Scene()
+    primitive_triangles = 0
     every_object_key = sorted({*OBJECT_KEYS, *FILE_OBJECT_KEYS, *(k for keys in PRIMITIVE_KEYS.values() for k in keys)})
     for i, spec in enumerate(_tables(data, "object", path)):
         where = f"{path}: object {i}"
@@ -693,6 +695,10 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
                 raise SceneError(f"{where}: {exc}") from None
         elif "primitive" in spec:
             objs = [primitive(spec, where)]
+            primitive_triangles += len(objs[0].triangles)
+            if primitive_triangles > MAX_PRIMITIVE_TRIANGLES:
+                raise SceneError(f"{where}: the file's primitives have more than {MAX_PRIMITIVE_TRIANGLES} triangles; "
+                                 "place copies of one with `transforms` (instances) instead")
         else:
             check_keys(spec, every_object_key, where, SceneError)  # a misspelt file or primitive
             raise SceneError(f"{where}: needs 'file' or 'primitive'")

@@ -338,6 +338,19 @@ class Space:
         X, V, M = self.move_inside(np.asarray(X, float)[None], None if V is None else np.asarray(V, float)[None], label=None)
         return X[0], (None if V is None else V[0]), self.geometry.reorthonormalize(M[0])
 
+    def to_model(self, x, label="point"):
+        """Chart points (rows) as model points; SpaceError naming a point (`label` i; None: the only
+        one) so far out in the chart that its model point overflows."""
+        g = self.geometry
+        with np.errstate(all="ignore"):
+            X = g.to_model(x)
+            overflows = ~np.all(np.isfinite(g.normalize_point(X)), axis=-1)
+        if overflows.any():
+            i = int(np.argmax(overflows))
+            raise SpaceError(f"{_point_name(label, i)} ({np.asarray(x[i], float).tolist()}) is too far out in the "
+                             f"chart of {g.name} (its model point overflows)")
+        return X
+
     def move_inside(self, X, V=None, max_steps=10000, label="point"):
         """Model points (rows; extended precision is kept) and optionally their tangent vectors,
         moved into the domain by the face pairings: each step applies, to the points still
@@ -352,8 +365,8 @@ class Space:
         def refuse(i, why):
             with np.errstate(all="ignore"):
                 where = np.asarray(g.to_chart(np.asarray(given[i])), float).tolist()
-            name = "the point" if label is None else f"{label} {i}"
-            raise SpaceError(f"{name} ({where}) {why}; it cannot be brought into the domain of {self.id!r}")
+            raise SpaceError(f"{_point_name(label, i)} ({where}) {why}; it cannot be brought into the domain of "
+                             f"{self.id!r}")
 
         with np.errstate(all="ignore"):
             X = g.normalize_point(np.array(X, copy=True))
@@ -434,6 +447,11 @@ class Space:
             "id": self.id, "name": self.name, "geometry": self.geometry.name, "description": self.description,
             "faces": len(self.domain.faces), "vertices": len(self.domain.vertices), "source": self.source,
         }
+
+
+def _point_name(label: str | None, i: int) -> str:
+    """How a message names point i of those given (label None: the only one)."""
+    return "the point" if label is None else f"{label} {i}"
 
 
 def _text(data: dict, key: str, default: str, where: str) -> str:
