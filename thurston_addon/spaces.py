@@ -111,10 +111,13 @@ def _count(value, where) -> int:
 
 def row_norms(Y) -> np.ndarray:
     """The Euclidean norms of the rows of Y, also where their squares overflow (far points)."""
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+    with np.errstate(over="ignore", invalid="ignore"):
         norms = np.sqrt(np.sum(Y * Y, axis=-1))
-        largest = np.max(np.abs(Y), axis=-1)
-        return np.where(np.isfinite(norms), norms, largest * np.sqrt(np.sum((Y / largest[..., None]) ** 2, axis=-1)))
+        far = ~np.isfinite(norms)
+        if far.any():  # scaled to their largest entry first
+            largest = np.max(np.abs(Y[far]), axis=-1)[..., None]
+            norms[far] = largest[..., 0] * np.sqrt(np.sum((Y[far] / largest) ** 2, axis=-1))
+    return norms
 
 
 # --- the space ---------------------------------------------------------------------------------
@@ -379,22 +382,23 @@ class Space:
         M = np.broadcast_to(np.eye(4, dtype=X.dtype), (len(X), 4, 4)).copy()
         active = np.arange(len(X))  # the points not yet inside
         for _ in range(max_steps):
+            here = X if len(active) == len(X) else X[active]
             with np.errstate(over="ignore", invalid="ignore"):
-                Y = g.plane_coordinates(X[active])
+                Y = g.plane_coordinates(here)
                 s = Y @ C.T
-            size = row_norms(Y)
-            overflow = ~np.all(np.isfinite(s), axis=1)
+            worst = np.argmax(s, axis=1)  # (a NaN is the largest)
+            beyond = s[np.arange(len(active)), worst]
+            overflow = ~np.isfinite(beyond)
             if overflow.any():
                 refuse(int(active[np.argmax(overflow)]), f"is too far out: {g.name}'s domain test overflows there")
-            worst = np.argmax(s, axis=1)
-            outside = s[np.arange(len(active)), worst] > 1e-12 * size
-            active, worst = active[outside], worst[outside]
+            outside = beyond > 1e-12 * row_norms(Y)
+            active, worst, here = active[outside], worst[outside], here[outside]
             if len(active) == 0:
                 if V is not None:
                     V = g.normalize_tangent(X, np.einsum("nij,nj->ni", M, np.asarray(V, X.dtype)))
                 return X, V, M
-            moved = g.normalize_point(np.einsum("nij,nj->ni", maps[worst], X[active]))
-            stuck = np.all(moved == X[active], axis=1)
+            moved = g.normalize_point(np.einsum("nij,nj->ni", maps[worst], here))
+            stuck = np.all(moved == here, axis=1)
             if stuck.any():
                 refuse(int(active[np.argmax(stuck)]), "is too far out: the face pairings no longer move it (rounding)")
             X[active] = moved
