@@ -111,13 +111,14 @@ def _count(value, where) -> int:
 
 def row_norms(Y) -> np.ndarray:
     """The Euclidean norms of the rows of Y, also where their squares overflow (far points)."""
+    rows = np.reshape(Y, (-1, np.shape(Y)[-1]))
     with np.errstate(over="ignore", invalid="ignore"):
-        norms = np.sqrt(np.sum(Y * Y, axis=-1))
+        norms = np.sqrt(np.sum(rows * rows, axis=-1))
         far = ~np.isfinite(norms)
         if far.any():  # scaled to their largest entry first
-            largest = np.max(np.abs(Y[far]), axis=-1)[..., None]
-            norms[far] = largest[..., 0] * np.sqrt(np.sum((Y[far] / largest) ** 2, axis=-1))
-    return norms
+            largest = np.max(np.abs(rows[far]), axis=-1)
+            norms[far] = largest * np.sqrt(np.sum((rows[far] / largest[:, None]) ** 2, axis=-1))
+    return norms.reshape(np.shape(Y)[:-1])
 
 
 # --- the space ---------------------------------------------------------------------------------
