@@ -8,6 +8,7 @@ import re
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -18,7 +19,7 @@ import thurston_core
 from thurston_addon import cli, files, render, spaces
 from thurston_addon import scene as scenes
 
-from outputs import error_line, listing, stop
+from outputs import error_line, fill, listing, stop, tmpfs
 
 THURSTON = Path(sys.executable).with_name("thurston")
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -491,6 +492,41 @@ def test_a_signal_stops_the_reduction_of_far_rays(tmp_path, signum):
     time.sleep(1.0)
     stop(run, signum)
     assert listing(tmp_path) == ["empty.toml", "far.npy"]
+
+
+def test_a_full_disk_where_a_gltf_texture_is_unpacked(tmp_path, monkeypatch):
+    """A glTF's embedded base colour image is unpacked to a temporary file for OpenImageIO: with
+    the temporary folder on a full file system (a small tmpfs) loading is one error naming the
+    glTF and the reason; with room it loads."""
+    import base64
+    import json
+
+    from thurston_addon import images
+
+    images.write(tmp_path / "tex.png", {"color": np.full((4, 4, 3), 0.5, np.float32)})
+    png = base64.b64encode((tmp_path / "tex.png").read_bytes()).decode()
+    blob = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]], np.float32).tobytes() + np.zeros((3, 2), np.float32).tobytes()
+    gltf = {
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0, "name": "tri"}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "material": 0}]}],
+        "materials": [{"name": "painted", "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+        "textures": [{"source": 0}], "images": [{"uri": f"data:image/png;base64,{png}"}],
+        "buffers": [{"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 24}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0],
+                       "max": [0.1, 0.1, 0]}, {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"}]}
+    path = tmp_path / "painted.gltf"
+    path.write_text(json.dumps(gltf))
+    with tmpfs(tmp_path / "tmp", "64k") as disk:
+        monkeypatch.setattr(tempfile, "tempdir", str(disk))
+        fill(disk)
+        with pytest.raises(scenes.SceneError, match=re.escape(f"cannot read mesh file {str(path)!r}: No space left on "
+                                                              "device")):
+            scenes.load_mesh_file(path)
+        (disk / "filler").unlink()
+        (obj,) = scenes.load_mesh_file(path)
+        np.testing.assert_allclose(obj.materials[0].color_texture, 0.5, atol=0.01)
+        assert listing(disk) == []
 
 
 def test_a_scene_file_rewritten_while_renders_read_it(tmp_path):

@@ -572,7 +572,9 @@ def _reader_failure(exc: Exception) -> str:
         return "it refers past the end of its data (truncated or corrupt)"
     if isinstance(exc, (TypeError, AttributeError)):
         return "an entry has the wrong type (corrupt)"
-    return str(exc)  # the reader's own words (trimesh's ValueErrors), or the file system's
+    if isinstance(exc, OSError) and exc.strerror:  # the file system's (the one a texture is unpacked to)
+        return exc.strerror + (f" ({exc.filename})" if exc.filename else "")
+    return str(exc)  # the reader's own words (trimesh's ValueErrors)
 
 
 # --- scene files (TOML) ------------------------------------------------------------------------------
