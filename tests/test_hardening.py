@@ -116,6 +116,15 @@ def test_a_scene_files_primitives_are_bounded_together(tmp_path, monkeypatch):
         scenes.load_scene_file(path)
 
 
+def test_a_tolerance_too_small_to_finish_is_refused(tmp_path, capsys):
+    """Nil's chords grow as 1 / sqrt(tolerance): at 1e-300 four rays never finished (before: the
+    render ran until it was stopped); 1e-10 is the least taken."""
+    line = cli_error(["render", "--space", "nil", "--size", "4x4", "--tolerance", "1e-300", "--out", tmp_path / "x.png"],
+                     capsys)
+    assert line == "thurston: error: tolerance must be a number of chart units of at least 1e-10 (None: the quality's), got 1e-300"
+    render.Settings(tolerance=render.MIN_TOLERANCE).check()
+
+
 def npy_header(shape, dtype="<f8") -> bytes:
     import io
 

@@ -35,6 +35,9 @@ REFERENCE_PIXEL_ANGLE = math.radians(90.0) / 640
 # domain's metric extent behind it.
 NEAR_FRACTION = 0.05
 RETRACE_FACTOR = 100  # the measured error: sampled rays traced again at tolerance / this
+# A chord tolerance's chords grow as 1 / sqrt(tolerance) (Nil: about 65 a ray at 1e-6), and the
+# measured error retraces at tolerance / RETRACE_FACTOR: below this a ray takes unbounded time.
+MIN_TOLERANCE = 1e-10
 SHADING = ("lambert", "normal", "position", "depth", "crossings", "object")
 PASSES = ("color", "depth", "normal", "position", "object", "crossings", "stop")
 STOP_REASONS = ("hit", "distance", "crossings", "cancelled")
@@ -130,9 +133,9 @@ class Settings:
             raise RenderError(f"seed must be a whole number >= 0, got {self.seed}")
         if not (_whole(self.threads) and 0 <= self.threads <= MAX_THREADS):
             raise RenderError(f"threads must be a whole number from 0 (all cores) to {MAX_THREADS}, got {self.threads}")
-        if self.tolerance is not None and not (self.tolerance > 0 and math.isfinite(self.tolerance)):
-            raise RenderError(f"tolerance must be a positive number of chart units (None: the quality's), "
-                              f"got {self.tolerance}")
+        if self.tolerance is not None and not (MIN_TOLERANCE <= self.tolerance < math.inf):
+            raise RenderError(f"tolerance must be a number of chart units of at least {MIN_TOLERANCE:g} (None: the "
+                              f"quality's), got {self.tolerance}")
 
     def tolerances(self, space: Space, pixel_angle: float) -> tuple[float, float]:
         """(tolerance at distance 0, growth per unit of distance) of the chords, chart units (S2xR:
