@@ -4,7 +4,6 @@ render's statistics (cost and accuracy)."""
 from __future__ import annotations
 
 import math
-import os
 import time
 import warnings
 from dataclasses import dataclass, field, replace
@@ -12,6 +11,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import checks
+from .files import physical_memory
 from .scene import Camera, Scene, SceneError
 from .spaces import Space, SpaceError
 
@@ -35,6 +35,9 @@ REFERENCE_PIXEL_ANGLE = math.radians(90.0) / 640
 # domain's metric extent behind it.
 NEAR_FRACTION = 0.05
 RETRACE_FACTOR = 100  # the measured error: sampled rays traced again at tolerance / this
+# A chord tolerance's chords grow as 1 / sqrt(tolerance) (Nil: about 65 a ray at 1e-6), and the
+# measured error retraces at tolerance / RETRACE_FACTOR: below this a ray takes unbounded time.
+MIN_TOLERANCE = 1e-10
 SHADING = ("lambert", "normal", "position", "depth", "crossings", "object")
 PASSES = ("color", "depth", "normal", "position", "object", "crossings", "stop")
 STOP_REASONS = ("hit", "distance", "crossings", "cancelled")
@@ -54,14 +57,6 @@ MAX_THREADS = 4096
 
 def memory_needed(width: int, height: int) -> int:
     return BYTES_PER_PIXEL * int(width) * int(height)
-
-
-def physical_memory() -> int | None:
-    """Bytes of physical memory, None where the system does not tell (no sysconf)."""
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):
-        return None
 
 
 class RenderError(ValueError):
@@ -138,9 +133,9 @@ class Settings:
             raise RenderError(f"seed must be a whole number >= 0, got {self.seed}")
         if not (_whole(self.threads) and 0 <= self.threads <= MAX_THREADS):
             raise RenderError(f"threads must be a whole number from 0 (all cores) to {MAX_THREADS}, got {self.threads}")
-        if self.tolerance is not None and not (self.tolerance > 0 and math.isfinite(self.tolerance)):
-            raise RenderError(f"tolerance must be a positive number of chart units (None: the quality's), "
-                              f"got {self.tolerance}")
+        if self.tolerance is not None and not (MIN_TOLERANCE <= self.tolerance < math.inf):
+            raise RenderError(f"tolerance must be a number of chart units of at least {MIN_TOLERANCE:g} (None: the "
+                              f"quality's), got {self.tolerance}")
 
     def tolerances(self, space: Space, pixel_angle: float) -> tuple[float, float]:
         """(tolerance at distance 0, growth per unit of distance) of the chords, chart units (S2xR:
@@ -745,10 +740,9 @@ def camera_frame(space: Space, camera: Camera):
     r = np.cross(f, u)
     if not (np.all(np.isfinite(r)) and np.linalg.norm(r) > 1e-12 * np.linalg.norm(f) * np.linalg.norm(u)):
         raise RenderError(f"camera forward {f.tolist()} and up {u.tolist()} must be finite, non-zero and not parallel")
-    X = g.to_model(p)
     frame = [g.tangent_to_model(p, v) for v in (f, r, u)]
     try:
-        X, _, M = space.bring_inside(X)
+        X, _, M = space.bring_inside(space.to_model(p[None], label=None)[0])
     except SpaceError as exc:
         raise RenderError(f"camera: {exc}") from None
     basis = []

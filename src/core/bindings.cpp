@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <exception>
+#include <limits>
 #include <string>
 #include <utility>
 
@@ -105,6 +106,19 @@ void require_finite(const std::vector<std::array<T, C>>& rows, const char* name)
       if (!std::isfinite(x))
         throw nb::value_error((std::string(name) + " contain NaN or inf at row " +
                                std::to_string(i)).c_str());
+}
+
+// Embree holds vertices and instance maps as float: a finite double beyond float's range would
+// become inf there.
+bool fits_float(double x) { return std::isfinite(x) && std::fabs(x) <= double(std::numeric_limits<float>::max()); }
+
+template <std::size_t C>
+void require_float_range(const std::vector<std::array<double, C>>& rows, const char* name) {
+  for (std::size_t i = 0; i < rows.size(); ++i)
+    for (double x : rows[i])
+      if (!fits_float(x))
+        throw nb::value_error((std::string(name) + " row " + std::to_string(i) +
+                               " is beyond the range of float32, which Embree keeps it in").c_str());
 }
 
 // The optional surface arguments of the constructor, as given.
@@ -270,8 +284,10 @@ void make_instances(const InstanceArrays& given, const std::string& geometry, st
           instance.to_chart.m[4 * r + c] = p[i * t.stride(0) + r * t.stride(1) + c * t.stride(2)];
       const std::string row = "instance_transform row " + std::to_string(i);
       Affine inverse;
-      for (double x : instance.to_chart.m)
+      for (double x : instance.to_chart.m) {
         if (!std::isfinite(x)) throw nb::value_error((row + " contains NaN or inf").c_str());
+        if (!fits_float(x)) throw nb::value_error((row + " is beyond the range of float32, which Embree keeps it in").c_str());
+      }
       if (!instance.to_chart.inverse(inverse))
         throw nb::value_error((row + " is singular (its 3x3 part has no inverse)").c_str());
       if (instance.object < 0 || instance.object + std::max(top[mesh[i]], 0) >= NO)
@@ -327,6 +343,7 @@ SceneData make_scene(const std::string& geometry, const Array& face_covectors, c
   check<double>(vertices, "vertices", {-1, 3}, "(NV,3)");
   const auto vertex_rows = rows<double, 3>(vertices);
   require_finite(vertex_rows, "vertices");
+  require_float_range(vertex_rows, "vertices");
   scene.vertices = vertex_rows;
 
   check<std::int32_t>(triangles, "triangles", {-1, 3}, "(NT,3)");
