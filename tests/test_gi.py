@@ -43,17 +43,15 @@ def random_rays(space, centre, n, seed):
 
 def furnace_tracer(space, rho):
     """A finely divided chart sphere (sharp edges make the emitters' estimate heavy-tailed) around
-    the default camera point, and a light reach over its metric diameter where copies are summed
-    (farther copies are hidden behind it)."""
+    the default camera point, and a light reach over its metric diameter (farther copies are hidden
+    behind it)."""
     centre = np.asarray(space.camera.position, float)
     radius = 0.4 * space.chart_inradius
     ball = trimesh.creation.icosphere(subdivisions=3, radius=radius)
     walls = SceneObject("walls", ball.vertices + centre, ball.faces, (rho,) * 3, (LE,) * 3)
-    reach = None  # the nearest copy (Nil, Sol, SL2)
-    if render.sums_light_copies(space):
-        g = space.geometry
-        ends = g.to_model(centre + radius * np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]))
-        reach = 1.5 * float(max(g.distance(ends[2 * a], ends[2 * a + 1]) for a in range(3)))
+    g = space.geometry
+    ends = g.to_model(centre + radius * np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]))
+    reach = 1.5 * float(max(g.distance_bound(ends[2 * a], ends[2 * a + 1]) for a in range(3)))
     return render.make_tracer(space, Scene(objects=[walls], lights=[]), threads=2, light_reach=reach), centre
 
 
@@ -230,10 +228,9 @@ def by_sampling(space, tracer, P, D, length, modes=("mis", "light", "bounce")):
 
 @pytest.mark.parametrize("space_id", SPACES)
 def test_mis_has_the_mean_of_its_parts_and_less_noise(space_id):
-    """With a distance limit no longer than the light reach, the emitters' samples (E3, S3, H3,
-    H2xR, S2xR: every geodesic within the reach) and the bounces reach the same geodesics, so all
-    three estimates have one mean; in Nil, Sol and SL2 the samples take the geodesic to the
-    nearest copy only, so there the bounces and the weighed estimate agree."""
+    """With a distance limit no longer than the light reach, the emitters' samples (every geodesic
+    within the reach) and the bounces reach the same geodesics, so all three estimates have one
+    mean."""
     space = spaces.load(space_id)
     reach = 2.5 * space.inradius
     tracer = render.make_tracer(space, mis_scene(space), threads=2, light_reach=reach)
@@ -241,9 +238,8 @@ def test_mis_has_the_mean_of_its_parts_and_less_noise(space_id):
     P, D = downward_rays(space, 20000, seed=7)
     est = by_sampling(space, tracer, P, D, reach)
     print(space_id, {mode: (round(m, 4), round(e, 4)) for mode, (m, e) in est.items()})
-    compared = ("light", "bounce") if render.sums_light_copies(space) else ("bounce",)
     (m, e) = est["mis"]
-    for mode in compared:
+    for mode in ("light", "bounce"):
         assert abs(m - est[mode][0]) < 4 * math.hypot(e, est[mode][1]), mode
     assert e < 0.9 * max(est["light"][1], est["bounce"][1])
 

@@ -103,8 +103,8 @@ class ThurstonSettings(bpy.types.PropertyGroup):
                                          description="Face crossings after which rays stop (-1: the space's default)")
     fog: bpy.props.FloatProperty(name="Fog", default=0.0, min=0.0, description="Distance at which colour falls to 1/e (0: none)")
     light_reach: bpy.props.FloatProperty(name="Light Reach", default=0.0, min=0.0,
-                                         description="E3, S3, H3: each light lights along every geodesic up to this "
-                                                     "long, one per copy of the light (0: the space's default)")
+                                         description="Each light lights along every geodesic up to this long, to "
+                                                     "every copy of the light (0: the space's default)")
     light_samples: bpy.props.IntProperty(name="Light Samples", default=render.Settings.light_samples, min=1, max=4096,
                                          description="Points sampled on the emissive meshes and area lights per "
                                                      "shaded point and sample")

@@ -1,6 +1,7 @@
 // Python bindings: argument validation, numpy outputs, and the GIL around traces.
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
+#include <nanobind/stl/array.h>
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
@@ -9,6 +10,7 @@
 #include <cmath>
 #include <exception>
 #include <iterator>
+#include <limits>
 #include <string>
 #include <utility>
 
@@ -106,6 +108,19 @@ void require_finite(const std::vector<std::array<T, C>>& rows, const char* name)
       if (!std::isfinite(x))
         throw nb::value_error((std::string(name) + " contain NaN or inf at row " +
                                std::to_string(i)).c_str());
+}
+
+// Embree holds vertices and instance maps as float: a finite double beyond float's range would
+// become inf there.
+bool fits_float(double x) { return std::isfinite(x) && std::fabs(x) <= double(std::numeric_limits<float>::max()); }
+
+template <std::size_t C>
+void require_float_range(const std::vector<std::array<double, C>>& rows, const char* name) {
+  for (std::size_t i = 0; i < rows.size(); ++i)
+    for (double x : rows[i])
+      if (!fits_float(x))
+        throw nb::value_error((std::string(name) + " row " + std::to_string(i) +
+                               " is beyond the range of float32, which Embree keeps it in").c_str());
 }
 
 // The optional surface arguments of the constructor, as given.
@@ -298,8 +313,10 @@ void make_instances(const InstanceArrays& given, const std::string& geometry, st
           instance.to_chart.m[4 * r + c] = p[i * t.stride(0) + r * t.stride(1) + c * t.stride(2)];
       const std::string row = "instance_transform row " + std::to_string(i);
       Affine inverse;
-      for (double x : instance.to_chart.m)
+      for (double x : instance.to_chart.m) {
         if (!std::isfinite(x)) throw nb::value_error((row + " contains NaN or inf").c_str());
+        if (!fits_float(x)) throw nb::value_error((row + " is beyond the range of float32, which Embree keeps it in").c_str());
+      }
       if (!instance.to_chart.inverse(inverse))
         throw nb::value_error((row + " is singular (its 3x3 part has no inverse)").c_str());
       if (instance.object < 0 || instance.object + std::max(top[mesh[i]], 0) >= NO)
@@ -355,6 +372,7 @@ SceneData make_scene(const std::string& geometry, const Array& face_covectors, c
   check<double>(vertices, "vertices", {-1, 3}, "(NV,3)");
   const auto vertex_rows = rows<double, 3>(vertices);
   require_finite(vertex_rows, "vertices");
+  require_float_range(vertex_rows, "vertices");
   scene.vertices = vertex_rows;
 
   check<std::int32_t>(triangles, "triangles", {-1, 3}, "(NT,3)");
@@ -640,10 +658,10 @@ object_color, object_emission: float32 (NO,3), each object's one material where 
 is not given. Triangles of emissive materials cast no shadows on the point lights' light (they do
 on the emitters').
 light_lifts: float64 (K,4) points (copies of the point lights in the universal cover);
-light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3). E3, S3, H3,
-H2xR and S2xR sum every geodesic from a shaded point to each lift no longer than light_reach
-(keyword; S3 also the long arc, of length 2 pi - d; S2xR every arc round the sphere, either way and
-winding); Nil, Sol and SL2 the one to each light's nearest lift.
+light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3). Every geodesic
+from a shaded point to each lift no longer than light_reach (keyword) is summed (S3 also the long
+arc, of length 2 pi - d; S2xR every arc round the sphere, either way and winding; Nil, Sol and SL2
+every geodesic of the universal cover, SL2 to the lifts' copies along the fibre by 4 pi too).
 geodesic_loop (keyword): the length after which every geodesic returns to its start (S3 with -1 in
 the group: pi); light paths longer than it from an opaque surface are shadowed by that surface.
 Spot lights (keywords, together): light_cone float64 (NL,2) per light (cos of the cone's half
@@ -714,7 +732,7 @@ Embree queries of each ray, error float64 (N,) an upper estimate of the hit posi
 (chart units: the path's distance from the true geodesic over the cosine of incidence; NaN: no
 hit), end float64 (N,3) the chart point where the ray stopped (the hit, the point at the distance
 or crossing limit, inside the domain; NaN where there is none), chords int64 () Embree queries of primary rays in all, light_failures int64 () light
-paths that were not found (marching geometries), light_paths int64 () geodesics to lights summed
+paths known to be missed (Sol's shooting: seeds that did not converge), light_paths int64 () geodesics to lights summed
 at the shaded points, light_energy float64 () their mean radiance times falloff (times fog: light
 falls to 1/e over `fog` of its path) summed before cosines and shadows, emitter_paths int64 ()
 and emitter_energy float64 () the same for the emitters' samples (their energy: mean radiance
@@ -745,6 +763,26 @@ nb::tuple flow_rows(const std::string& geometry, const Array& points, const Arra
   return nb::make_tuple(to_numpy(std::move(xt), {n, 3}), to_numpy(std::move(vt), {n, 3}));
 }
 
+// The Python Connections: a marching geometry's light paths within a reach.
+struct ConnectionsHandle {
+  std::unique_ptr<Connections> connections;
+};
+
+nb::tuple connect_points(const ConnectionsHandle& self, const std::array<double, 3>& h,
+                         const std::array<double, 3>& l) {
+  std::vector<LightPath> paths;
+  const int missed = self.connections->connect(h, l, paths);
+  const std::size_t n = paths.size();
+  std::unique_ptr<double[]> directions(new double[3 * n]), lengths(new double[n]), falloffs(new double[n]);
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int a = 0; a < 3; ++a) directions[3 * i + a] = paths[i].direction[a];
+    lengths[i] = paths[i].distance;
+    falloffs[i] = paths[i].falloff;
+  }
+  return nb::make_tuple(to_numpy(std::move(directions), {n, 3}), to_numpy(std::move(lengths), {n}),
+                        to_numpy(std::move(falloffs), {n}), missed);
+}
+
 }  // namespace
 
 NB_MODULE(thurston_core, m) {
@@ -759,6 +797,26 @@ NB_MODULE(thurston_core, m) {
         "The tracer's geodesic flow of a marching geometry (Nil, Sol): chart points and unit "
         "chart velocities (float64 (N,3)) after arclengths (float64 (N,)), asked for `accuracy` "
         "(chart units). Returns (points, velocities), float64 (N,3) each.");
+
+  nb::class_<ConnectionsHandle>(m, "Connections",
+                                "The tracer's light paths of a marching geometry (Nil, Sol, H2xR, S2xR, SL2) "
+                                "within a reach: Connections(geometry, reach)(h, l) gives every geodesic from "
+                                "the chart point h to the chart point l no longer than the reach, as (directions "
+                                "float64 (n,3): unit chart tangents at h, lengths float64 (n,), falloffs float64 "
+                                "(n,): the inverse area density of the geodesic sphere along each, missed: how "
+                                "many the search could tell it missed).")
+      .def(
+          "__init__",
+          [](ConnectionsHandle* self, const std::string& geometry, double reach) {
+            if (!has_geometry(geometry)) throw nb::value_error(("unknown geometry '" + geometry + "'").c_str());
+            if (!(reach >= 0.0) || !std::isfinite(reach))
+              throw nb::value_error("reach must be a finite distance >= 0");
+            std::unique_ptr<Connections> connections = make_connections(geometry, reach);
+            if (!connections) throw nb::value_error((geometry + " has no marching flow").c_str());
+            new (self) ConnectionsHandle{std::move(connections)};
+          },
+          nb::arg("geometry"), nb::arg("reach"))
+      .def("__call__", &connect_points, nb::arg("h"), nb::arg("l"));
 
   nb::class_<TracerHandle>(m, "Tracer", kTracerDoc)
       .def(

@@ -514,21 +514,15 @@ std::size_t Tracer::run_chunks(std::size_t count,
 
 namespace {
 
-// The geodesics from H to a light that illumination() sums. Kernels with closed forms
-// (kEveryLightPath) give every one within the reach; the others the one to the light's nearest
-// copy (false where it was not found), whatever the reach.
+// What a kernel needs to know of the light reach before it connects points to lights (Sol's table
+// of its exponential map); nothing for the others.
+template <class Kernel, class = void>
+struct PreparesLightPaths : std::false_type {};
 template <class Kernel>
-bool light_paths(const Kernel& kernel, const Vec4& H, const std::vector<Vec4>& lifts, double reach,
-                 typename Kernel::LightHint& hint, std::vector<LightPath>& paths) {
-  if constexpr (Kernel::kEveryLightPath) {
-    kernel.light_paths(H, lifts, reach, paths);
-    return true;
-  } else {
-    LightPath path;
-    if (!kernel.light_path(H, lifts, path, hint)) return false;
-    paths.push_back(path);
-    return true;
-  }
+struct PreparesLightPaths<Kernel, std::void_t<decltype(&Kernel::prepare_light_paths)>> : std::true_type {};
+template <class Kernel>
+void prepare_light_paths(Kernel& kernel, double reach) {
+  if constexpr (PreparesLightPaths<Kernel>::value) kernel.prepare_light_paths(reach);
 }
 
 // The random numbers of one ray: splitmix64 from the trace's seed and the ray's index, so that a
@@ -552,15 +546,15 @@ class KernelTracer final : public Tracer {
  public:
   KernelTracer(Kernel kernel, SceneData scene, unsigned threads, bool occupancy)
       : Tracer(scene, threads, occupancy), kernel_(kernel) {
+    prepare_light_paths(kernel_, light_reach_);
     match_emitters();
   }
 
  private:
   using Chord = typename Kernel::Chord;
-  // Per chunk: the kernel's hint per light, and the buffers of one point's light paths and of an
-  // emitter sample's copies (points and their unit normals).
+  // Per chunk: what light gathering reuses from point to point, the buffers of one point's light
+  // paths and of an emitter sample's copies (points and their unit normals).
   struct LightHints {
-    std::vector<typename Kernel::LightHint> kernel;
     std::vector<LightPath> paths;
     std::vector<Vec4> lifts, normals;
   };
@@ -570,8 +564,7 @@ class KernelTracer final : public Tracer {
                    const TraceOutputs& out, std::vector<double>* segments,
                    TraceStats& stats) const override {
     const WalkContext context = this->context(options);
-    // rays of a chunk are neighbouring pixels
-    LightHints hints{std::vector<typename Kernel::LightHint>(light_lifts_.size()), {}, {}, {}};
+    LightHints hints;
     for (std::size_t i = begin; i < end; ++i) {
       const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
       const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
@@ -904,10 +897,7 @@ class KernelTracer final : public Tracer {
     std::vector<LightPath>& paths = hints.paths;
     for (std::size_t l = 0; l < light_lifts_.size(); ++l) {
       paths.clear();
-      if (!light_paths(kernel_, H, light_lifts_[l], light_reach_, hints.kernel[l], paths)) {
-        ++stats.light_failures;
-        continue;
-      }
+      stats.light_failures += kernel_.light_paths(H, light_lifts_[l], light_reach_, paths);
       const Rgb& radiance = light_radiance_[l];
       const SpotCone& cone = light_cone_[l];
       const double mean_radiance = mean_rgb(radiance);
@@ -999,11 +989,7 @@ class KernelTracer final : public Tracer {
     const double scale = area_density * emitter_area_sum_.back() / (kPi * options.light_samples);
     std::vector<LightPath>& paths = hints.paths;
     paths.clear();
-    typename Kernel::LightHint cold{};  // every sample is a new point: nothing to start from
-    if (!light_paths(kernel_, H, hints.lifts, light_reach_, cold, paths)) {
-      ++stats.light_failures;
-      return;
-    }
+    stats.light_failures += kernel_.light_paths(H, hints.lifts, light_reach_, paths);
     const Rgb& radiance = emitters_.radiance[t];
     const double mean_radiance = mean_rgb(radiance);
     const bool weighed = v.bounce_follows && options.emitter_sampling == EmitterSampling::kMis;
@@ -1056,8 +1042,7 @@ class KernelTracer final : public Tracer {
     if (!emitter_point(t, y, hints, area_density)) return 1.0;
     std::vector<LightPath>& paths = hints.paths;
     paths.clear();
-    typename Kernel::LightHint cold{};
-    if (!light_paths(kernel_, v.X, hints.lifts, light_reach_, cold, paths)) return 1.0;
+    kernel_.light_paths(v.X, hints.lifts, light_reach_, paths);  // a geodesic missed: not among them
     // the emitters' samples' geodesic along V of this length, if they have it
     const LightPath* same = nullptr;
     double best = 1.0 - kSameDirection;
@@ -1191,6 +1176,7 @@ struct Geometry {
   bool (*normalise)(int curvature, Vec4& X);
   bool (*start)(int curvature, Vec4& X, Vec4& V);
   bool (*flow)(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt);
+  std::unique_ptr<Connections> (*connections)(double reach);
 };
 
 std::unique_ptr<Tracer> make_projective(int k, SceneData scene, unsigned threads) {
@@ -1211,18 +1197,39 @@ bool flow_of(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, 
   return true;
 }
 
+// A marching kernel prepared for a reach, as Connections.
+template <class Flow>
+class MarchingConnections final : public Connections {
+ public:
+  explicit MarchingConnections(double reach) : reach_(reach) { kernel_.prepare_light_paths(reach); }
+  int connect(const Vec3& h, const Vec3& l, std::vector<LightPath>& paths) const override {
+    return kernel_.light_paths(point4(h), {point4(l)}, reach_, paths);
+  }
+
+ private:
+  MarchingKernel<Flow> kernel_;
+  double reach_;
+};
+
+template <class Flow>
+std::unique_ptr<Connections> connections_of(double reach) {
+  return std::make_unique<MarchingConnections<Flow>>(reach);
+}
+
 const Geometry kGeometries[] = {
-    {"E3", 0, make_projective, normalise_projective, start_projective, nullptr},
-    {"S3", 1, make_projective, normalise_projective, start_projective, nullptr},
-    {"H3", -1, make_projective, normalise_projective, start_projective, nullptr},
-    {"Nil", 0, make_marching<NilFlow>, normalise_affine, start_marching<NilFlow>, flow_of<NilFlow>},
-    {"Sol", 0, make_marching<SolFlow>, normalise_affine, start_marching<SolFlow>, flow_of<SolFlow>},
+    {"E3", 0, make_projective, normalise_projective, start_projective, nullptr, nullptr},
+    {"S3", 1, make_projective, normalise_projective, start_projective, nullptr, nullptr},
+    {"H3", -1, make_projective, normalise_projective, start_projective, nullptr, nullptr},
+    {"Nil", 0, make_marching<NilFlow>, normalise_affine, start_marching<NilFlow>, flow_of<NilFlow>,
+     connections_of<NilFlow>},
+    {"Sol", 0, make_marching<SolFlow>, normalise_affine, start_marching<SolFlow>, flow_of<SolFlow>,
+     connections_of<SolFlow>},
     {"H2xR", 0, make_marching<H2xRFlow>, H2xRFlow::normalise_lift, start_marching<H2xRFlow>,
-     flow_of<H2xRFlow>},
+     flow_of<H2xRFlow>, connections_of<H2xRFlow>},
     {"S2xR", 0, make_marching<S2xRFlow>, normalise_affine, start_marching<S2xRFlow>,
-     flow_of<S2xRFlow>},
+     flow_of<S2xRFlow>, connections_of<S2xRFlow>},
     {"SL2", 0, make_marching<SL2Flow>, SL2Flow::normalise_lift, start_marching<SL2Flow>,
-     flow_of<SL2Flow>},
+     flow_of<SL2Flow>, connections_of<SL2Flow>},
 };
 
 const Geometry& find(const std::string& name) {
@@ -1264,6 +1271,11 @@ bool geodesic_flow(const std::string& geometry, const Vec3& x, const Vec3& v, do
                    double accuracy, Vec3& xt, Vec3& vt) {
   const Geometry& g = find(geometry);
   return g.flow && g.flow(x, v, t, accuracy, xt, vt);
+}
+
+std::unique_ptr<Connections> make_connections(const std::string& geometry, double reach) {
+  const Geometry& g = find(geometry);
+  return g.connections ? g.connections(reach) : nullptr;
 }
 
 }  // namespace thurston

@@ -71,7 +71,7 @@ struct SceneData {
   std::vector<SpotCone> light_cone;  // per light (empty: no spot lights)
   std::vector<Vec4> light_axis;      // per lift of a spot light: its unit axis there (else zero)
   Emitters emitters;
-  double light_reach = kInf;  // light paths longer than this are not summed (kEveryLightPath kernels)
+  double light_reach = kInf;  // light paths longer than this are not summed
   // Every geodesic returns to its start after this length (S3 with -1 in the group: pi), so a light
   // path longer than it from an opaque surface passes through that surface again: shadowed.
   double geodesic_loop = kInf;
@@ -125,7 +125,7 @@ struct TraceOutputs {
 
 struct TraceStats {
   std::uint64_t chords = 0;
-  std::uint64_t light_failures = 0;  // light paths that were not found (shooting: Nil, Sol)
+  std::uint64_t light_failures = 0;  // light paths known to be missed (Sol's shooting)
   std::uint64_t light_paths = 0;     // geodesics to lights summed (a shadow ray each where facing)
   // Sum over shaded points of the mean radiance times falloff (and fog) along the summed paths,
   // before cosines and shadows: what the reach lets in, against which the part left out is told.
@@ -301,5 +301,15 @@ std::unique_ptr<Tracer> make_tracer(const std::string& geometry, SceneData scene
 // ones, whose geodesics are exact lines).
 bool geodesic_flow(const std::string& geometry, const Vec3& x, const Vec3& v, double t,
                    double accuracy, Vec3& xt, Vec3& vt);
+// The tracer's light paths of a marching geometry within a reach, for the bindings: every
+// geodesic from the chart point h to the chart point l no longer than the reach, and how many the
+// search could tell it missed.
+class Connections {
+ public:
+  virtual ~Connections() = default;
+  virtual int connect(const Vec3& h, const Vec3& l, std::vector<LightPath>& paths) const = 0;
+};
+// nullptr for geometries without a marching flow.
+std::unique_ptr<Connections> make_connections(const std::string& geometry, double reach);
 
 }  // namespace thurston
