@@ -17,6 +17,7 @@ import pytest
 import thurston_core
 
 from thurston_addon import cli, files, render, spaces
+from thurston_addon.scene import Camera
 from thurston_addon import scene as scenes
 
 from outputs import error_line, fill, listing, stop, tmpfs
@@ -455,6 +456,10 @@ def test_an_identity_only_generator_list_is_an_error(tmp_path, geometry, generat
     ("redundant inverse", [(1, 0, 0), (0, 1, 0), (0, 0, 1), (-1, 0, 0)], 1, 6),
     ("hexagonal", [(1, 0, 0), (0.5, "'sqrt(3)/2'", 0), (-0.5, "'sqrt(3)/2'", 0), (0, 0, 1)], math.sqrt(3) / 2, 8),
     ("skew basis", [(1, 0, 0), (1, 1, 0), (0, 0, 1)], 1, 6),
+    # before: "more than 20000 group elements" (the generators are shortened first)
+    ("long skew basis", [(1, 0, 0), (1000, 1, 0), (0, 0, 1)], 1, 6),
+    ("thin skew basis", [(1, 0, 0), (1000, 1e-3, 0), (0, 0, 1)], 1e-3, 6),
+    ("long skew hexagonal", [(1, 0, 0), ("'300.5'", "'sqrt(3)/2'", 0), (0, 0, 1)], math.sqrt(3) / 2, 8),
 ])
 def test_valid_lattices_are_accepted(tmp_path, name, generators, volume, faces):
     """The Dirichlet domain's volume is the lattice's covolume, |det| of a basis (closed form)."""
@@ -464,6 +469,18 @@ def test_valid_lattices_are_accepted(tmp_path, name, generators, volume, faces):
     g = space.geometry
     for M in space.generators:  # each generator moves a point of the domain to its copy
         assert space.reduces_to_identity(M, g.to_model(space._interior_points(np.random.default_rng(1), 4)))
+
+
+def test_a_screw_far_from_the_centre_is_shortened(tmp_path):
+    """The half-turn space with its screw's axis 150 lattice steps away from the domain centre (the
+    same group): the half-turn space's domain, of volume 1 (before: "more than 20000 group
+    elements")."""
+    path = space_file(tmp_path, translation(1, 0, 0), translation(0, 1, 0),
+                      "[[-1, 0, 0, 300], [0, -1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]]")
+    space = spaces.load(path)
+    assert len(space.domain.faces) == 6
+    assert space.volume == pytest.approx(1.0, rel=1e-9)
+    assert len(space.holonomy) == 2
 
 
 @pytest.mark.parametrize("generators, words", [
@@ -569,3 +586,25 @@ while True:
         writer.kill()
         writer.wait()
     print("outcomes", outcomes)
+
+
+@pytest.mark.parametrize("forward, up, words", [
+    ((1e200, 0, 1), (0, 0, 1), None),  # before: "must be finite" (the cross product overflowed)
+    ((1e-200, 0, 1e-200), (0, 1e-300, 1), None),
+    ((0, 0, 0), (0, 0, 1), "camera forward [0.0, 0.0, 0.0] must be a finite non-zero vector"),
+    ((0, 0, 5), (0, 1e-300, 1), "are parallel"),
+])
+def test_camera_directions_of_any_size(forward, up, words):
+    """Only the directions of forward and up count: huge or tiny ones give the frame of the same
+    directions at unit size; a zero or parallel pair is its own error."""
+    space = spaces.load("torus")
+    camera = Camera(np.array([0.1, 0.2, 0.3]), np.array(forward, float), np.array(up, float))
+    if words:
+        with pytest.raises(render.RenderError, match=re.escape(words)):
+            render.camera_frame(space, camera)
+        return
+    _, (f, r, u) = render.camera_frame(space, camera)
+    # E3's model tangent is the chart vector (x, 0): forward is the unit vector of its direction
+    direction = np.array(forward) / np.abs(forward).max()
+    assert np.allclose(f, [*direction / np.linalg.norm(direction), 0.0], atol=1e-15)
+    assert np.allclose([np.dot(f, r), np.dot(f, u), np.dot(r, u)], 0.0, atol=1e-15)

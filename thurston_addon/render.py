@@ -739,9 +739,14 @@ def camera_frame(space: Space, camera: Camera):
     if not (np.all(np.isfinite(p)) and g.in_chart(p)):
         raise RenderError(f"camera position {p.tolist()} is not a point of {g.name}")
     f, u = np.asarray(camera.forward, float), np.asarray(camera.up, float)
+    for label, v in (("forward", f), ("up", u)):
+        if not np.all(np.isfinite(v)) or not np.any(v):
+            raise RenderError(f"camera {label} {v.tolist()} must be a finite non-zero vector")
+    f, u = f / np.abs(f).max(), u / np.abs(u).max()  # only the directions count (1e200 or 1e-200 alike)
     r = np.cross(f, u)
-    if not (np.all(np.isfinite(r)) and np.linalg.norm(r) > 1e-12 * np.linalg.norm(f) * np.linalg.norm(u)):
-        raise RenderError(f"camera forward {f.tolist()} and up {u.tolist()} must be finite, non-zero and not parallel")
+    if not np.linalg.norm(r) > 1e-12 * np.linalg.norm(f) * np.linalg.norm(u):
+        raise RenderError(f"camera forward {np.asarray(camera.forward, float).tolist()} and up "
+                          f"{np.asarray(camera.up, float).tolist()} are parallel")
     frame = [g.tangent_to_model(p, v) for v in (f, r, u)]
     try:
         X, _, M = space.bring_inside(space.to_model(p[None], label=None)[0])

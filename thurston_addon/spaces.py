@@ -33,6 +33,8 @@ from .files import check_keys, read_text
 PRESET_DIR = Path(__file__).parent / "presets"
 # Folders of a user's own presets (os.pathsep-separated), searched before the built-in ones.
 SPACE_PATH_VARIABLE = "THURSTON_SPACE_PATH"
+_SHORTENING_ROUNDS = 64  # passes over the generator pairs that shorten a generating set (each pass
+# shortens every generator as far as single products go; a discrete group's set settles in a few)
 _GROUP_LIMIT = 20000  # more elements than this within the needed radius: not a useful discrete group
 CENTRE_RESOLUTION = 1e-6  # elements moving the domain centre by less are not told apart from the identity
 # The keys of a space file's tables (any other key is an error naming the nearest valid one).
@@ -262,8 +264,8 @@ class Space:
                     if len(found) > _GROUP_LIMIT:
                         raise SpaceError(f"{self.source}: more than {_GROUP_LIMIT} group elements {what}: the "
                                          "group is not discrete, or its domain is far thinner than some generators "
-                                         "are long (give generators that pair the domain's faces, such as a "
-                                         "reduced lattice basis)")
+                                         "are long, even after shortening them (give generators that pair the "
+                                         "domain's faces)")
             frontier = nxt
         return list(found.values())
 
@@ -604,7 +606,7 @@ class DirichletSpace(Space):
             steps = [f.element for f in domain.faces]
             reaches = lambda M: np.max(self.face_distances(np.linalg.solve(M, O))) <= radius + 1e-9
         else:
-            steps = [*self.generators, *(np.linalg.inv(s) for s in self.generators)]
+            steps = [*self._steps, *(np.linalg.inv(s) for s in self._steps)]
             horizon = radius + max(g.distance(O, s[:, 3]) for s in steps)
 
             def reaches(M):
@@ -640,20 +642,24 @@ class DirichletSpace(Space):
         given = [(name, M) for name, M in zip(self.generator_names, self.generators) if not _is_identity(M)]
         for name, M in given:
             self._check_moves_centre(M, f"generator {name!r}", generator=True)
-        nearest = {g.element_key(N): N for M in [M for _, M in given] + [np.linalg.inv(M) for _, M in given]
-                   for N in [g.reorthonormalize(M)]}
-        try:
-            self._bisector_domain(sorted(nearest.values(), key=lambda M: g.distance(O, M[:, 3])))
-            self._check_pairings()
-            rng = np.random.default_rng(20261203)
-            probes = g.to_model(self._interior_points(rng, 8))
-            if all(self.reduces_to_identity(M, probes) for _, M in given):
-                return self.domain
-        except SpaceError:
-            pass
+        self._steps = [M for _, M in given]
+        shortened = self._shortened(self._steps)
+        for generators in (self._steps, shortened):
+            nearest = {g.element_key(N): N for M in generators + [np.linalg.inv(M) for M in generators]
+                       for N in [g.reorthonormalize(M)]}
+            try:
+                self._bisector_domain(sorted(nearest.values(), key=lambda M: g.distance(O, M[:, 3])))
+                self._check_pairings()
+                rng = np.random.default_rng(20261203)
+                probes = g.to_model(self._interior_points(rng, 8))
+                if all(self.reduces_to_identity(M, probes) for _, M in given):
+                    return self.domain
+            except SpaceError:
+                pass
         self.__dict__.pop("domain", None)  # (the enumeration below starts from the generators, not from this domain's faces)
+        self._steps = shortened  # (the ball to enumerate is as large as the longest step)
         full = g.diameter + 1e-6  # in S3 every element lies within distance pi
-        radius = max(g.distance(O, s[:, 3]) for s in self.generators) + 1e-6
+        radius = max(g.distance(O, s[:, 3]) for s in self._steps) + 1e-6
         while True:
             radius = min(radius, full)
             elements = self.elements_within(radius)[1:]
@@ -670,6 +676,45 @@ class DirichletSpace(Space):
                 continue
             self._elements, self._radius = [np.eye(4)], 0.0  # enumerate again with face steps
             return self.domain
+
+    def _shortened(self, generators: list[np.ndarray]) -> list[np.ndarray]:
+        """Generators of the same group that move O less: each replaced by its product with powers
+        of another (on either side, the power doubled while the product keeps shortening: Nielsen
+        moves, which keep the group) while that shortens it, and those that become the identity
+        dropped. A skewed lattice basis becomes a reduced one, whose bisectors bound the domain and
+        whose ball about O holds few elements."""
+        g = self.geometry
+        O = geometries.projective.ORIGIN
+        length = lambda M: g.distance(O, M[:, 3])
+        gens = [g.reorthonormalize(M) for M in generators]
+        for _ in range(_SHORTENING_ROUNDS):
+            changed = False
+            for i, j in ((i, j) for i in range(len(gens)) for j in range(len(gens)) if i != j):
+                if _is_identity(gens[i]) or _is_identity(gens[j]):
+                    continue
+                for s in (gens[j], np.linalg.inv(gens[j])):
+                    for product in (lambda M, P: M @ P, lambda M, P: P @ M):
+                        step = s
+                        while True:
+                            shorter = g.reorthonormalize(product(gens[i], step))
+                            if not length(shorter) < length(gens[i]) * (1 - 1e-9):
+                                if step is s:
+                                    break
+                                step = s  # the doubled power overshot: go on from single steps
+                                continue
+                            if not _is_identity(shorter):
+                                self._check_moves_centre(shorter, "a word in the generators")
+                            gens[i], changed = shorter, True
+                            if _is_identity(shorter):
+                                break
+                            step = g.reorthonormalize(step @ step)
+                        if _is_identity(gens[i]):
+                            break
+                    if _is_identity(gens[i]):
+                        break
+            if not changed:
+                break
+        return [M for M in gens if not _is_identity(M)]
 
     def _bisector_domain(self, elements):
         """self.domain: the polyhedron of the bisectors of O and the elements' images of it."""
