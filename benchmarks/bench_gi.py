@@ -1,22 +1,162 @@
 """Global illumination: noise against time, measured side by side in one run (not a test).
 
-For each space, renders the default scene direct-only and with path tracing (--bounces) at 1, 4,
-16 and 64 samples per pixel, and a long path-traced reference (--reference-samples, other random
-numbers: its own seeds start after the renders'). Prints per row the seconds, the time against
-the direct-only render, the RMS over pixels of the brightness (mean of RGB) against the reference,
-and the render's own noise estimate (the standard error of its pixel means from their samples).
-The direct-only row's difference is mostly bias: the light the bounces bring. The reference's own
-noise (its estimate, printed) sets the floor of the RMS column.
+Table 1, the default scene (a point light): direct-only and path traced (--bounces) at 1, 4, 16 and
+64 samples per pixel, against a long path-traced reference (--reference-samples, other random
+numbers: its own seeds start after the renders'). Per row the seconds, the time against the
+direct-only render, the RMS over pixels of the brightness (mean of RGB) against the reference, and
+the render's own noise estimate (the standard error of its pixel means from their samples). The
+direct-only row's difference is mostly bias: the light the bounces bring. The reference's own noise
+(its estimate, printed) sets the floor of the RMS column.
+
+Table 2, the emitters' light: the default scene with its point light replaced by an emissive ball
+("lamp": radius 0.04 of the inradius, the ring a metal of roughness 0.2 and the sphere varnished, a
+dielectric specular layer of roughness 0.3; "metal": radius 0.15, every object a metal of roughness
+0.15; --emitter-scenes), path traced at --emitter-samples samples per pixel with the emitters' light
+gathered by multiple importance sampling, by the emitters' samples alone and by the bounces alone
+(the tracer's emitter_sampling), with the distance limit at the light reach, so that the three
+reach the same copies of the emitter. Each twice with other random numbers: the noise is the RMS over
+the pixels of their difference over sqrt 2 (the standard error of one render's pixels), leaving out
+the pixels that see the emitter or its copies (their brightness is the emitter's) and their
+neighbours; per row the seconds, that noise, the noise at equal time (noise * sqrt(seconds / the
+MIS row's seconds), noise falling as 1 / sqrt(samples)) and the mean brightness of those pixels
+(the three estimate one image).
+
+Table 3, the glossy BSDF's cost: the same scene direct-only and path traced with its materials
+Lambert (metallic and specular 0) and glossy, --emitter-samples samples per pixel (noise as in
+table 2).
 Run: .venv/bin/python benchmarks/bench_gi.py [--size 160x90] [--spaces poincare,torus] [--bounces 4]
+     [--tables 1,2,3] [--emitter-scenes lamp,metal]
 """
 import argparse
+import math
 import time
+from dataclasses import replace
 
 import numpy as np
+import trimesh
 
 from thurston_addon import render, scene as scenes, spaces
 
 GI_SAMPLES = (1, 4, 16, 64)
+
+
+class Sampling:
+    """A tracer whose traces gather the emitters' light as `mode` says (the core's emitter_sampling),
+    for render(), which does not ask for it."""
+
+    def __init__(self, tracer, mode):
+        self._tracer, self._mode = tracer, mode
+
+    def trace(self, *args, **kwargs):
+        return self._tracer.trace(*args, emitter_sampling=self._mode, **kwargs)
+
+    def __getattr__(self, name):
+        return getattr(self._tracer, name)
+
+
+# The emitter scenes: the lamp's radius (of the inradius) and each object's finish (None: Lambert).
+EMITTER_SCENES = {
+    "lamp": (0.04, lambda name: dict(ring=dict(roughness=0.2, metallic=1.0),
+                                     sphere=dict(roughness=0.3, specular=0.5)).get(name)),
+    "metal": (0.15, lambda name: dict(roughness=0.15, metallic=1.0)),
+}
+
+
+def lamp_scene(space, kind="lamp", glossy=True):
+    """The default scene, its point light replaced by an emissive ball where the light was
+    (radiance giving about the light's power), the objects finished as EMITTER_SCENES[kind] says
+    (glossy=False: all Lambert)."""
+    scene = scenes.default_scene(space)
+    light = scene.lights[0]
+    radius, finish_of = EMITTER_SCENES[kind]
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=radius * space.chart_inradius)
+    # a far ball of radiance Le and metric radius r lights as a point light of intensity Le pi r^2
+    radiance = light.power / (radius * space.inradius) ** 2
+    lamp = scenes.SceneObject("lamp", ball.vertices + light.position, ball.faces, (0, 0, 0), (radiance,) * 3)
+    objects = []
+    for obj in scene.objects:
+        finish = finish_of(obj.name)
+        if finish and glossy:
+            obj = replace(obj, materials=[scenes.Material(obj.color, name=obj.name, **finish)])
+        objects.append(obj)
+    return scenes.Scene(objects=objects + [lamp], lights=[])
+
+
+def timed(space, scene, tracer, w, h, samples, bounces, seed=0, max_distance=None):
+    settings = render.Settings(width=w, height=h, samples=samples, bounces=bounces, seed=seed, max_distance=max_distance)
+    t = time.perf_counter()
+    result = render.render(space, scene, settings, tracer=tracer)
+    return result, time.perf_counter() - t
+
+
+def brightness_rms(result, reference):
+    a, b = result.passes["color"].mean(axis=2), reference.passes["color"].mean(axis=2)
+    return float(np.sqrt(np.mean((a - b) ** 2)))
+
+
+def twice(space, scene, tracer, w, h, samples, bounces, lamp):
+    """(seconds of one render, noise, mean brightness) from two renders with other random numbers,
+    over the pixels whose centre ray and its neighbours' do not meet object `lamp`; every geodesic
+    (camera rays, bounces) within the light reach, so that the emitters' samples and the bounces
+    reach the same copies of the emitter."""
+    reach = render.default_light_reach(space)
+    (a, ta), (b, tb) = (timed(space, scene, tracer, w, h, samples, bounces, seed=s, max_distance=reach)
+                        for s in (0, 100000))
+    seen = a.passes["object"] == lamp
+    near = seen.copy()
+    near[1:] |= seen[:-1]
+    near[:-1] |= seen[1:]
+    near[:, 1:] |= near[:, :-1].copy()
+    near[:, :-1] |= near[:, 1:].copy()
+    A, B = a.passes["color"].mean(axis=2)[~near], b.passes["color"].mean(axis=2)[~near]
+    return 0.5 * (ta + tb), float(np.sqrt(np.mean((A - B) ** 2) / 2)), float(np.mean(A + B) / 2)
+
+
+def point_light_table(sid, args, w, h):
+    space = spaces.load(sid)
+    scene = scenes.default_scene(space)
+    tracer = render.make_tracer(space, scene)
+    reference, ref_seconds = timed(space, scene, tracer, w, h, args.reference_samples, args.bounces,
+                                   seed=max(GI_SAMPLES))
+    rows = [(f"direct, {args.direct_samples} spp", *timed(space, scene, tracer, w, h, args.direct_samples, 0))]
+    rows += [(f"{args.bounces} bounces, {n} spp", *timed(space, scene, tracer, w, h, n, args.bounces))
+             for n in GI_SAMPLES]
+    direct_seconds = rows[0][2]
+    for label, result, seconds in rows:
+        noise = result.stats["noise"]
+        print(f"{sid:<10} {label:<24} {seconds:>8.2f} {seconds / direct_seconds:>9.2f} "
+              f"{brightness_rms(result, reference):>11.4f} {'-' if noise is None else f'{noise:.4f}':>11}")
+    print(f"{sid:<10} {'reference, ' + str(args.reference_samples) + ' spp':<24} {ref_seconds:>8.2f} "
+          f"{ref_seconds / direct_seconds:>9.2f} {'':>11} {reference.stats['noise']:>11.4f}")
+
+
+def emitter_table(sid, kind, args, w, h):
+    space = spaces.load(sid)
+    scene = lamp_scene(space, kind)
+    tracer = render.make_tracer(space, scene)
+    lamp = len(scene.objects) - 1
+    rows = [(mode, *twice(space, scene, Sampling(tracer, mode), w, h, args.emitter_samples, args.bounces, lamp))
+            for mode in ("mis", "light", "bounce")]
+    mis_seconds = rows[0][1]
+    for mode, seconds, noise, mean in rows:
+        label = {"mis": "MIS", "light": "emitter samples only", "bounce": "bounces only"}[mode]
+        print(f"{sid:<10} {kind:<6} {label:<22} {seconds:>8.2f} {noise:>11.4f} "
+              f"{noise * math.sqrt(seconds / mis_seconds):>11.4f} {mean:>11.4f}")
+
+
+def glossy_table(sid, args, w, h):
+    space = spaces.load(sid)
+    rows = []
+    for glossy in (False, True):
+        scene = lamp_scene(space, glossy=glossy)
+        tracer = render.make_tracer(space, scene)
+        for bounces in (0, args.bounces):
+            seconds, noise, mean = twice(space, scene, tracer, w, h, args.emitter_samples, bounces, len(scene.objects) - 1)
+            rows.append(("glossy" if glossy else "Lambert", bounces, seconds, noise))
+    for label, bounces, seconds, noise in rows:
+        base = next(s for lab, b, s, _ in rows if lab == "Lambert" and b == bounces)
+        what = f"{label}, " + (f"{bounces} bounces" if bounces else "direct")
+        print(f"{sid:<10} {what:<24} {seconds:>8.2f} {seconds / base:>9.2f} {noise:>11.4f}")
 
 
 def main():
@@ -25,33 +165,27 @@ def main():
     ap.add_argument("--spaces", default="poincare,torus")
     ap.add_argument("--bounces", type=int, default=4)
     ap.add_argument("--direct-samples", type=int, default=16)
+    ap.add_argument("--emitter-samples", type=int, default=16)
     ap.add_argument("--reference-samples", type=int, default=256)
+    ap.add_argument("--emitter-scenes", default="lamp,metal")
+    ap.add_argument("--tables", default="1,2,3")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))
-    print(f"{'space':<10} {'render':<22} {'seconds':>8} {'x direct':>9} {'RMS vs ref':>11} {'noise est.':>11}")
-    for sid in args.spaces.split(","):
-        space = spaces.load(sid)
-        scene = scenes.default_scene(space)
-        tracer = render.make_tracer(space, scene)
-
-        def run(samples, bounces, seed=0):
-            settings = render.Settings(width=w, height=h, samples=samples, bounces=bounces, seed=seed)
-            t = time.perf_counter()
-            result = render.render(space, scene, settings, tracer=tracer)
-            return result, time.perf_counter() - t
-
-        reference, ref_seconds = run(args.reference_samples, args.bounces, seed=max(GI_SAMPLES))
-        ref = reference.passes["color"].mean(axis=2)
-        rows = [(f"direct, {args.direct_samples} spp", *run(args.direct_samples, 0))]
-        rows += [(f"{args.bounces} bounces, {n} spp", *run(n, args.bounces)) for n in GI_SAMPLES]
-        direct_seconds = rows[0][2]
-        for label, result, seconds in rows:
-            rms = float(np.sqrt(np.mean((result.passes["color"].mean(axis=2) - ref) ** 2)))
-            noise = result.stats["noise"]
-            print(f"{sid:<10} {label:<22} {seconds:>8.2f} {seconds / direct_seconds:>9.2f} {rms:>11.4f} "
-                  f"{'-' if noise is None else f'{noise:.4f}':>11}")
-        print(f"{sid:<10} {'reference, ' + str(args.reference_samples) + ' spp':<22} {ref_seconds:>8.2f} "
-              f"{ref_seconds / direct_seconds:>9.2f} {'':>11} {reference.stats['noise']:>11.4f}")
+    tables = args.tables.split(",")
+    if "1" in tables:
+        print(f"{'space':<10} {'render':<24} {'seconds':>8} {'x direct':>9} {'RMS vs ref':>11} {'noise est.':>11}")
+        for sid in args.spaces.split(","):
+            point_light_table(sid, args, w, h)
+    if "2" in tables:
+        print(f"\n{'space':<10} {'scene':<6} {'emitters lit by':<22} {'seconds':>8} {'noise':>11} {'equal time':>11} "
+              f"{'mean':>11}")
+        for sid in args.spaces.split(","):
+            for kind in args.emitter_scenes.split(","):
+                emitter_table(sid, kind, args, w, h)
+    if "3" in tables:
+        print(f"\n{'space':<10} {'materials':<24} {'seconds':>8} {'x Lambert':>9} {'noise':>11}")
+        for sid in args.spaces.split(","):
+            glossy_table(sid, args, w, h)
     print("brightness: mean of RGB, linear; seconds exclude building the BVH")
 
 

@@ -1,14 +1,14 @@
 """Direct light along every geodesic: what the light reach costs. For each space, the default view of
 its default scene rendered at multiples of the default light reach: the copies of the light the
 tracer has, the geodesics to lights per shaded point, the render time (least of --repeat; the tile
-search of a reach, and H2xR's and S2xR's copy search of a light and reach, are cached on the space,
+search of a reach, and the coordinate domains' copy search of a light and reach, are cached on the space,
 so their first time is given apart), and the estimated
 energy beyond the reach (times the summed). With --baseline DIR (an unpacked wheel of an earlier
 build: its thurston_addon and thurston_core, e.g. from `pip wheel --no-deps` of a checkout from before
 this change) the same render with that build (each light's nearest copy) is timed in a child
 process, for the ratio.
 Run: .venv/bin/python benchmarks/bench_light.py [--size 320x180] [--repeat 3]
-     [--spaces torus,poincare,seifert_weber,genus2xs1,s2xs1] [--baseline /tmp/base/wheel]
+     [--spaces torus,poincare,seifert_weber,genus2xs1,s2xs1,nil,sol,sl2] [--baseline /tmp/base/wheel]
 """
 import argparse
 import json
@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from timing import best_of  # noqa: E402
 
 FACTORS = {"S3": (0.25, 0.5, 1.0), "E3": (0.5, 1.0, 2.0, 4.0), "H3": (0.5, 1.0, 2.0, 4.0), "H2xR": (0.5, 1.0, 1.5),
-           "S2xR": (0.5, 1.0, 2.0)}
+           "S2xR": (0.5, 1.0, 2.0), "Nil": (0.5, 1.0, 1.5), "Sol": (0.5, 1.0, 1.5), "SL2": (0.5, 1.0, 1.5)}
 
 
 def view(sid, size, repeat, reach_factor=None):
@@ -38,11 +38,13 @@ def view(sid, size, repeat, reach_factor=None):
     return seconds, result.stats
 
 
-def baseline_seconds(sid, size, repeat, build):
-    """view() in a child process importing the baseline build instead of this checkout."""
+def baseline_view(sid, size, repeat, build):
+    """(seconds, light copies) of view() in a child process importing the baseline build instead of
+    this checkout."""
     command = [sys.executable, __file__, "--time-of", sid, "--size", f"{size[0]}x{size[1]}", "--repeat", str(repeat),
                "--build", build]
-    return json.loads(subprocess.run(command, capture_output=True, text=True, check=True).stdout)["seconds"]
+    result = json.loads(subprocess.run(command, capture_output=True, text=True, check=True).stdout)
+    return result["seconds"], result["copies"]
 
 
 def use_build(build):
@@ -53,7 +55,8 @@ def use_build(build):
 
 def copy_search(space, reach):
     """The first search for the copies of the default scene's lights within the reach: E3, H3 the
-    tile walk (cached per reach afterwards), H2xR, S2xR the walk over copies (cached per light and reach)."""
+    tile walk (cached per reach afterwards), the coordinate domains (H2xR, S2xR, Nil, Sol, SL2) the
+    walk over copies (cached per light and reach)."""
     from thurston_addon import render
     from thurston_addon.scene import default_scene
 
@@ -74,10 +77,9 @@ def table(space_ids, size, repeat, baseline):
           f"{'x nearest':>9} {'left out':>9}")
     for sid in space_ids:
         space = spaces.load(sid)
-        old = baseline_seconds(sid, size, repeat, baseline) if baseline else None
+        old, old_copies = baseline_view(sid, size, repeat, baseline) if baseline else (None, None)
         if old is not None:
-            print(f"{sid:<14} {'nearest copy':>12} {len(space.light_elements()):>7} {1:>12} {'':>8} {old:>8.2f} "
-                  f"{1:>9.2f} {'':>9}")
+            print(f"{sid:<14} {'nearest copy':>12} {old_copies:>7} {1:>12} {'':>8} {old:>8.2f} {1:>9.2f} {'':>9}")
         for factor in FACTORS[space.geometry.name]:
             reach = factor * render.default_light_reach(space)
             t0 = time.perf_counter()
@@ -101,7 +103,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--size", default="320x180")
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--spaces", default="torus,poincare,seifert_weber,genus2xs1,s2xs1")
+    ap.add_argument("--spaces", default="torus,poincare,seifert_weber,genus2xs1,s2xs1,nil,sol,sl2")
     ap.add_argument("--baseline", metavar="DIR", help="an earlier build (unpacked wheel) to time the nearest copy with")
     ap.add_argument("--time-of", help=argparse.SUPPRESS)  # the child's one measurement, as JSON
     ap.add_argument("--build", help=argparse.SUPPRESS)
@@ -109,8 +111,8 @@ def main():
     size = tuple(int(v) for v in args.size.split("x"))
     if args.time_of:
         use_build(args.build)
-        seconds, _ = view(args.time_of, size, args.repeat)
-        print(json.dumps({"seconds": seconds}))
+        seconds, stats = view(args.time_of, size, args.repeat)
+        print(json.dumps({"seconds": seconds, "copies": stats["light_copies"]}))
         return
     table(args.spaces.split(","), size, args.repeat, args.baseline)
 

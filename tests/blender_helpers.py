@@ -162,13 +162,26 @@ def material_values(obj):
     return kd, ke
 
 
+def scattering_lines(obj):
+    """MTL lines of the Principled BSDF's roughness (Pr), metallic (Pm), specular IOR level (Ks, as
+    Blender's importer reads its mean) and IOR (Ni), read straight from the node inputs; none for
+    an Emission shader (it reflects nothing)."""
+    p = obj.active_material.node_tree.nodes.get("Principled BSDF")
+    if p is None:
+        return []
+    level = p.inputs["Specular IOR Level"].default_value
+    return [f"Pr {p.inputs['Roughness'].default_value!r}", f"Pm {p.inputs['Metallic'].default_value!r}",
+            f"Ks {level!r} {level!r} {level!r}", f"Ni {p.inputs['IOR'].default_value!r}"]
+
+
 def exported_names(scene):
     """Names of the mesh objects write_scene_files writes, in its order (the core's object numbers)."""
     return [obj.name for obj in scene.objects if obj.type == "MESH" and not obj.hide_render]
 
 
 def write_scene_files(scene, folder: Path, scale: float):
-    """OBJ+MTL (world vertices / scale, Kd, Ke) of the scene's mesh objects, and a TOML scene file with
+    """OBJ+MTL (world vertices / scale, Kd, Ke, the Principled BSDF's scattering) of the scene's mesh
+    objects, and a TOML scene file with
     the point lights (position / scale, power = energy / 4 pi^2 / scale^2) and the camera (position /
     scale, forward = -Z column, up = +Y column, horizontal fov from lens and sensor width)."""
     b = bpy()
@@ -185,7 +198,7 @@ def write_scene_files(scene, folder: Path, scale: float):
         co = np.array([v.co for v in mesh.vertices], float)
         Vw = co @ M[:3, :3].T + M[:3, 3]
         kd, ke = material_values(obj)
-        mtl_lines += [f"newmtl m_{obj.name}", f"Kd {_fmt(kd)}", f"Ke {_fmt(ke)}"]
+        mtl_lines += [f"newmtl m_{obj.name}", f"Kd {_fmt(kd)}", f"Ke {_fmt(ke)}", *scattering_lines(obj)]
         obj_lines += [f"o {obj.name}", f"usemtl m_{obj.name}"]
         obj_lines += [f"v {_fmt(v / scale)}" for v in Vw]
         obj_lines += ["f " + " ".join(str(base + i) for i in poly.vertices) for poly in mesh.polygons]

@@ -2,7 +2,9 @@
 folder's listing, and the one error line a failed run prints."""
 import contextlib
 import os
+import signal
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
@@ -45,3 +47,21 @@ def fill(folder: Path):
 
 def listing(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir())
+
+
+def stop(run: subprocess.Popen, signum: int) -> tuple[int, float, str]:
+    """Sends the signal to the running `thurston` and waits for it: (exit status, seconds it took
+    to end, its stderr); asserts it ended as a signal ends it, with its one last line."""
+    start = time.perf_counter()
+    run.send_signal(signum)
+    try:
+        code = run.wait(timeout=30)
+    finally:
+        run.kill()
+    took = time.perf_counter() - start
+    stderr = run.stderr.read()
+    assert code == 128 + signum and took < 5.0, (code, took, stderr)
+    assert "Traceback" not in stderr
+    assert stderr.strip().splitlines()[-1] == ("thurston: interrupted" if signum == signal.SIGINT
+                                               else f"thurston: stopped by {signal.Signals(signum).name}")
+    return code, took, stderr

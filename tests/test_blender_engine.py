@@ -4,6 +4,7 @@ camera's lens shift, sensor fit and clip distances (against Cycles rendering the
 universal cover), Blender's own panels."""
 import math
 import subprocess
+from dataclasses import replace
 import sys
 from pathlib import Path
 
@@ -389,6 +390,41 @@ def test_viewport_reexports_only_what_changed():
         assert seen and seen[-1] == (False, False)
     finally:
         bpy.app.handlers.depsgraph_update_post.remove(record)
+
+
+def test_viewport_job_adds_the_panels_samples_with_its_bounces():
+    """The job view_draw hands the progressive view (engine._viewport_job, here with a view like the
+    scene camera's): the panel's Samples and Bounces, one-sample frames whose mean is the render of
+    that view with those samples (draft accuracy), and the header's words for each frame."""
+    from types import SimpleNamespace
+
+    from mathutils import Matrix
+    from thurston_addon import export, progressive, render, scene as scenes
+
+    sc = scene_with_boxes()
+    sc.thurston.quality, sc.thurston.samples, sc.thurston.bounces = "standard", 3, 1
+    space = export.load_space(sc.thurston)
+    scene = export.export_scene(bpy.context.evaluated_depsgraph_get(), sc.thurston.scale, [])
+    tracer = render.make_tracer(space, scene, 2)
+    fov = sc.camera.data.angle_x
+    window = Matrix.Identity(4)
+    window[0][0] = 1 / math.tan(fov / 2)
+    view = SimpleNamespace(is_perspective=True, view_matrix=sc.camera.matrix_world.inverted(), window_matrix=window)
+    host = SimpleNamespace(_viewport_world=(space, tracer))
+    job, samples = engine.ThurstonRenderEngine._viewport_job(host, sc, view, 24, 16)
+    assert samples == 3
+    mean = np.mean([job(1, k, lambda: False)[::-1, :, :3] for k in range(samples)], axis=0)  # rows top-down
+    M = np.array(sc.camera.matrix_world, float)
+    camera = scenes.Camera(M[:3, 3], -M[:3, 2], M[:3, 1], math.degrees(fov))
+    settings = render.Settings(width=24, height=16, quality="draft", samples=3, bounces=1, threads=2)
+    direct = render.render(space, None, settings, camera=camera, tracer=tracer).passes["color"]
+    assert np.mean(np.isclose(mean, direct, rtol=1e-4, atol=1e-5).all(axis=2)) > 0.99
+    assert render.render(space, None, replace(settings, bounces=0), camera=camera,  # the bounces count
+                         tracer=tracer).passes["color"].mean() < 0.9 * direct.mean()
+    frames = [progressive.Frame("k", 4, None), progressive.Frame("k", 1, None, 2, 0.0123),
+              progressive.Frame("k", 1, None, 3, 0.01)]
+    assert [engine.viewport_status(f, 3) for f in frames] == [
+        "viewport: 1/4 resolution", "viewport: sample 2/3, noise 1.2e-02", "viewport: sample 3/3, noise 1.0e-02 (done)"]
 
 
 # --- settings, operators' notes, layout --------------------------------------------------------------------

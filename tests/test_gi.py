@@ -8,7 +8,14 @@ surface); each bounce adds rho times the next vertex's, so with a bounce limit B
 Le (1 + rho + ... + rho^(B+1)) (bounces = 0: direct light, Le (1 + rho)). With rho = 1 that is
 (B + 2) Le: a bounce neither gains nor loses energy. Rays from the centre in random directions
 (each its own random numbers); the mean against the truth within four standard errors measured
-from the spread, and that spread small enough to tell a bounce's term missing."""
+from the spread, and that spread small enough to tell a bounce's term missing. The emission that
+bounces meet counts too, weighed against the emitters' samples of the same geodesics (multiple
+importance sampling): the weights of the two must add up to 1 on every geodesic, or the furnace
+gains or loses light.
+
+Multiple importance sampling against its parts: a small bright emitter over a matte and a shiny
+floor, lit by the emitters' samples alone, by the emission the bounces meet alone, and by both
+weighed: the same mean, and the weighed one less noisy than the worse of the two."""
 from __future__ import annotations
 
 import math
@@ -18,7 +25,7 @@ import pytest
 import trimesh
 
 from thurston_addon import cli, render, spaces
-from thurston_addon.scene import Camera, PointLight, Scene, SceneObject, default_scene
+from thurston_addon.scene import Camera, Material, PointLight, Scene, SceneObject, default_scene
 
 LE = 1.0
 # one preset of each geometry
@@ -36,17 +43,15 @@ def random_rays(space, centre, n, seed):
 
 def furnace_tracer(space, rho):
     """A finely divided chart sphere (sharp edges make the emitters' estimate heavy-tailed) around
-    the default camera point, and a light reach over its metric diameter where copies are summed
-    (farther copies are hidden behind it)."""
+    the default camera point, and a light reach over its metric diameter (farther copies are hidden
+    behind it)."""
     centre = np.asarray(space.camera.position, float)
     radius = 0.4 * space.chart_inradius
     ball = trimesh.creation.icosphere(subdivisions=3, radius=radius)
     walls = SceneObject("walls", ball.vertices + centre, ball.faces, (rho,) * 3, (LE,) * 3)
-    reach = None  # the nearest copy (Nil, Sol, SL2)
-    if render.sums_light_copies(space):
-        g = space.geometry
-        ends = g.to_model(centre + radius * np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]))
-        reach = 1.5 * float(max(g.distance(ends[2 * a], ends[2 * a + 1]) for a in range(3)))
+    g = space.geometry
+    ends = g.to_model(centre + radius * np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]))
+    reach = 1.5 * float(max(g.distance_bound(ends[2 * a], ends[2 * a + 1]) for a in range(3)))
     return render.make_tracer(space, Scene(objects=[walls], lights=[]), threads=2, light_reach=reach), centre
 
 
@@ -67,6 +72,8 @@ def test_white_furnace_gives_the_geometric_series_of_the_albedo(space_id, rho, b
     out = tracer.trace(P, D, 5.0, 40, shade=True, tolerance=1e-6, light_samples=1, seed=11, bounces=bounces)
     assert np.all(out["stop"] == 0)
     assert int(out["light_failures"]) == 0
+    # every emissive triangle is known among the emitters' copies, and bounces meet them
+    assert tracer.num_unmatched_emitters == 0 and (int(out["emitter_hits"]) > 0) == (bounces > 0)
     mean, error = mean_and_error(out["color"][:, 0])
     truth = LE * sum(rho ** k for k in range(bounces + 2))
     print(f"{space_id} rho {rho} bounces {bounces}: mean {mean:.5f} truth {truth:.5f} "
@@ -179,3 +186,74 @@ def test_cli_bounces(tmp_path, capsys):
     assert cli.main(["render", "--space", "torus", "--bounces", "-1", "--out", str(tmp_path / "bad.exr")]) == 2
     err = capsys.readouterr().err
     assert err.count("thurston: error:") == 1 and "bounces must be a whole number between 0" in err
+
+
+def mis_scene(space):
+    """A matte slab and a metal one (roughness 0.25) below the space's camera point, a small bright
+    emitter (black, radius 0.06 of the inradius, radiance 100) above them; sizes from the chart's
+    inradius."""
+    inr = space.chart_inradius
+    c = np.asarray(space.camera.position, float)
+    slab = trimesh.creation.box([0.5 * inr, 0.9 * inr, 0.04 * inr])
+    matte = SceneObject("matte", slab.vertices + c + inr * np.array([-0.26, 0.0, -0.3]), slab.faces, (0.7, 0.7, 0.7))
+    shiny = SceneObject("shiny", slab.vertices + c + inr * np.array([0.26, 0.0, -0.3]), slab.faces,
+                        materials=[Material((0.9, 0.9, 0.9), name="metal", roughness=0.25, metallic=1.0)],
+                        triangle_material=np.zeros(len(slab.faces), np.int32))
+    bulb = trimesh.creation.icosphere(subdivisions=2, radius=0.06 * inr)
+    lamp = SceneObject("lamp", bulb.vertices + c + inr * np.array([0.1, 0.25, 0.05]), bulb.faces, (0, 0, 0), (100.0,) * 3)
+    return Scene(objects=[matte, shiny, lamp], lights=[])
+
+
+def downward_rays(space, n, seed):
+    """n random directions from the camera point, downwards (towards the slabs)."""
+    g = space.geometry
+    d = np.random.default_rng(seed).normal(size=(n, 3))
+    d[:, 2] = -np.abs(d[:, 2]) - 0.8
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    o = np.repeat(np.asarray(space.camera.position, float)[None], n, axis=0)
+    P = g.to_model(o)
+    return np.ascontiguousarray(P), np.ascontiguousarray(g.normalize_tangent(P, g.tangent_to_model(o, d)))
+
+
+def by_sampling(space, tracer, P, D, length, modes=("mis", "light", "bounce")):
+    """{mode: (mean, standard error)} of the pixels' brightness with one bounce."""
+    out = {}
+    for mode in modes:
+        res = tracer.trace(P, D, length, space.max_crossings, light_samples=1, seed=3, bounces=1, emitter_sampling=mode)
+        if mode == "mis":
+            assert int(res["emitter_hits"]) > 0
+        out[mode] = mean_and_error(res["color"].mean(axis=1))
+    return out
+
+
+@pytest.mark.parametrize("space_id", SPACES)
+def test_mis_has_the_mean_of_its_parts_and_less_noise(space_id):
+    """With a distance limit no longer than the light reach, the emitters' samples (every geodesic
+    within the reach) and the bounces reach the same geodesics, so all three estimates have one
+    mean."""
+    space = spaces.load(space_id)
+    reach = 2.5 * space.inradius
+    tracer = render.make_tracer(space, mis_scene(space), threads=2, light_reach=reach)
+    assert tracer.num_unmatched_emitters == 0
+    P, D = downward_rays(space, 20000, seed=7)
+    est = by_sampling(space, tracer, P, D, reach)
+    print(space_id, {mode: (round(m, 4), round(e, 4)) for mode, (m, e) in est.items()})
+    (m, e) = est["mis"]
+    for mode in ("light", "bounce"):
+        assert abs(m - est[mode][0]) < 4 * math.hypot(e, est[mode][1]), mode
+    assert e < 0.9 * max(est["light"][1], est["bounce"][1])
+
+
+@pytest.mark.parametrize("space_id", ["torus", "seifert_weber"])
+def test_emitters_beyond_the_light_reach_light_through_bounces(space_id):
+    """A light reach shorter than the way from the slabs to the emitter: its samples bring nothing
+    (what is left is the emitter itself, which a few rays see), the bounces that meet it bring its
+    light, as much as without the samples."""
+    space = spaces.load(space_id)
+    tracer = render.make_tracer(space, mis_scene(space), threads=2, light_reach=0.1 * space.inradius)
+    P, D = downward_rays(space, 20000, seed=8)
+    est = by_sampling(space, tracer, P, D, 2.5 * space.inradius)
+    print(space_id, est)
+    assert est["light"][0] < 0.02 * est["mis"][0]
+    assert est["mis"][0] > 8 * est["mis"][1]
+    assert abs(est["mis"][0] - est["bounce"][0]) < 4 * math.hypot(est["mis"][1], est["bounce"][1])

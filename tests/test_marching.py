@@ -928,8 +928,10 @@ def rectangle(frame, s, t_range, z_range, name, color):
 
 class LitPlane:
     """A plane s = 0.3 (|t|, |z| <= 0.45), a point light at s = -0.05 and, in between at s = 0.12,
-    a rectangular occluder; rays from the light's side."""
+    a rectangular occluder; rays from the light's side. The light reaches 0.6: the hits compared
+    are lit by its nearest copy alone (all others of theirs lie beyond)."""
     OCCLUDER = (0.12, (0.05, 0.2), (-0.1, 0.1))
+    LIGHT_REACH = 0.6
 
     def __init__(self, space, light_at=(-0.05, 0.05, 0.05), occluder=True, n=2500, seed=61, targets=None):
         g = self.g = space.geometry
@@ -943,7 +945,7 @@ class LitPlane:
         self.objects = objects
         self.light = np.asarray(light_at, float) @ F
         scene = Scene(objects=objects, lights=[PointLight(self.light, LIGHT_COLOR, LIGHT_POWER)])
-        self.tracer = render.make_tracer(space, scene)
+        self.tracer = render.make_tracer(space, scene, light_reach=self.LIGHT_REACH)
         rng = np.random.default_rng(seed)
         stz = np.c_[rng.uniform(-0.45, 0.0, n), rng.uniform(-0.45, 0.45, (n, 2))]
         x = stz @ F
@@ -998,7 +1000,8 @@ class LitPlane:
         r = rc[np.arange(len(rows)), best]
         r2 = rc[np.arange(len(rows)), order[:, 1]]
         Vl = Vc.reshape(-1, 4, 4)[np.arange(len(rows)), best]
-        keep = np.isfinite(r) & (r2 > 1.5 * r) & (nearest4[np.arange(len(rows)), best] == 0)
+        keep = (np.isfinite(r) & (r2 > 1.5 * r) & (r < self.LIGHT_REACH) & (r2 > 1.05 * self.LIGHT_REACH)
+                & (nearest4[np.arange(len(rows)), best] == 0))
         Vl = np.where(keep[:, None], Vl, np.array([1.0, 0, 0, 0]))
         r = np.where(keep, r, 0.5)
         cos = np.einsum("ni,nij,nj->n", N, np.array([METRIC[g.name](h) for h in H[:, :3]]), Vl[:, :3])

@@ -570,8 +570,12 @@ def test_camera_several_cells_away(space_cache):
 def test_negative_light_power_is_rejected(space_cache):
     space = space_cache("torus")
     for power in (-5.0, float("nan")):
+        with pytest.raises(render.SceneError, match=r"light at \[0\.0, 0\.0, 0\.0\]: power must be a number >= 0"):
+            PointLight(np.zeros(3), np.ones(3), power)
+        light = PointLight(np.zeros(3), np.ones(3), 1.0)
+        light.power = power  # changed after it was made: the compiler checks again
         with pytest.raises(render.SceneError, match="light 0: power"):
-            render.compile_scene(space, Scene(lights=[PointLight(np.zeros(3), np.ones(3), power)]))
+            render.compile_scene(space, Scene(lights=[light]))
 
 
 # --- antialiasing: stratified samples, centre-ray passes ---------------------------------------------

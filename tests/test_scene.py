@@ -306,6 +306,15 @@ def test_bad_obj(tmp_path, body, pattern):
     ("object = 5\n", "object"),
     ('[[light]]\nposition = [0, 0, 0]\npower = -5\n', "light 0.*power must be >= 0"),
     ('[[light]]\nposition = [0, 0, 0]\n[[light]]\nposition = [0, 0, 0]\npower = -0.5\n', "light 1.*power"),
+    # negative or zero sizes (before: accepted, the meshes turned inside out or empty)
+    ('[[object]]\nprimitive = "sphere"\nradius = -0.1\n', r"object 0: radius must be positive, got -0\.1"),
+    ('[[object]]\nprimitive = "sphere"\nradius = 0\n', "object 0: radius must be positive, got 0"),
+    ('[[object]]\nprimitive = "torus"\ntube = -0.01\n', "object 0: tube must be positive"),
+    ('[[object]]\nprimitive = "box"\nsize = [0.1, -0.1, 0.1]\n', r"object 0: size must be positive, got \[0\.1, -0\.1"),
+    ('[[light]]\ntype = "area"\nposition = [0, 0, 0]\nsize = [0.1, -0.1]\n', "light 0: .*positive size"),
+    ("[camera]\nclip_start = -1\n", "camera: clip_start must be >= 0"),
+    ("[camera]\nclip_start = 2\nclip_end = 1\n", "camera: .*less than clip_end"),
+    ("[camera]\nfov = 0\n", "camera: fov must be between 0 and 180"),
 ])
 def test_bad_toml(tmp_path, body, pattern):
     path = tmp_path / "bad.toml"

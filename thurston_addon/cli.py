@@ -111,6 +111,7 @@ def cmd_render(args):
                                light_samples=args.light_samples, bounces=args.bounces, threads=args.threads,
                                tolerance=args.tolerance)
     lambert = settings.shading == "lambert"
+    render.camera_frame(space, camera)  # a camera that cannot be used is refused before the notes on it
     for note in checks.before_render(space, scene, camera, lambert):
         warnings.warn(note.message)
     result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
@@ -121,46 +122,55 @@ def cmd_render(args):
     print(f"{out}: {w}x{h} {space.id}; {result.summary()}")
 
 
-def cmd_trace(args):
-    out = files.check_output(args.out, args.overwrite)
-    space, scene = _load_world(args)
-    files.check_input(args.rays, "rays file", CommandError)
-    try:
-        rays = np.load(args.rays, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise CommandError(f"cannot read rays file {args.rays!r} as a .npy array: {exc}") from None
+def read_rays(path, space) -> tuple[np.ndarray, np.ndarray]:
+    """The rays of a RAYS.npy file, (N, 6) float64 chart origins and directions, as model points
+    moved into the domain and unit tangents there (float64); CommandError naming the file and the
+    ray where they cannot be."""
+    rays = files.load_npy(path, "rays file", CommandError)
     if rays.ndim != 2 or rays.shape[1] != 6 or rays.dtype != np.float64:
-        raise CommandError(f"{args.rays}: expected a float64 array of shape (N, 6), got {rays.dtype} {rays.shape}")
+        raise CommandError(f"{path}: expected a float64 array of shape (N, 6), got {rays.dtype} {rays.shape}")
     bad = ~np.all(np.isfinite(rays), axis=1)
     if bad.any():
-        raise CommandError(f"{args.rays}: ray {int(np.argmax(bad))} has a NaN or infinite value")
+        raise CommandError(f"{path}: ray {int(np.argmax(bad))} has a NaN or infinite value")
     g = space.geometry
     outside = ~g.in_chart(rays[:, :3])
     if outside.any():
-        raise CommandError(f"{args.rays}: ray {int(np.argmax(outside))} starts outside the chart of {g.name}")
-    if np.any(np.linalg.norm(rays[:, 3:], axis=1) == 0):
-        raise CommandError(f"{args.rays}: ray {int(np.argmax(np.linalg.norm(rays[:, 3:], axis=1) == 0))} has a zero direction")
-    # moved in with extended precision: far origins (Sol at |z| = 20) would lose digits in float64
+        raise CommandError(f"{path}: ray {int(np.argmax(outside))} starts outside the chart of {g.name}")
+    largest = np.max(np.abs(rays[:, 3:]), axis=1)
+    if np.any(largest == 0):
+        raise CommandError(f"{path}: ray {int(np.argmax(largest == 0))} has a zero direction")
+    # moved in with extended precision: far origins (Sol at |z| = 20) would lose digits in float64;
+    # directions scaled to at most 1 first, so that normalising them cannot overflow
     x = np.asarray(rays[:, :3], np.longdouble)
-    X = g.to_model(x)
-    V = g.normalize_tangent(X, g.tangent_to_model(x, np.asarray(rays[:, 3:], np.longdouble)))
-    X, V, _ = space.move_inside(X, V)
+    try:
+        X = space.to_model(x, label="ray")
+        V = g.normalize_tangent(X, g.tangent_to_model(x, np.asarray(rays[:, 3:] / largest[:, None], np.longdouble)))
+        X, V, _ = space.move_inside(X, V, label="ray")
+    except spaces.SpaceError as exc:
+        raise CommandError(f"{path}: {exc}") from None
+    return np.ascontiguousarray(X, np.float64), np.ascontiguousarray(V, np.float64)
+
+
+def cmd_trace(args):
+    out = files.check_output(args.out, args.overwrite)
+    space, scene = _load_world(args)
+    X, V = read_rays(args.rays, space)
     settings = render.Settings(max_distance=args.max_distance, max_crossings=args.max_crossings, threads=args.threads,
                                quality=args.quality, tolerance=args.tolerance)
     settings.check()
     # make_tracer and trace raise what the core rejects as RenderError (exit 2)
     tracer = render.make_tracer(space, scene, args.threads)
-    result = render.trace(tracer, np.ascontiguousarray(X, np.float64), np.ascontiguousarray(V, np.float64),
+    result = render.trace(tracer, X, V,
                           space.max_distance if args.max_distance is None else args.max_distance,
                           space.max_crossings if args.max_crossings is None else args.max_crossings,
                           *settings.tolerances(space, render.REFERENCE_PIXEL_ANGLE),
-                          shade=False, progress=Progress(f"trace {len(rays)} rays"))
+                          shade=False, progress=Progress(f"trace {len(X)} rays"))
     result["position"], result["normal"] = render.own_hits(space, result)
     hits = io.BytesIO()  # in memory first: the file is then written whole or not at all
     np.savez(hits, **{name: result[key] for name, key in TRACE_OUTPUTS.items()})
     files.write_bytes(out, hits.getbuffer(), args.overwrite)
     hit = result["stop"] == 0
-    print(f"{out}: {len(rays)} rays, {hit.mean() * 100:.1f}% hits, {result['crossings'].mean():.2f} crossings/ray, "
+    print(f"{out}: {len(X)} rays, {hit.mean() * 100:.1f}% hits, {result['crossings'].mean():.2f} crossings/ray, "
           f"{result['ray_chords'].mean():.2f} chords/ray")
 
 
@@ -218,12 +228,12 @@ def build_parser():
     r.add_argument("--samples", type=int, help="samples per pixel (overrides --quality)")
     r.add_argument("--shading", choices=render.SHADING, default="lambert")
     r.add_argument("--fog", type=float, help="distance at which colour falls to 1/e")
-    r.add_argument("--light-reach", type=float, help="E3, S3, H3: light along every geodesic up to this long "
-                                                     "(default: the space's, see README)")
+    r.add_argument("--light-reach", type=float, help="light along every geodesic to every copy of a light up to "
+                                                     "this long (default: the space's, see README)")
     r.add_argument("--light-samples", type=int, default=render.Settings.light_samples,
                    help="points sampled on the emissive meshes (and area lights) per shaded point and sample")
     r.add_argument("--bounces", type=int, default=render.Settings.bounces,
-                   help="diffuse bounces after each camera hit: global illumination by path tracing "
+                   help="bounces after each camera hit: global illumination by path tracing, any quality "
                         "(default 0: direct light only)")
     r.add_argument("--out", required=True, metavar="FILE")
     r.set_defaults(run=cmd_render)

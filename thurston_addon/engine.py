@@ -1,9 +1,10 @@
 """The THURSTON render engine: F12 renders each view layer through the tracer into the Combined pass
 and the passes its view layer enables (export.BLENDER_PASSES); the viewport in rendered mode draws
-progressively refined frames."""
+progressively refined frames, then adds samples up to the settings' count."""
 from __future__ import annotations
 
 import weakref
+from dataclasses import replace
 
 import numpy as np
 import bpy
@@ -113,12 +114,13 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         region, view = context.region, context.region_data
         w, h = region.width, region.height
         try:
-            job = self._viewport_job(depsgraph.scene, view, w, h)
+            job, samples = self._viewport_job(depsgraph.scene, view, w, h)
         except (export.ExportError, render.RenderError) as exc:
             self.update_stats("Thurston", str(exc))
             return
-        key = (w, h, tuple(map(tuple, view.view_matrix)), tuple(map(tuple, view.window_matrix)), self._scene_version)
-        self._view.request(key, job)
+        key = (w, h, tuple(map(tuple, view.view_matrix)), tuple(map(tuple, view.window_matrix)), self._scene_version,
+               samples)
+        self._view.request(key, job, samples)
         if self._view.error is not None:
             self.update_stats("Thurston", f"viewport render failed: {self._view.error}")
         if self._view.busy and not bpy.app.timers.is_registered(self._redraw):
@@ -126,8 +128,8 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         frame = self._view.frame
         if frame is None:
             return
-        _, level, pixels = frame
-        self.update_stats("Thurston", f"viewport: 1/{level} resolution" if level > 1 else "viewport: done")
+        self.update_stats("Thurston", viewport_status(frame, samples))
+        pixels = frame.pixels
         ph, pw = pixels.shape[:2]
         buffer = gpu.types.Buffer("FLOAT", pw * ph * 4, pixels.ravel())
         texture = gpu.types.GPUTexture((pw, ph), format="RGBA16F", data=buffer)
@@ -138,8 +140,10 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         gpu.state.blend_set("NONE")
 
     def _viewport_job(self, bscene, view, w, h):
-        """render(level, cancelled) for the progressive view: everything it needs is read from
-        Blender here, on the UI thread; the worker only traces."""
+        """(trace_frame(level, sample, cancelled), samples) for the progressive view: draft
+        accuracy, the settings' bounces, and as many samples as F12 takes (the panel's Samples, or
+        its quality's). Everything it needs is read from Blender here, on the UI thread; the
+        worker only traces."""
         if isinstance(self._viewport_world, Exception):
             raise self._viewport_world
         space, tracer = self._viewport_world
@@ -151,21 +155,31 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         fov = 2 * np.degrees(np.arctan(1.0 / view.window_matrix[0][0]))
         camera = scenes.Camera(inverse[:3, 3] / scale, -inverse[:3, 2], inverse[:3, 1], float(fov))
         settings = export.render_settings(bscene.thurston, w, h, transparent=bscene.render.film_transparent)
+        samples = settings.samples or render.QUALITY[settings.quality].samples
         settings.quality = "draft"
 
-        def frame(level, cancelled):
-            settings.width, settings.height = max(1, w // level), max(1, h // level)
-            result = render.render(space, None, settings, camera=camera, tracer=tracer,
+        def frame(level, sample, cancelled):
+            view = replace(settings, width=max(1, w // level), height=max(1, h // level))
+            shifted, one = progressive.one_sample(camera, view, sample, samples)
+            result = render.render(space, None, one, camera=shifted, tracer=tracer,
                                    progress=lambda done, total: not cancelled())
             return _flip_rows(export.combined(result.passes))
 
-        return frame
+        return frame, samples
 
     def __del__(self):
         try:  # a frame still being traced for a viewport that is gone
             self._view.cancel()
         except (AttributeError, ReferenceError):  # never set up, or Blender freed the engine first
             pass
+
+
+def viewport_status(frame, samples: int) -> str:
+    """What the viewport shows: its resolution while refining, then the samples and their noise."""
+    if frame.level > 1:
+        return f"viewport: 1/{frame.level} resolution"
+    noise = "" if frame.noise is None else f", noise {frame.noise:.1e}"
+    return f"viewport: sample {frame.samples}/{samples}{noise}" + (" (done)" if frame.samples >= samples else "")
 
 
 def changes_meshes(depsgraph) -> bool:

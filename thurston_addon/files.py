@@ -1,27 +1,45 @@
 """The files the program reads and writes. Inputs must be regular files: a FIFO would block the
-read, a directory or a device is no input. Outputs are written whole or not at all: into a
+read, a directory or a device is no input; and no larger than their kind's limit (SIZE_LIMITS), so
+that a wrong or hostile file cannot take the machine's memory before anything is checked. Outputs are written whole or not at all: into a
 temporary file of a unique name beside the output, checked, flushed to the disk and moved into
 place in one step, so that a failed write (a full disk, a file too large, a signal) or a
 concurrent run never leaves a broken, mixed or foreign file under the output's name."""
 from __future__ import annotations
 
 import contextlib
+import difflib
 import os
 import secrets
 import stat
 from pathlib import Path
+
+import numpy as np
+
+MiB, GiB = 2**20, 2**30
+# The largest file of each kind that is read, in bytes: parsed text takes several times its size in
+# memory (an OBJ file about 16 times: 4 GiB for the largest), a binary mesh file of 1 GiB holds
+# some 20 million triangles.
+SIZE_LIMITS = {
+    "space file": 1 * MiB,
+    "scene file": 16 * MiB,  # TOML
+    "material library": 16 * MiB,
+    "OBJ file": 256 * MiB,
+    "mesh file": 1 * GiB,  # PLY, STL, glTF, GLB and a glTF's buffers
+    "texture": 1 * GiB,
+}
 
 
 class OutputError(ValueError):
     pass
 
 
-def check_input(path: str | Path, what: str, error: type[Exception]) -> Path:
-    """The path of an input file (`what`: its kind, in messages), if it is a regular file; else
-    `error` saying why not."""
+def check_input(path: str | Path, what: str, error: type[Exception], limit: str | None = None) -> Path:
+    """The path of an input file (`what`: its kind, in messages), if it is a regular file no larger
+    than SIZE_LIMITS[limit] (no limit if None); else `error` saying why not."""
     path = Path(path)
     try:
-        mode = os.stat(path).st_mode
+        info = os.stat(path)
+        mode = info.st_mode
     except FileNotFoundError:
         raise error(f"{what} {str(path)!r} does not exist") from None
     except OSError as exc:
@@ -30,7 +48,83 @@ def check_input(path: str | Path, what: str, error: type[Exception]) -> Path:
         kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
                 else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket")
         raise error(f"{what} {str(path)!r} is {kind}, not a regular file")
+    if limit is not None and info.st_size > SIZE_LIMITS[limit]:
+        raise error(f"{what} {str(path)!r} is {size_text(info.st_size)}, more than the {size_text(SIZE_LIMITS[limit])} "
+                    f"a {limit} may have")
     return path
+
+
+def read_text(path: str | Path, what: str, error: type[Exception], limit: str) -> str:
+    """A UTF-8 text input (checked by check_input) as a string; `error` where it cannot be read."""
+    path = check_input(path, what, error, limit)
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise error(f"cannot read {what} {str(path)!r}: it is not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise error(f"cannot read {what} {str(path)!r}: {exc.strerror or exc}") from None
+
+
+def size_text(n: int) -> str:
+    for unit, size in (("TiB", 2**40), ("GiB", GiB), ("MiB", MiB), ("KiB", 1024)):
+        if n >= size:
+            return f"{n / size:.3g} {unit}"
+    return f"{n} bytes"
+
+
+def physical_memory() -> int | None:
+    """Bytes of physical memory, None where the system does not tell (no sysconf)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def check_memory(nbytes: int, what: str, error: type[Exception]):
+    """`error` if `what` would take more than this machine's memory."""
+    have = physical_memory()
+    if have is not None and nbytes > have:
+        raise error(f"{what} would take {size_text(nbytes)}, more than this machine's memory ({size_text(have)})")
+
+
+def load_npy(path: str | Path, what: str, error: type[Exception]) -> np.ndarray:
+    """A .npy array, its header checked before anything is allocated: a plain (not object) dtype,
+    data as long as the header says (not truncated) and no larger than this machine's memory."""
+    path = check_input(path, what, error)
+    name = f"{what} {str(path)!r}"
+    try:
+        with open(path, "rb") as f:
+            version = np.lib.format.read_magic(f)
+            if version not in ((1, 0), (2, 0)):
+                raise ValueError(f"unsupported .npy format version {version[0]}.{version[1]}")
+            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, fortran_order, dtype = read_header(f)
+            offset = f.tell()
+    except (ValueError, EOFError, OSError) as exc:
+        raise error(f"cannot read {name} as a .npy array: {exc}") from None
+    if dtype.hasobject:
+        raise error(f"{name} holds Python objects ({dtype}); a numeric array is needed")
+    nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+    held = path.stat().st_size - offset
+    if held < nbytes:
+        raise error(f"{name} is truncated: its header describes a {dtype} array of shape {tuple(shape)} "
+                    f"({size_text(nbytes)}), the file holds {size_text(held)} of data")
+    check_memory(nbytes, f"{name} (a {dtype} array of shape {tuple(shape)})", error)
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError) as exc:
+        raise error(f"cannot read {name} as a .npy array: {exc}") from None
+
+
+def check_keys(table: dict, allowed, where: str, error: type[Exception]):
+    """`error` naming the first key of `table` not in `allowed`, and the allowed key nearest to it
+    (a misspelling) or else all of them."""
+    allowed = list(allowed)
+    for key in table:
+        if key not in allowed:
+            near = difflib.get_close_matches(str(key), allowed, n=1)
+            hint = f"did you mean {near[0]!r}?" if near else f"valid keys: {', '.join(allowed)}"
+            raise error(f"{where}: unknown key {key!r}; {hint}")
 
 
 def check_output(path: str | Path, overwrite: bool, to_replace: str = "pass --overwrite") -> Path:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .files import OutputError, replacing
+from .files import OutputError, check_memory, replacing
 
 # EXR channel names per pass (Blender-like layer.channel names)
 CHANNELS = {
@@ -45,6 +45,9 @@ def read_texture(path: str | Path) -> np.ndarray:
         raise ValueError(f"cannot read texture {str(path)!r}: {oiio.geterror() or 'not an image'}")
     try:
         spec = image.spec()
+        # its header's size, checked before the pixels are allocated (as float32, and as RGB)
+        check_memory(4 * spec.width * spec.height * (spec.nchannels + 3), f"texture {str(path)!r} "
+                     f"({spec.width}x{spec.height}, {spec.nchannels} channels)", ValueError)
         pixels = image.read_image(0, 0, 0, spec.nchannels, "float")
     finally:
         image.close()

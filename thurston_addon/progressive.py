@@ -1,33 +1,64 @@
 """Progressive rendering off the calling thread, for interactive views (Blender's rendered viewport):
-each requested view is traced coarse to fine on a worker thread, the newest finished level is kept
-for drawing, and a new request cancels the frame in progress. No Blender here."""
+each requested view is traced coarse to fine on a worker thread, then, as Cycles' viewport does,
+more samples of the full-resolution frame are added to it up to the sample count (the running mean
+and its noise estimate shown); the newest finished frame is kept for drawing, and a new request
+cancels the one in progress. No Blender here."""
 from __future__ import annotations
 
 import threading
-from typing import Callable
+from dataclasses import dataclass, replace
+from typing import Any, Callable
 
 import numpy as np
+
+from . import render
 
 # Pixel block sizes, coarse to fine: the first frame is cheap, each next one four times the rays.
 LEVELS = (8, 4, 2, 1)
 
 
+@dataclass(frozen=True)
+class Frame:
+    """A finished frame: the view's key, its level (pixel block size), its pixels (the mean of
+    `samples` full-resolution samples where level is 1), and the noise estimate of that mean
+    (render.pixel_noise; None below two samples)."""
+    key: Any
+    level: int
+    pixels: np.ndarray
+    samples: int = 1
+    noise: float | None = None
+
+
+def one_sample(camera, settings, k: int, n: int):
+    """(camera, settings) whose one-sample render is sample k of the n-sample render of `settings`
+    from `camera`: render's sub-pixel position of sample k as a lens shift (the same rays up to
+    rounding) and its random numbers (render numbers its passes from settings.seed, first the
+    unshaded centre pass where no sample lies at the centre)."""
+    offsets = render._sample_offsets(n)
+    x, y = offsets[k]
+    W = settings.width
+    shifted = replace(camera, shift=(camera.shift[0] + (x - 0.5) / W, camera.shift[1] - (y - 0.5) / W))
+    return shifted, replace(settings, samples=1, seed=settings.seed + k + (render.CENTRE not in offsets))
+
+
 class ProgressiveView:
-    """`render(level, cancelled) -> pixels` traces one frame at 1/level of the resolution, polling
-    `cancelled()` (a progress callback returning False when it is true stops the trace); it runs on
-    the worker thread and must not touch Blender data."""
+    """`trace_frame(level, sample, cancelled) -> pixels` traces one frame at 1/level of the resolution
+    (sample 0 at every level, then samples 1 .. samples - 1 at level 1; one_sample makes
+    them), polling `cancelled()` (a progress callback returning False when it is true stops the
+    trace); it runs on the worker thread and must not touch Blender data. Pixels: (h, w, c),
+    the colour in their first three channels."""
 
     def __init__(self):
         self._lock = threading.Lock()
         self._key = None
         self._generation = 0
         self._thread: threading.Thread | None = None
-        self._frame = None  # (key, level, pixels) of the newest finished level
+        self._frame: Frame | None = None
         self.error: Exception | None = None
 
-    def request(self, key, render: Callable[[int, Callable[[], bool]], np.ndarray]):
-        """Trace the view `key` (anything comparable: size, view matrix, scene version) unless it is
-        the one being traced or shown; cancels the frame of any other key."""
+    def request(self, key, trace_frame: Callable[[int, int, Callable[[], bool]], np.ndarray], samples: int = 1):
+        """Trace the view `key` (anything comparable: size, view matrix, scene version, sample
+        count) unless it is the one being traced or shown; cancels the frame of any other key."""
         with self._lock:
             if key == self._key:
                 return
@@ -35,7 +66,7 @@ class ProgressiveView:
             self._generation += 1
             generation = self._generation
             self.error = None
-        self._thread = threading.Thread(target=self._run, args=(generation, key, render), daemon=True)
+        self._thread = threading.Thread(target=self._run, args=(generation, key, trace_frame, samples), daemon=True)
         self._thread.start()
 
     def cancel(self):
@@ -43,28 +74,38 @@ class ProgressiveView:
             self._generation += 1
             self._key = None
 
-    def _run(self, generation, key, render):
+    def _run(self, generation, key, trace_frame, samples):
         def cancelled():
             return generation != self._generation
 
-        for level in LEVELS:
+        total = squares = None
+        for level, sample in [(level, 0) for level in LEVELS] + [(1, k) for k in range(1, samples)]:
             if cancelled():
                 return
             try:
-                pixels = render(level, cancelled)
+                pixels = trace_frame(level, sample, cancelled)
             except Exception as exc:  # cancelled or failed: a failure is shown by the caller
                 with self._lock:
                     if not cancelled():
                         self.error = exc
                 return
+            frame = Frame(key, level, pixels)
+            if level == 1:  # the running mean of the full-resolution samples
+                pixels = np.asarray(pixels, np.float64)
+                brightness = pixels[..., :3].mean(axis=-1).ravel()
+                total = pixels if total is None else total + pixels
+                squares = brightness ** 2 if squares is None else squares + brightness ** 2
+                n = sample + 1
+                frame = Frame(key, 1, (total / n).astype(np.float32), n,
+                              render.pixel_noise(total[..., :3].reshape(-1, 3), squares, n))
             with self._lock:
                 if cancelled():
                     return
-                self._frame = (key, level, pixels)
+                self._frame = frame
 
     @property
-    def frame(self):
-        """(key, level, pixels) of the newest finished frame, or None."""
+    def frame(self) -> Frame | None:
+        """The newest finished frame, or None."""
         with self._lock:
             return self._frame
 
@@ -78,3 +119,4 @@ class ProgressiveView:
         thread = self._thread
         if thread is not None:
             thread.join(timeout)
+

@@ -103,14 +103,14 @@ class ThurstonSettings(bpy.types.PropertyGroup):
                                          description="Face crossings after which rays stop (-1: the space's default)")
     fog: bpy.props.FloatProperty(name="Fog", default=0.0, min=0.0, description="Distance at which colour falls to 1/e (0: none)")
     light_reach: bpy.props.FloatProperty(name="Light Reach", default=0.0, min=0.0,
-                                         description="E3, S3, H3: each light lights along every geodesic up to this "
-                                                     "long, one per copy of the light (0: the space's default)")
+                                         description="Each light lights along every geodesic up to this long, to "
+                                                     "every copy of the light (0: the space's default)")
     light_samples: bpy.props.IntProperty(name="Light Samples", default=render.Settings.light_samples, min=1, max=4096,
                                          description="Points sampled on the emissive meshes and area lights per "
                                                      "shaded point and sample")
     bounces: bpy.props.IntProperty(name="Bounces", default=render.Settings.bounces, min=0, max=render.MAX_BOUNCES,
-                                   description="Diffuse bounces after each camera hit: global illumination by path "
-                                               "tracing along geodesics (0: direct light only)")
+                                   description="Bounces after each camera hit: global illumination by path tracing "
+                                               "along geodesics, at any quality (0: direct light only)")
     tolerance: bpy.props.FloatProperty(name="Tolerance", default=0.0, min=0.0, precision=6, step=0.001,
                                        description="Where geodesics bend (Nil, Sol): how far the traced chords may stray "
                                                    "from the true geodesic, in Blender units (0: the quality's bound, a "
@@ -125,7 +125,8 @@ class ThurstonSettings(bpy.types.PropertyGroup):
     overwrite: bpy.props.BoolProperty(name="Overwrite", default=False, description="Replace the file at Save To if it exists")
     threads: bpy.props.IntProperty(name="Threads", default=0, min=0, max=render.MAX_THREADS, description="0: all cores")
     samples: bpy.props.IntProperty(name="Samples", default=0, min=0, max=4096,
-                                   description="Samples per pixel (0: the quality's)")
+                                   description="Samples per pixel, of F12 renders and of the rendered viewport, "
+                                               "which adds them one by one (0: the quality's)")
     stats: bpy.props.PointerProperty(type=ThurstonStats)
 
 

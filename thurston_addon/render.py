@@ -4,7 +4,6 @@ render's statistics (cost and accuracy)."""
 from __future__ import annotations
 
 import math
-import os
 import time
 import warnings
 from dataclasses import dataclass, field, replace
@@ -12,6 +11,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import checks
+from .files import physical_memory
 from .scene import Camera, Scene, SceneError
 from .spaces import Space, SpaceError
 
@@ -35,6 +35,9 @@ REFERENCE_PIXEL_ANGLE = math.radians(90.0) / 640
 # domain's metric extent behind it.
 NEAR_FRACTION = 0.05
 RETRACE_FACTOR = 100  # the measured error: sampled rays traced again at tolerance / this
+# A chord tolerance's chords grow as 1 / sqrt(tolerance) (Nil: about 65 a ray at 1e-6), and the
+# measured error retraces at tolerance / RETRACE_FACTOR: below this a ray takes unbounded time.
+MIN_TOLERANCE = 1e-10
 SHADING = ("lambert", "normal", "position", "depth", "crossings", "object")
 PASSES = ("color", "depth", "normal", "position", "object", "crossings", "stop")
 STOP_REASONS = ("hit", "distance", "crossings", "cancelled")
@@ -56,14 +59,6 @@ def memory_needed(width: int, height: int) -> int:
     return BYTES_PER_PIXEL * int(width) * int(height)
 
 
-def physical_memory() -> int | None:
-    """Bytes of physical memory, None where the system does not tell (no sysconf)."""
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):
-        return None
-
-
 class RenderError(ValueError):
     """Input that cannot be rendered, with a message naming the problem."""
 
@@ -83,12 +78,12 @@ class Settings:
     max_distance: float | None = None  # None: the space's default
     max_crossings: int | None = None
     fog: float | None = None  # distance at which colour falls to 1/e; None: no fog
-    # geodesics to lights longer than this are not summed (E3, S3, H3); None: default_light_reach
+    # geodesics to lights longer than this are not summed; None: default_light_reach
     light_reach: float | None = None
     threads: int = 0
     tolerance: float | None = None  # chord tolerance in chart units (S2xR: metric); None: the quality's bound
     light_samples: int = 4  # points sampled on the emissive meshes per shaded point (each sample)
-    bounces: int = 0  # diffuse bounces after each camera hit (path tracing); 0: direct light only
+    bounces: int = 0  # bounces after each camera hit (path tracing, any quality); 0: direct light only
     seed: int = 0  # sample k's random numbers (light samples, bounces) come from seed + k
     transparent: bool = False  # alpha: the share of a pixel's samples that hit something (else 1)
     # (x, y, w, h): render only this window of the width x height image, x, y its top-left pixel
@@ -138,9 +133,9 @@ class Settings:
             raise RenderError(f"seed must be a whole number >= 0, got {self.seed}")
         if not (_whole(self.threads) and 0 <= self.threads <= MAX_THREADS):
             raise RenderError(f"threads must be a whole number from 0 (all cores) to {MAX_THREADS}, got {self.threads}")
-        if self.tolerance is not None and not (self.tolerance > 0 and math.isfinite(self.tolerance)):
-            raise RenderError(f"tolerance must be a positive number of chart units (None: the quality's), "
-                              f"got {self.tolerance}")
+        if self.tolerance is not None and not (MIN_TOLERANCE <= self.tolerance < math.inf):
+            raise RenderError(f"tolerance must be a number of chart units of at least {MIN_TOLERANCE:g} (None: the "
+                              f"quality's), got {self.tolerance}")
 
     def tolerances(self, space: Space, pixel_angle: float) -> tuple[float, float]:
         """(tolerance at distance 0, growth per unit of distance) of the chords, chart units (S2xR:
@@ -194,8 +189,6 @@ def illumination_summary(s: dict) -> str:
 def light_summary(s: dict) -> str:
     emitters = (f"; {s['emitter_triangles']} emissive triangles in {s['emitter_copies']} copies, "
                 f"{s['light_samples']} points sampled on them per shaded point" if s["emitter_triangles"] else "")
-    if s["light_reach"] is None:
-        return f"light: each light's nearest of {s['light_copies']} copies{emitters}"
     return (f"light: {s['light_copies']} copies within reach {s['light_reach']:.3g} ({s['light_paths_per_point']:.1f} "
             f"geodesics per shaded point), energy beyond the reach up to the distance limit about "
             f"{s['light_energy_left_out']:.3g} x the summed (estimate){emitters}")
@@ -289,6 +282,8 @@ class _Surfaces:
             material_color_texture=np.array([texture_index(m.color_texture) for m in self.materials], np.int32),
             material_emission_texture=np.array([texture_index(m.emission_texture) for m in self.materials], np.int32),
             material_one_sided=np.array([m.one_sided for m in self.materials], np.int32),
+            material_scattering=np.array([[m.roughness, m.metallic, m.specular, m.ior] for m in self.materials],
+                                         np.float32).reshape(-1, 4),
             textures=[np.ascontiguousarray(t, np.float32) for t in self.textures.values()],
         )
         if self.with_uvs:
@@ -389,22 +384,13 @@ def _instance_copies(space: Space, obj, C):
     return np.concatenate(instances) if instances else np.zeros((0, 4, 4)), flat, missing, beyond
 
 
-def sums_light_copies(space: Space) -> bool:
-    """Whether the tracer sums the light of every copy within the reach along every geodesic to it
-    (the closed-form connecting geodesics of E3, S3, H3, H2xR, S2xR); elsewhere (Nil, Sol) each
-    light's nearest copy among space.light_elements() lights."""
-    return space.geometry.sums_light_copies
-
-
 def default_light_reach(space: Space) -> float:
     """A finite group (S3): everything, both arcs (the long arcs are shorter than 2 pi). Else the
-    geometry's multiple of the circumradius: E3 and S2xR twice it (E3: the domain's diameter at most,
-    so every point has its light's own copy and the ring around it; S2xR: the copies one period up
-    and down and the arcs round the sphere both ways), H3 and H2xR once (the light's nearest copy
-    for a light near the centre), as the copies within R grow as exp(2R), exp(R). The cost:
-    benchmarks/bench_light.py."""
-    if not sums_light_copies(space):
-        return math.inf  # the nearest copy, wherever it is
+    geometry's multiple of the circumradius (light_reach_circumradii): E3 and S2xR twice it (E3: the
+    domain's diameter at most, so every point has its light's own copy and the ring around it;
+    S2xR: the copies one period up and down and the arcs round the sphere both ways), H3 and H2xR
+    once (the light's nearest copy for a light near the centre), as the copies within R grow as
+    exp(2R), exp(R); Nil, Sol and SL2 as their modules say. The cost: benchmarks/bench_light.py."""
     if space.group_order is not None:
         return 2 * space.geometry.diameter
     return space.geometry.light_reach_circumradii * space.circumradius
@@ -418,13 +404,10 @@ def light_reach_for(space: Space, settings: Settings) -> float:
 
 def light_copies(space: Space, L, reach: float) -> np.ndarray:
     """The elements g (N,4,4) whose copies g L of the light L (a model point in the domain D) the
-    tracer lights with: where it sums every copy, those that can lie within `reach` of D (in E3 and
-    H3 those in tiles gD within reach of D (light_tiles) with every face plane of D within reach,
-    in the coordinate domains of H2xR and S2xR those within reach (cover_copies), in S3 all);
-    elsewhere (Nil, Sol, SL2) those around the domain, among which it takes the nearest."""
+    tracer lights with, those that can lie within `reach` of D: in E3 and H3 those in tiles gD
+    within reach of D (light_tiles) with every face plane of D within reach, in the coordinate
+    domains (H2xR, S2xR, Nil, Sol, SL2) those within reach (cover_copies), in S3 all."""
     g = space.geometry
-    if not sums_light_copies(space):
-        return np.array(space.light_elements())
     if space.group_order is not None:  # finite (S3): all of it
         return np.array(space.elements_within(g.diameter + 1e-6))
     if not g.projective:
@@ -441,37 +424,45 @@ def cover_copies(space: Space, L, reach: float) -> np.ndarray:
     copy g L within reach passes through a chain of face-neighbouring tiles D, t1 D, t1 t2 D, ...,
     g D (g = t1 ... tk), and the walk reaches g L through the copies of the suffixes,
     tj ... tk L = (t1 ... tj-1)^-1 g L, each as near D as g L is to the tile t1 ... tj-1 D, which
-    the geodesic crosses: within its length d(L, g L) <= reach + rho. Cached per light and reach."""
-    def key(Y):  # relative: far copies have large model vectors, known to ~1e-16 of their size
-        return tuple(np.round(Y / np.linalg.norm(Y), 8))
-
+    the geodesic crosses: within its length d(L, g L) <= reach + rho. A lower bound of the distance
+    to D serves as well (the walk then passes more copies, and keeps more: the tracer drops those
+    out of reach), and an upper bound of rho. Cached per light and reach."""
     cached = space.__dict__.setdefault("_cover_copies", {})  # the viewport renders one scene again and again
-    if (key(L), reach) not in cached:
+    (light,) = _copy_keys(np.asarray(L, float)[None])
+    if (light, reach) not in cached:
         if len(cached) >= COVER_COPIES_CACHED:
             cached.pop(next(iter(cached)))
-        cached[key(L), reach] = _walk_cover_copies(space, L, reach, key)
-    return cached[key(L), reach]
+        cached[light, reach] = _walk_cover_copies(space, L, reach)
+    return cached[light, reach]
+
+
+def _copy_keys(Y) -> list[tuple]:
+    """Keys of model points (rows): relative, as far copies have large model vectors, known to ~1e-16
+    of their size."""
+    return list(map(tuple, np.round(Y / np.linalg.norm(Y, axis=1)[:, None], 8).tolist()))
 
 
 COVER_COPIES_CACHED = 64  # lights and reaches whose copies a space keeps
 
 
-def _walk_cover_copies(space: Space, L, reach: float, key) -> np.ndarray:
+def _walk_cover_copies(space: Space, L, reach: float) -> np.ndarray:
     g = space.geometry
     rho = space.farthest_distance(L)
     steps = np.array([f.element for f in space.domain.faces])
 
-    found = {key(L)}
+    found = set(_copy_keys(np.asarray(L, float)[None]))
     kept = [np.eye(4)]
     frontier = np.eye(4)[None]
     while len(frontier):
         candidates = {}
-        for M in np.einsum("sij,njk->nsik", steps, frontier).reshape(-1, 4, 4):
-            candidates.setdefault(key(g.normalize_point(M @ L)), M)
-        new = np.array([M for k, M in candidates.items() if k not in found]).reshape(-1, 4, 4)
+        products = np.einsum("sij,njk->nsik", steps, frontier).reshape(-1, 4, 4)
+        for k, M in zip(_copy_keys(g.normalize_point(products @ L)), products):
+            candidates.setdefault(k, M)
+        fresh = [k for k in candidates if k not in found]
+        new = np.array([candidates[k] for k in fresh]).reshape(-1, 4, 4)
         distance = g.domain_distance(g.normalize_point(new @ L), space.domain)
         walk = distance <= reach + rho + 1e-9
-        found.update(key(g.normalize_point(M @ L)) for M in new[walk])
+        found.update(k for k, w in zip(fresh, walk) if w)
         kept += list(new[walk & (distance <= reach + 1e-9)])
         frontier = new[walk]
         if len(found) > LIGHT_TILE_LIMIT:
@@ -480,7 +471,8 @@ def _walk_cover_copies(space: Space, L, reach: float, key) -> np.ndarray:
     # a copy whose key rounded two ways would light twice: keep one of each point
     kept = np.array(kept)
     Y = g.normalize_point(kept @ L)
-    near = g.distance(Y[:, None], Y[None]) < 1e-6
+    Y = Y / np.linalg.norm(Y, axis=1)[:, None]
+    near = np.linalg.norm(Y[:, None] - Y[None], axis=2) < 1e-6
     return kept[~np.any(np.triu(near, 1), axis=0)]
 
 
@@ -537,16 +529,15 @@ def geodesic_loop(space: Space) -> float:
 
 def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
     """Tracer arrays: triangles of every object and of its copies g(object) that can reach the domain
-    (parts sticking out re-enter through the paired faces), and the lights' copies: in E3, S3, H3,
-    H2xR and S2xR every copy within light_reach of the domain (None: the default within the distance
-    limit; each lights every point within its reach: an infinite reach needs a finite group), in
-    Nil and Sol those around the domain (the tracer takes each light's nearest copy among them)."""
+    (parts sticking out re-enter through the paired faces), and the lights' copies: every copy
+    within light_reach of the domain (None: the default within the distance limit; each lights
+    every point within its reach: an infinite reach needs a finite group)."""
     g = space.geometry
     C = space.domain.covectors()
     C = C / np.linalg.norm(C, axis=1)[:, None]
     if light_reach is None:
         light_reach = light_reach_for(space, Settings())
-    if sums_light_copies(space) and space.group_order is None and not math.isfinite(light_reach):
+    if space.group_order is None and not math.isfinite(light_reach):
         raise RenderError(f"{space.name}: an infinite group needs a finite light reach")
     flat, meshes = [], []  # flat: (object index, source object, Y, kept, M); meshes: (index, chart maps)
     for index, obj in enumerate(scene.objects):
@@ -690,8 +681,7 @@ def _emitter_arrays(space: Space, scene: Scene, reach: float) -> dict:
                 raise SceneError(f"object {obj.name!r}: {exc}") from None
             used = np.unique(placed.triangles[emitting])
             X = g.normalize_point(g.to_model(placed.vertices[used]) @ M0.T)
-            # the reach bounds the copies where they are summed (elsewhere the nearest is taken)
-            radius = EMITTER_RADIUS_MARGIN * float(np.max(g.distance(L, X))) if sums_light_copies(space) else 0.0
+            radius = EMITTER_RADIUS_MARGIN * float(np.max(g.distance_bound(L, X)))
             corners = np.zeros((len(placed.vertices), 3))
             corners[used] = g.mesh_to_chart(X)
             triangles.append(corners[placed.triangles[emitting]])
@@ -757,13 +747,17 @@ def camera_frame(space: Space, camera: Camera):
     if not (np.all(np.isfinite(p)) and g.in_chart(p)):
         raise RenderError(f"camera position {p.tolist()} is not a point of {g.name}")
     f, u = np.asarray(camera.forward, float), np.asarray(camera.up, float)
+    for label, v in (("forward", f), ("up", u)):
+        if not np.all(np.isfinite(v)) or not np.any(v):
+            raise RenderError(f"camera {label} {v.tolist()} must be a finite non-zero vector")
+    f, u = f / np.abs(f).max(), u / np.abs(u).max()  # only the directions count (1e200 or 1e-200 alike)
     r = np.cross(f, u)
-    if not (np.all(np.isfinite(r)) and np.linalg.norm(r) > 1e-12 * np.linalg.norm(f) * np.linalg.norm(u)):
-        raise RenderError(f"camera forward {f.tolist()} and up {u.tolist()} must be finite, non-zero and not parallel")
-    X = g.to_model(p)
+    if not np.linalg.norm(r) > 1e-12 * np.linalg.norm(f) * np.linalg.norm(u):
+        raise RenderError(f"camera forward {np.asarray(camera.forward, float).tolist()} and up "
+                          f"{np.asarray(camera.up, float).tolist()} are parallel")
     frame = [g.tangent_to_model(p, v) for v in (f, r, u)]
     try:
-        X, _, M = space.bring_inside(X)
+        X, _, M = space.bring_inside(space.to_model(p[None], label=None)[0])
     except SpaceError as exc:
         raise RenderError(f"camera: {exc}") from None
     basis = []
@@ -1030,12 +1024,10 @@ def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: fl
     over the points of the space, the geodesics from the light of lengths in [r, r + dr] bring
     4 pi dr p / vol (the exponential map's Jacobian, which the falloff divides by, is the change of
     variables from the light's directions to the points). Without the limit the sum diverges
-    (Olbers) wherever it is not cut at S3's two arcs. Nil, Sol: each light's nearest copy, no estimate."""
+    (Olbers) wherever it is not cut at S3's two arcs."""
     stats = {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0,
              "emitter_triangles": tracer.num_emitter_triangles, "emitter_copies": tracer.num_emitter_copies,
              "light_samples": settings.light_samples}
-    if not sums_light_copies(space):
-        return {**stats, "light_reach": None, "light_energy_left_out": None}
     reach = tracer.light_reach
     longest = min(settings.max_distance or space.max_distance, 2 * space.geometry.diameter)
     if reach >= longest:

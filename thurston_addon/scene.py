@@ -9,22 +9,43 @@ Objects are numbered in the order given: files in order, inside a file in the fi
 """
 from __future__ import annotations
 
+import json
 import math
+import numbers
+import struct
 import tomllib
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from .files import check_input
+from .files import check_input, check_keys, read_text
 
 MESH_SUFFIXES = {".obj", ".ply", ".stl", ".glb", ".gltf"}
 DEFAULT_COLOR = (0.8, 0.8, 0.8)
+# The tracer keeps colours, radiance and (in Embree) vertices as float32: larger values become inf.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+MAX_SUBDIVISIONS = 7  # an icosphere's: 20 * 4^7 = 327680 triangles
+MAX_PRIMITIVE_TRIANGLES = 2**24  # of a scene file's primitives together (copies: `transforms`)
 
 
 class SceneError(ValueError):
     """A scene file or scene object that cannot be used."""
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def check_float32(values, what: str):
+    """SceneError unless `values` are finite and within float32's range, which the tracer keeps."""
+    a = np.asarray(values, np.float64)
+    if not np.all(np.isfinite(a)):
+        raise SceneError(f"{what} has NaN or infinite values")
+    if a.size and np.abs(a).max() > FLOAT32_MAX:
+        raise SceneError(f"{what} has a value of {np.abs(a).max():.3g}, beyond the {FLOAT32_MAX:.3g} "
+                         "of the tracer's float32 numbers")
 
 
 def _texture(value, what: str):
@@ -34,7 +55,7 @@ def _texture(value, what: str):
     if isinstance(value, (str, Path)):
         from .images import read_texture
 
-        check_input(value, f"{what}: texture file", SceneError)
+        check_input(value, f"{what}: texture file", SceneError, "texture")
         try:
             return read_texture(value)
         except ValueError as exc:
@@ -50,19 +71,41 @@ def _texture(value, what: str):
 @dataclass
 class Material:
     """Base colour and emission (linear RGB); a texture (an image file or a linear float image,
-    rows top-down, v = 0 the bottom row) multiplies its colour at the surface's UV."""
+    rows top-down, v = 0 the bottom row) multiplies its colour at the surface's UV. How it scatters,
+    as Blender's Principled BSDF: roughness, metallic, specular (its Specular IOR Level: 0.5 the
+    IOR's own reflectance, 0 no specular layer) and ior. The defaults (metallic and specular 0)
+    are a Lambert surface."""
     color: np.ndarray = field(default_factory=lambda: np.array(DEFAULT_COLOR))
     emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
     color_texture: np.ndarray | str | Path | None = None
     emission_texture: np.ndarray | str | Path | None = None
     name: str = ""
     one_sided: bool = False  # emits from the front only (the side of its triangles' winding normal)
+    roughness: float = 0.5
+    metallic: float = 0.0
+    specular: float = 0.0
+    ior: float = 1.5
 
     def __post_init__(self):
         self.color = np.asarray(self.color, dtype=np.float64).reshape(3)
         self.emission = np.asarray(self.emission, dtype=np.float64).reshape(3)
+        check_float32(self.color, f"material {self.name!r}: base colour")
+        check_float32(self.emission, f"material {self.name!r}: emission")
         self.color_texture = _texture(self.color_texture, f"material {self.name!r}: base colour")
         self.emission_texture = _texture(self.emission_texture, f"material {self.name!r}: emission")
+        for key, (low, high), meaning in SCATTERING:
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) or \
+                    not (low <= value <= high and (key != "ior" or value > 0)):
+                raise SceneError(f"material {self.name!r}: {key} must be {meaning}, got {value!r}")
+            setattr(self, key, float(value))
+
+
+
+# The scattering parameters of a material, their ranges (as Cycles clamps the Principled BSDF's) and
+# what the error says.
+SCATTERING = (("roughness", (0.0, 1.0), "a number in [0, 1]"), ("metallic", (0.0, 1.0), "a number in [0, 1]"),
+              ("specular", (0.0, math.inf), "a number >= 0"), ("ior", (0.0, math.inf), "a number > 0"))
 
 
 @dataclass
@@ -90,6 +133,8 @@ class SceneObject:
         self.triangles = np.asarray(self.triangles, dtype=np.int32).reshape(-1, 3)
         self.color = np.asarray(self.color, dtype=np.float64).reshape(3)
         self.emission = np.asarray(self.emission, dtype=np.float64).reshape(3)
+        check_float32(self.color, f"object {self.name!r}: colour")
+        check_float32(self.emission, f"object {self.name!r}: emission")
         m = len(self.triangles)
         self.corner_normals = self._per_triangle("corner_normals", self.corner_normals, (m, 3, 3), np.float64)
         self.corner_uvs = self._per_triangle("corner_uvs", self.corner_uvs, (m, 3, 2), np.float64)
@@ -168,6 +213,11 @@ class PointLight:
     spot_blend: float = 0.0  # in [0, 1]
 
     def __post_init__(self):
+        where = f"light at {np.asarray(self.position).tolist()}"
+        if not (_is_number(self.power) and self.power >= 0):
+            raise SceneError(f"{where}: power must be a number >= 0, got {self.power!r}")
+        with np.errstate(over="ignore"):
+            check_float32(np.asarray(self.color, np.float64) * float(self.power), f"{where}: power times colour")
         if self.spot_direction is None:
             return
         self.spot_direction = np.asarray(self.spot_direction, np.float64).reshape(3)
@@ -230,17 +280,20 @@ class Scene:
 
 
 def clean(obj: SceneObject, where: str) -> SceneObject:
-    """Reject non-finite vertices and bad indices; drop degenerate triangles with a warning."""
+    """Reject non-finite vertices, vertices beyond float32 (Embree's) and bad indices; drop
+    degenerate triangles with a warning."""
     V, T = obj.vertices, obj.triangles
     bad = ~np.all(np.isfinite(V), axis=1)
     if bad.any():
         raise SceneError(f"{where}: object {obj.name!r} has a NaN or infinite vertex (vertex {int(np.argmax(bad))})")
+    far = np.abs(V).max(axis=1, initial=0.0) > FLOAT32_MAX
+    if far.any():
+        raise SceneError(f"{where}: object {obj.name!r}: vertex {int(np.argmax(far))} {V[np.argmax(far)].tolist()} is "
+                         f"beyond the {FLOAT32_MAX:.3g} of the tracer's float32 numbers")
     if len(T) and (T.min() < 0 or T.max() >= len(V)):
         raise SceneError(f"{where}: object {obj.name!r} has a triangle index out of range")
     if len(T):
-        area = np.linalg.norm(np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]]), axis=1)
-        scale = max(np.ptp(V, axis=0).max(), 1e-300)
-        keep = area > 1e-14 * scale * scale
+        keep = ~degenerate(V[T])
         if not keep.all():
             warnings.warn(f"{where}: object {obj.name!r}: skipped {int((~keep).sum())} degenerate triangle(s)", stacklevel=2)
             obj.triangles = T[keep]
@@ -248,6 +301,30 @@ def clean(obj: SceneObject, where: str) -> SceneObject:
                 if getattr(obj, name) is not None:
                     setattr(obj, name, getattr(obj, name)[keep])
     return obj
+
+
+def colour(values, what: str) -> np.ndarray:
+    """A colour or emission from a file: three numbers >= 0 that the tracer's float32 holds."""
+    if not (isinstance(values, (list, np.ndarray)) and len(values) == 3 and all(map(_is_number, values))):
+        raise SceneError(f"{what}: expected 3 numbers, got {values!r}")
+    v = np.array(values, dtype=np.float64)
+    check_float32(v, what)
+    if np.any(v < 0):
+        raise SceneError(f"{what}: {v.tolist()} is negative")
+    return v
+
+
+def degenerate(corners) -> np.ndarray:
+    """Which triangles (m, 3, 3) have no area to float64's precision: twice the area no more than
+    1e-14 of the square of the triangle's own longest side (so a far vertex elsewhere in the
+    object, or the object's size, changes nothing)."""
+    P = np.asarray(corners, np.float64)
+    edges = P[:, [1, 2, 0]] - P
+    with np.errstate(divide="ignore", invalid="ignore"):  # (a triangle of one point: 0 / 0, degenerate)
+        edges /= np.max(np.abs(edges), axis=(1, 2))[:, None, None]  # scaled to 1: no under- or overflow
+        area2 = np.linalg.norm(np.cross(edges[:, 0], -edges[:, 2]), axis=1)
+        longest = np.max(np.sum(edges * edges, axis=2), axis=1)
+        return ~(area2 > 1e-14 * longest)
 
 
 # --- mesh files ------------------------------------------------------------------------------------
@@ -267,6 +344,8 @@ def _read_obj(path: Path) -> list[SceneObject]:
 
     def index(text, tag):
         i = int(text)
+        if abs(i) > 2**31:
+            raise SceneError(f"{path}:{lineno}: index {i} refers to a {tag!r} that does not exist")
         return i - 1 if i > 0 else len(lists[tag]) + i
 
     for lineno, raw in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
@@ -276,8 +355,15 @@ def _read_obj(path: Path) -> list[SceneObject]:
         tag, args = parts[0], parts[1:]
         try:
             if tag in lists:
-                lists[tag].append([float(a) for a in args[:2 if tag == "vt" else 3]])
+                width = 2 if tag == "vt" else 3
+                if tag == "vt" and len(args) == 1:  # vt u [v [w]]: v defaults to 0
+                    args = args + ["0"]
+                if len(args) < width:
+                    raise SceneError(f"{path}:{lineno}: {tag!r} needs {width} numbers, got {raw.strip()!r}")
+                lists[tag].append([float(a) for a in args[:width]])
             elif tag == "f":
+                if len(args) < 3:
+                    raise SceneError(f"{path}:{lineno}: a face needs at least 3 vertices, got {raw.strip()!r}")
                 refs = []
                 for a in args:
                     fields = (a.split("/") + ["", ""])[:3]
@@ -318,28 +404,41 @@ def _read_obj(path: Path) -> list[SceneObject]:
             uvs = np.where((C[..., 1] >= 0)[..., None], VT[np.maximum(C[..., 1], 0)], 0.0)
         names = list(dict.fromkeys(face_mtl))
         mats = [materials.get(m) or Material(name=m or "") for m in names]
-        out.append(SceneObject(name, V[used], T, mats[0].color, mats[0].emission, corner_normals=normals,
-                               corner_uvs=uvs, triangle_material=[names.index(m) for m in face_mtl],
-                               materials=mats))
+        try:
+            out.append(SceneObject(name, V[used], T, mats[0].color, mats[0].emission, corner_normals=normals,
+                                   corner_uvs=uvs, triangle_material=[names.index(m) for m in face_mtl],
+                                   materials=mats))
+        except SceneError as exc:
+            raise SceneError(f"{path}: {exc}") from None
     return out
 
 
 def _read_mtl(path: Path) -> dict[str, Material]:
     """Kd, Ke and map_Kd (a path relative to the library; as Blender imports it, the texture
-    replaces Kd) of each material."""
+    replaces Kd) of each material, and its scattering as Blender's importer reads it: roughness Pr
+    (else from the exponent Ns, 1 - sqrt(Ns / 1000)), metallic Pm, the specular level the mean of
+    Ks, the index Ni (where it is one, >= 1)."""
     if not path.exists():
         warnings.warn(f"material library {path} not found; using default colours", stacklevel=3)
         return {}
-    check_input(path, "material library", SceneError)
+    check_input(path, "material library", SceneError, "material library")
     specs: dict[str, dict] = {}
     current = None
     for lineno, raw in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
         parts = raw.split("#", 1)[0].split()
         if len(parts) >= 2 and parts[0] == "newmtl":
             current = specs.setdefault(parts[1], {})
-        elif current is not None and len(parts) >= 4 and parts[0] in ("Kd", "Ke"):
+        elif current is not None and parts[0] in ("Kd", "Ke", "Ks"):
             try:
-                current[parts[0]] = np.array([float(p) for p in parts[1:4]])
+                values = [float(p) for p in parts[1:]]
+            except ValueError:
+                raise SceneError(f"{path}:{lineno}: cannot parse {raw.strip()!r}") from None
+            if len(values) not in (1, 3):  # r g b, or r for grey
+                raise SceneError(f"{path}:{lineno}: {parts[0]} needs 1 or 3 numbers, got {raw.strip()!r}")
+            current[parts[0]] = colour(values * 3 if len(values) == 1 else values, f"{path}:{lineno}: {parts[0]}")
+        elif current is not None and len(parts) >= 2 and parts[0] in ("Pr", "Pm", "Ns", "Ni"):
+            try:
+                current[parts[0]] = float(parts[1])
             except ValueError:
                 raise SceneError(f"{path}:{lineno}: cannot parse {raw.strip()!r}") from None
         elif current is not None and len(parts) >= 2 and parts[0] == "map_Kd":
@@ -349,8 +448,17 @@ def _read_mtl(path: Path) -> dict[str, Material]:
     for name, spec in specs.items():
         texture = spec.get("map_Kd")
         color = np.ones(3) if texture is not None else spec.get("Kd", DEFAULT_COLOR)
+        scattering = {}
+        if "Pr" in spec or "Ns" in spec:
+            scattering["roughness"] = spec["Pr"] if "Pr" in spec else 1 - math.sqrt(min(max(spec["Ns"], 0), 1000) / 1000)
+        if "Pm" in spec:
+            scattering["metallic"] = spec["Pm"]
+        if "Ks" in spec:
+            scattering["specular"] = float(np.mean(spec["Ks"]))
+        if spec.get("Ni", 0) >= 1:  # exporters write Ni 0 (or 0.001) for no index
+            scattering["ior"] = spec["Ni"]
         try:
-            out[name] = Material(color, spec.get("Ke", np.zeros(3)), texture, name=name)
+            out[name] = Material(color, spec.get("Ke", np.zeros(3)), texture, name=name, **scattering)
         except SceneError as exc:
             raise SceneError(f"{path}: {exc}") from None
     return out
@@ -361,8 +469,8 @@ def _trimesh_objects(path: Path) -> list[SceneObject]:
     (else flat shading), glTF's TEXCOORD_0 and base colour textures."""
     import trimesh
 
+    header, binary = _gltf_parts(path)  # (first: its own errors are clearer than the reader's)
     loaded = trimesh.load(str(path), force="scene", process=False)
-    header, binary = _gltf_parts(path)
     order = {str(n.get("name", i)): i for i, n in enumerate(header.get("nodes", []))}
     textures = _gltf_base_textures(path, header, binary)
     out = []
@@ -384,25 +492,37 @@ def _trimesh_objects(path: Path) -> list[SceneObject]:
         color, emission = _trimesh_material(mesh)
         material = getattr(mesh.visual, "material", None)
         texture = textures.get(getattr(material, "name", None))
-        out.append(SceneObject(str(node), V, F, color, emission, corner_normals=normals, corner_uvs=uvs,
-                               materials=[Material(color, emission, texture, name=str(getattr(material, "name", "")))]))
+        name = str(getattr(material, "name", ""))
+        try:
+            materials = [Material(color, emission, texture, name=name, **_gltf_scattering(material))]
+            out.append(SceneObject(str(node), V, F, color, emission, corner_normals=normals, corner_uvs=uvs,
+                                   materials=materials))
+        except SceneError as exc:
+            raise SceneError(f"{path}: {exc}") from None
     return out
 
 
 def _gltf_parts(path: Path) -> tuple[dict, bytes]:
     """A glTF/GLB file's JSON and its binary chunk (b"" for .gltf); ({}, b"") for other files."""
-    import json
-    import struct
-
     if path.suffix.lower() not in (".glb", ".gltf"):
         return {}, b""
     data = path.read_bytes()
     binary = b""
     if data[:4] == b"glTF":  # binary: 12-byte header, the JSON chunk (length, type, data), the BIN chunk
+        if len(data) < 20:
+            raise SceneError(f"{path}: the GLB file ends inside its header ({len(data)} bytes)")
         length = struct.unpack_from("<I", data, 12)[0]
         binary = data[28 + length:]
         data = data[20:20 + length]
-    return json.loads(data.decode("utf-8")), binary
+    try:
+        header = json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path}: its JSON is not UTF-8 text (byte {exc.start})") from None
+    except json.JSONDecodeError as exc:
+        raise SceneError(f"{path}: its JSON is not valid: {exc.msg} (line {exc.lineno}, column {exc.colno})") from None
+    if not isinstance(header, dict):
+        raise SceneError(f"{path}: the glTF JSON is not an object")
+    return header, binary
 
 
 def _gltf_base_textures(path: Path, header: dict, binary: bytes) -> dict[str, np.ndarray]:
@@ -431,7 +551,7 @@ def _gltf_base_textures(path: Path, header: dict, binary: bytes) -> dict[str, np
             buffer = header["buffers"][view["buffer"]]
             data = binary if "uri" not in buffer else (
                 base64.b64decode(buffer["uri"].split(",", 1)[1]) if buffer["uri"].startswith("data:")
-                else (path.parent / buffer["uri"]).read_bytes())
+                else check_input(path.parent / buffer["uri"], f"{path}: buffer", SceneError, "mesh file").read_bytes())
             start = view.get("byteOffset", 0)
             blob = data[start:start + view["byteLength"]]
         suffix = {"image/png": ".png", "image/jpeg": ".jpg"}.get(image.get("mimeType", ""), ".png")
@@ -443,6 +563,19 @@ def _gltf_base_textures(path: Path, header: dict, binary: bytes) -> dict[str, np
             except ValueError:
                 raise SceneError(f"{where}: its base colour image cannot be decoded") from None
     return out
+
+
+def _gltf_scattering(material) -> dict:
+    """A glTF material's metallic and roughness factors (absent: 1, as the format says) over its
+    dielectric's normal reflectance 0.04 (IOR 1.5 at Blender's specular level 0.5); Lambert for
+    the other formats' materials."""
+    from trimesh.visual.material import PBRMaterial
+
+    if not isinstance(material, PBRMaterial):
+        return {}
+    metallic, roughness = material.metallicFactor, material.roughnessFactor
+    return dict(metallic=1.0 if metallic is None else float(metallic),
+                roughness=1.0 if roughness is None else float(roughness), specular=0.5, ior=1.5)
 
 
 def _trimesh_material(mesh):
@@ -465,7 +598,7 @@ def _trimesh_material(mesh):
 
 
 def load_mesh_file(path: str | Path) -> list[SceneObject]:
-    path = check_input(path, "scene file", SceneError)
+    path = check_input(path, "scene file", SceneError, "OBJ file" if Path(path).suffix.lower() == ".obj" else "mesh file")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise SceneError(f"{path}: unsupported file type {path.suffix!r} (mesh files: {', '.join(sorted(MESH_SUFFIXES))}; scenes: .toml)")
     try:
@@ -473,28 +606,86 @@ def load_mesh_file(path: str | Path) -> list[SceneObject]:
     except SceneError:
         raise
     except Exception as exc:  # trimesh and the file system raise many types
-        raise SceneError(f"cannot read mesh file {str(path)!r}: {exc}") from None
+        raise SceneError(f"cannot read mesh file {str(path)!r}: {_reader_failure(exc)}") from None
     if not objects:
         raise SceneError(f"{path}: the file holds no triangles")
     return [clean(o, str(path)) for o in objects]
 
 
+def _reader_failure(exc: Exception) -> str:
+    """What a mesh reader's exception says about the file, in words about the file where Python's
+    own would show (a corrupt file makes the readers index, look up and decode past its data)."""
+    if isinstance(exc, UnicodeDecodeError):
+        return f"it is not UTF-8 text where text is expected (byte {exc.start})"
+    if isinstance(exc, KeyError):
+        return f"an entry it needs is missing ({exc})"
+    if isinstance(exc, (IndexError, struct.error, EOFError)):
+        return "it refers past the end of its data (truncated or corrupt)"
+    if isinstance(exc, (TypeError, AttributeError)):
+        return "an entry has the wrong type (corrupt)"
+    if isinstance(exc, OSError) and exc.strerror:  # the file system's (the one a texture is unpacked to)
+        return exc.strerror + (f" ({exc.filename})" if exc.filename else "")
+    return str(exc)  # the reader's own words (trimesh's ValueErrors)
+
+
 # --- scene files (TOML) ------------------------------------------------------------------------------
+# The keys each table of a TOML scene file may have (any other key is an error naming the nearest
+# valid one); a new key goes into its table's list here.
+SCENE_KEYS = ("object", "light", "camera")
+OBJECT_KEYS = ("color", "emission", "transforms", *(key for key, _, _ in SCATTERING))  # every [[object]]
+FILE_OBJECT_KEYS = ("file",)  # an [[object]] read from a mesh file, besides OBJECT_KEYS
+PRIMITIVE_KEYS = {  # an [[object]] with primitive = KIND, besides OBJECT_KEYS
+    "sphere": ("primitive", "name", "center", "radius", "subdivisions"),
+    "box": ("primitive", "name", "center", "size"),
+    "torus": ("primitive", "name", "center", "radius", "tube"),
+}
+LIGHT_KEYS = {  # a [[light]] of each type
+    "point": ("type", "position", "color", "power"),
+    "spot": ("type", "position", "color", "power", "direction", "spot_size", "spot_blend"),
+    "area": ("type", "position", "direction", "x_axis", "size", "shape", "emission"),
+}
+CAMERA_KEYS = ("position", "forward", "up", "fov", "shift", "clip_start", "clip_end")
+
+
 def _vec(value, where, n=3):
-    try:
-        v = np.array(value, dtype=np.float64).reshape(n)
-    except (TypeError, ValueError):
-        raise SceneError(f"{where}: expected {n} numbers, got {value!r}") from None
+    if not (isinstance(value, list) and len(value) == n and all(map(_is_number, value))):
+        raise SceneError(f"{where}: expected {n} numbers, got {value!r}")
+    v = np.array(value, dtype=np.float64)
     if not np.all(np.isfinite(v)):
         raise SceneError(f"{where}: {value!r} is not finite")
     return v
 
 
-def _number(spec: dict, key: str, default: float, where: str) -> float:
+def _number(spec: dict, key: str, default: float, where: str, positive: bool = False) -> float:
     value = spec.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not _is_number(value) or not math.isfinite(value):
         raise SceneError(f"{where}: {key} must be a finite number, got {value!r}")
+    if positive and not value > 0:
+        raise SceneError(f"{where}: {key} must be positive, got {value!r}")
     return float(value)
+
+
+def _whole(spec: dict, key: str, default: int, where: str, low: int, high: int) -> int:
+    value = spec.get(key, default)
+    if not (_is_number(value) and math.isfinite(value) and value == int(value) and low <= value <= high):
+        raise SceneError(f"{where}: {key} must be a whole number from {low} to {high}, got {value!r}")
+    return int(value)
+
+
+def _table(value, where: str, keys) -> dict:
+    """A TOML table with none but `keys`."""
+    if not isinstance(value, dict):
+        raise SceneError(f"{where}: expected a table, got {value!r}")
+    check_keys(value, keys, where, SceneError)
+    return value
+
+
+def _tables(data: dict, key: str, path: Path) -> list[dict]:
+    """The [[key]] tables of a scene file (none if absent)."""
+    value = data.get(key, [])
+    if not (isinstance(value, list) and all(isinstance(v, dict) for v in value)):
+        raise SceneError(f"{path}: {key} must be [[{key}]] tables, got {value!r}")
+    return value
 
 
 def load_scene_file(path: str | Path) -> Scene:
@@ -504,6 +695,10 @@ def load_scene_file(path: str | Path) -> Scene:
         file = "knot.glb"     # every object of the file, in its order
         color = [0.9, 0.3, 0.2]      # optional: overrides the file's materials and textures
         emission = [0, 0, 0]
+        roughness = 0.3       # optional, as Blender's Principled BSDF (overriding the file's):
+        metallic = 1.0        # roughness, metallic, specular (its Specular IOR Level; 0: no
+        specular = 0.5        # specular layer) and ior; without them (and in files without
+        ior = 1.5             # them) a Lambert surface
         [[object]]
         primitive = "sphere"  # sphere (radius), box (size), torus (radius, tube)
         center = [0.2, 0, 0]
@@ -530,40 +725,52 @@ def load_scene_file(path: str | Path) -> Scene:
     path = Path(path)
     if path.suffix.lower() != ".toml":
         return Scene(objects=load_mesh_file(path))
-    check_input(path, "scene file", SceneError)
+    text = read_text(path, "scene file", SceneError, "scene file")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"cannot read scene file {str(path)!r}: {exc}") from None
-    try:
-        return _scene_from_toml(data, path)
-    except (TypeError, ValueError, AttributeError) as exc:
-        if isinstance(exc, SceneError):
-            raise
-        raise SceneError(f"{path}: a value has the wrong type: {exc}") from None
+    return _scene_from_toml(data, path)
 
 
 def _scene_from_toml(data: dict, path: Path) -> Scene:
+    check_keys(data, SCENE_KEYS, str(path), SceneError)
     scene = Scene()
-    for i, spec in enumerate(data.get("object", [])):
+    primitive_triangles = 0
+    every_object_key = sorted({*OBJECT_KEYS, *FILE_OBJECT_KEYS, *(k for keys in PRIMITIVE_KEYS.values() for k in keys)})
+    for i, spec in enumerate(_tables(data, "object", path)):
         where = f"{path}: object {i}"
+        if "file" in spec and "primitive" in spec:
+            raise SceneError(f"{where}: give 'file' or 'primitive', not both")
         if "file" in spec:
+            check_keys(spec, FILE_OBJECT_KEYS + OBJECT_KEYS, f"{where} (a mesh file)", SceneError)
             if not isinstance(spec["file"], str):
                 raise SceneError(f"{where}: file must be a path string, got {spec['file']!r}")
-            objs = load_mesh_file(path.parent / spec["file"])
+            try:
+                objs = load_mesh_file(path.parent / spec["file"])
+            except SceneError as exc:
+                raise SceneError(f"{where}: {exc}") from None
         elif "primitive" in spec:
             objs = [primitive(spec, where)]
+            primitive_triangles += len(objs[0].triangles)
+            if primitive_triangles > MAX_PRIMITIVE_TRIANGLES:
+                raise SceneError(f"{where}: the file's primitives have more than {MAX_PRIMITIVE_TRIANGLES} triangles; "
+                                 "place copies of one with `transforms` (instances) instead")
         else:
+            check_keys(spec, every_object_key, where, SceneError)  # a misspelt file or primitive
             raise SceneError(f"{where}: needs 'file' or 'primitive'")
         for o in objs:  # overrides apply to every material of the file (textures included)
             if "color" in spec:
-                o.color = _vec(spec["color"], f"{where}: color")
+                o.color = colour(spec["color"], f"{where}: color")
                 for m in o.materials:
                     m.color, m.color_texture = o.color, None
             if "emission" in spec:
-                o.emission = _vec(spec["emission"], f"{where}: emission")
+                o.emission = colour(spec["emission"], f"{where}: emission")
                 for m in o.materials:
                     m.emission, m.emission_texture = o.emission, None
+            scattering = {key: spec[key] for key, _, _ in SCATTERING if key in spec}
+            if scattering:
+                _scatter(o, scattering, where)
         if "transforms" in spec:
             for o in objs:
                 try:
@@ -571,15 +778,18 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
                 except SceneError as exc:
                     raise SceneError(f"{where}: {exc}") from None
         scene.objects += objs
-    for i, spec in enumerate(data.get("light", [])):
+    for i, spec in enumerate(_tables(data, "light", path)):
         where = f"{path}: light {i}"
         kind = spec.get("type", "point")
-        position = _vec(spec.get("position"), f"{where}: position")
+        if not isinstance(kind, str) or kind not in LIGHT_KEYS:
+            raise SceneError(f"{where}: unknown light type {kind!r} ({', '.join(LIGHT_KEYS)})")
+        check_keys(spec, LIGHT_KEYS[kind], f"{where} ({kind} light)", SceneError)
+        if "position" not in spec:
+            raise SceneError(f"{where}: needs a position")
+        position = _vec(spec["position"], f"{where}: position")
         if kind == "area":
             scene.objects.append(_area_light(spec, position, where))
             continue
-        if kind not in ("point", "spot"):
-            raise SceneError(f"{where}: unknown light type {kind!r} (point, spot, area)")
         power = _number(spec, "power", 1.0, where)
         if power < 0:
             raise SceneError(f"{where}: power must be >= 0, got {power:g}")
@@ -588,22 +798,38 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
             spot_size=math.radians(_number(spec, "spot_size", 45.0, where)),
             spot_blend=_number(spec, "spot_blend", 0.15, where))
         try:
-            scene.lights.append(PointLight(position, _vec(spec.get("color", [1, 1, 1]), f"{where}: color"), power,
+            scene.lights.append(PointLight(position, colour(spec.get("color", [1, 1, 1]), f"{where}: color"), power,
                                            **spot))
         except SceneError as exc:
             raise SceneError(f"{where}: {exc}") from None
     if "camera" in data:
-        c = data["camera"]
+        where = f"{path}: camera"
+        c = _table(data["camera"], where, CAMERA_KEYS)
+        fov = _number(c, "fov", 90.0, where)
+        if not 0 < fov < 180:
+            raise SceneError(f"{where}: fov must be between 0 and 180 degrees (exclusive), got {fov:g}")
+        clip_start = _number(c, "clip_start", 0.0, where)
+        clip_end = _number(c, "clip_end", 0.0, where, positive=True) if "clip_end" in c else None
+        if clip_start < 0 or clip_end is not None and clip_start >= clip_end:
+            raise SceneError(f"{where}: clip_start must be >= 0 and less than clip_end, got {clip_start:g}")
         scene.camera = Camera(
-            _vec(c.get("position", [0, 0, 0]), f"{path}: camera.position"),
-            _vec(c.get("forward", [0, 1, 0]), f"{path}: camera.forward"),
-            _vec(c.get("up", [0, 0, 1]), f"{path}: camera.up"),
-            _number(c, "fov", 90.0, f"{path}: camera"),
-            shift=tuple(_vec(c.get("shift", [0, 0]), f"{path}: camera.shift", 2)),
-            clip_start=_number(c, "clip_start", 0.0, f"{path}: camera"),
-            clip_end=_number(c, "clip_end", 0.0, f"{path}: camera") if "clip_end" in c else None,
-        )
+            _vec(c.get("position", [0, 0, 0]), f"{where}.position"),
+            _vec(c.get("forward", [0, 1, 0]), f"{where}.forward"),
+            _vec(c.get("up", [0, 0, 1]), f"{where}.up"),
+            fov, shift=tuple(_vec(c.get("shift", [0, 0]), f"{where}.shift", 2)),
+            clip_start=clip_start, clip_end=clip_end)
     return scene
+
+
+def _scatter(obj: SceneObject, scattering: dict, where: str):
+    """Sets the scattering keys (Material's roughness, metallic, specular, ior) on every material of
+    the object (its one material made explicit where it has none)."""
+    if not obj.materials:
+        obj.materials = [Material(obj.color, obj.emission, name=obj.name)]
+    try:
+        obj.materials = [replace(m, **scattering) for m in obj.materials]
+    except (SceneError, TypeError) as exc:
+        raise SceneError(f"{where}: {exc}") from None
 
 
 def _area_light(spec: dict, position, where: str) -> SceneObject:
@@ -616,34 +842,41 @@ def _area_light(spec: dict, position, where: str) -> SceneObject:
     shape = spec.get("shape", "rectangle")
     if shape not in ("rectangle", "disc"):
         raise SceneError(f"{where}: unknown area light shape {shape!r} (rectangle, disc)")
-    emission = _vec(spec.get("emission", [1, 1, 1]), f"{where}: emission")
+    emission = colour(spec.get("emission", [1, 1, 1]), f"{where}: emission")
     w = direction / max(np.linalg.norm(direction), 1e-300)
     u = x_axis - (x_axis @ w) * w
     if not (np.linalg.norm(direction) > 0 and np.linalg.norm(u) > 1e-9 * np.linalg.norm(x_axis)) or np.any(size <= 0):
         raise SceneError(f"{where}: an area light needs a non-zero direction, an x_axis not along it and a positive size")
-    if np.any(emission < 0):
-        raise SceneError(f"{where}: emission must be >= 0, got {emission.tolist()}")
     u = u / np.linalg.norm(u) * size[0] / 2
     v = np.cross(w, u) / np.linalg.norm(u) * size[1] / 2  # u x v along the direction it emits to
     return flat_light(f"area light {where}", position, u, v, emission, disc=shape == "disc")
 
 
 def primitive(spec: dict, where: str) -> SceneObject:
+    """A sphere (radius, subdivisions), box (size) or torus (radius, tube) at `center`, in the
+    default colour (a scene file's object sets its colour and emission)."""
     import trimesh
 
-    kind = spec["primitive"]
+    kind = spec.get("primitive")
+    if not isinstance(kind, str) or kind not in PRIMITIVE_KEYS:
+        raise SceneError(f"{where}: unknown primitive {kind!r} ({', '.join(PRIMITIVE_KEYS)})")
+    check_keys(spec, PRIMITIVE_KEYS[kind] + OBJECT_KEYS, f"{where} (a {kind})", SceneError)
     center = _vec(spec.get("center", [0, 0, 0]), f"{where}: center")
+    name = spec.get("name", kind)
+    if not isinstance(name, str):
+        raise SceneError(f"{where}: name must be a string, got {name!r}")
     if kind == "sphere":
-        mesh = trimesh.creation.icosphere(subdivisions=int(_number(spec, "subdivisions", 3, where)), radius=_number(spec, "radius", 0.1, where))
+        mesh = trimesh.creation.icosphere(subdivisions=_whole(spec, "subdivisions", 3, where, 0, MAX_SUBDIVISIONS),
+                                          radius=_number(spec, "radius", 0.1, where, positive=True))
     elif kind == "box":
-        mesh = trimesh.creation.box(extents=_vec(spec.get("size", [0.2, 0.2, 0.2]), f"{where}: size"))
-    elif kind == "torus":
-        mesh = trimesh.creation.torus(major_radius=_number(spec, "radius", 0.15, where), minor_radius=_number(spec, "tube", 0.05, where))
+        size = _vec(spec.get("size", [0.2, 0.2, 0.2]), f"{where}: size")
+        if not np.all(size > 0):
+            raise SceneError(f"{where}: size must be positive, got {size.tolist()}")
+        mesh = trimesh.creation.box(extents=size)
     else:
-        raise SceneError(f"{where}: unknown primitive {kind!r} (sphere, box, torus)")
-    obj = SceneObject(str(spec.get("name", kind)), mesh.vertices + center, mesh.faces,
-                      spec.get("color", DEFAULT_COLOR), spec.get("emission", [0, 0, 0]))
-    return clean(obj, where)
+        mesh = trimesh.creation.torus(major_radius=_number(spec, "radius", 0.15, where, positive=True),
+                                      minor_radius=_number(spec, "tube", 0.05, where, positive=True))
+    return clean(SceneObject(name, mesh.vertices + center, mesh.faces), where)
 
 
 def load_scenes(paths) -> Scene:

@@ -24,15 +24,24 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import HalfspaceIntersection
+from scipy.optimize import linprog
+from scipy.spatial import HalfspaceIntersection, QhullError
 
 from . import geometries
-from .files import check_input
+from .files import check_keys, read_text
 
 PRESET_DIR = Path(__file__).parent / "presets"
 # Folders of a user's own presets (os.pathsep-separated), searched before the built-in ones.
 SPACE_PATH_VARIABLE = "THURSTON_SPACE_PATH"
+_SHORTENING_ROUNDS = 64  # passes over the generator pairs that shorten a generating set (each pass
+# shortens every generator as far as single products go; a discrete group's set settles in a few)
 _GROUP_LIMIT = 20000  # more elements than this within the needed radius: not a useful discrete group
+CENTRE_RESOLUTION = 1e-6  # elements moving the domain centre by less are not told apart from the identity
+# The keys of a space file's tables (any other key is an error naming the nearest valid one).
+SPACE_KEYS = ("id", "name", "description", "geometry", "scale", "max_distance", "max_crossings", "covolume",
+              "camera", "generator")
+CAMERA_KEYS = ("position", "forward", "up", "fov")
+GENERATOR_KEYS = ("name", "matrix", "face", "antipodal")
 
 
 class SpaceError(ValueError):
@@ -71,7 +80,11 @@ def evaluate(value, where: str) -> float:
         result = ev(ast.parse(value, mode="eval"))
     except SpaceError:
         raise
-    except (SyntaxError, ZeroDivisionError, ValueError, OverflowError, TypeError, RecursionError, MemoryError) as exc:
+    except SyntaxError:
+        raise SpaceError(f"{where}: cannot evaluate {value!r}: it is not an arithmetic expression") from None
+    except (OverflowError, MemoryError, RecursionError):
+        raise SpaceError(f"{where}: cannot evaluate {value!r}: it is too large") from None
+    except (ZeroDivisionError, ValueError, TypeError) as exc:  # division by zero, math domain error
         raise SpaceError(f"{where}: cannot evaluate {value!r}: {exc}") from None
     if not isinstance(result, float) or not math.isfinite(result):
         raise SpaceError(f"{where}: cannot evaluate {value!r}: not a finite real number")
@@ -96,6 +109,18 @@ def _count(value, where) -> int:
     if not 0 <= value <= _INT32_MAX:
         raise SpaceError(f"{where}: expected a whole number between 0 and {_INT32_MAX}, got {value!r}")
     return int(value)
+
+
+def row_norms(Y) -> np.ndarray:
+    """The Euclidean norms of the rows of Y, also where their squares overflow (far points)."""
+    rows = np.reshape(Y, (-1, np.shape(Y)[-1]))
+    with np.errstate(over="ignore", invalid="ignore"):
+        norms = np.sqrt(np.sum(rows * rows, axis=-1))
+        far = ~np.isfinite(norms)
+        if far.any():  # scaled to their largest entry first
+            largest = np.max(np.abs(rows[far]), axis=-1)
+            norms[far] = largest * np.sqrt(np.sum((rows[far] / largest[:, None]) ** 2, axis=-1))
+    return norms.reshape(np.shape(Y)[:-1])
 
 
 # --- the space ---------------------------------------------------------------------------------
@@ -144,10 +169,11 @@ class Domain:
 
     def contains(self, X, tol=1e-12):
         """Whether model points lie in the domain (with a relative tolerance)."""
-        X = np.asarray(self.plane_coordinates(np.asarray(X, float)), float)
-        c = self.covectors()
-        scale = np.linalg.norm(c, axis=1) * np.linalg.norm(X, axis=-1)[..., None]
-        return np.all(X @ c.T <= tol * scale, axis=-1)
+        with np.errstate(over="ignore", invalid="ignore"):
+            X = np.asarray(self.plane_coordinates(np.asarray(X, float)), float)
+            c = self.covectors()
+            scale = np.linalg.norm(c, axis=1) * row_norms(X)[..., None]
+            return np.all(X @ c.T <= tol * scale, axis=-1)
 
 
 @dataclass
@@ -172,10 +198,12 @@ class Space:
         self.source = source
         where = source
         self.geometry = _geometry(data, where)
-        self.id = str(data.get("id") or Path(source).stem)
-        self.name = str(data.get("name", self.id))
-        self.description = str(data.get("description", ""))
+        self.id = _text(data, "id", Path(source).stem, where) or Path(source).stem
+        self.name = _text(data, "name", self.id, where)
+        self.description = _text(data, "description", "", where)
         self.scale = evaluate(data.get("scale", 1.0), f"{where}: scale")
+        if not self.scale > 0:
+            raise SpaceError(f"{where}: scale must be a positive number (Blender units per chart unit), got {self.scale:g}")
         self.max_distance = evaluate(data.get("max_distance", 20.0), f"{where}: max_distance")
         if not self.max_distance > 0:  # evaluate() already rejects non-finite values
             raise SpaceError(f"{where}: max_distance must be a positive number, got {self.max_distance:g}")
@@ -185,6 +213,9 @@ class Space:
         for name, M in _generator_tables(data, where, self.geometry):
             self.generators.append(M)
             self.generator_names.append(name)
+        if all(map(_is_identity, self.generators)):
+            raise SpaceError(f"{where}: every generator is the identity: the group is trivial, and the space would be "
+                             f"all of {self.geometry.name}, which no domain in its chart holds")
         self.camera = self._camera(data.get("camera", {}), f"{where}: camera")
         self._build_domain(data)
 
@@ -231,8 +262,10 @@ class Space:
                     found[key] = N
                     nxt.append(N)
                     if len(found) > _GROUP_LIMIT:
-                        raise SpaceError(f"{self.source}: more than {_GROUP_LIMIT} group elements {what}; "
-                                         "the generators do not give a discrete group with a small domain")
+                        raise SpaceError(f"{self.source}: more than {_GROUP_LIMIT} group elements {what}: the "
+                                         "group is not discrete, or its domain is far thinner than some generators "
+                                         "are long, even after shortening them (give generators that pair the "
+                                         "domain's faces)")
             frontier = nxt
         return list(found.values())
 
@@ -256,10 +289,6 @@ class Space:
 
         cached[levels] = self._search(inner, steps, touches, f"around the domain at level {levels}")
         return cached[levels]
-
-    def light_elements(self) -> list[np.ndarray]:
-        """The copies of a light the tracer chooses among: those around the domain."""
-        return self.neighbourhood(1)
 
     @cached_property
     def extent(self) -> float:
@@ -308,47 +337,100 @@ class Space:
     def bring_inside(self, X, V=None):
         """One model point (and a tangent vector) moved into the domain: (X, V, M) with M the
         accumulated isometry; raises SpaceError if it cannot be."""
-        X, V, M = self.move_inside(np.asarray(X, float)[None], None if V is None else np.asarray(V, float)[None])
+        X, V, M = self.move_inside(np.asarray(X, float)[None], None if V is None else np.asarray(V, float)[None], label=None)
         return X[0], (None if V is None else V[0]), self.geometry.reorthonormalize(M[0])
 
-    def move_inside(self, X, V=None, max_steps=10000):
-        """Model points (rows; extended precision is kept) and optionally their tangent vectors,
-        moved into the domain by the face pairings all at once: each step applies the pairing of
-        the face a point is farthest outside of. Returns (X, V, M), M the isometry applied to each
-        row; raises SpaceError naming a point that cannot be moved in."""
+    def to_model(self, x, label="point"):
+        """Chart points (rows) as model points; SpaceError naming a point (`label` i; None: the only
+        one) so far out in the chart that its model point overflows."""
         g = self.geometry
-        X = g.normalize_point(np.array(X, copy=True))
-        bad = ~(np.all(np.isfinite(X), axis=1) & g.in_chart(np.asarray(g.to_chart(X), float)))
+        with np.errstate(all="ignore"):
+            X = g.to_model(x)
+            overflows = ~np.all(np.isfinite(g.normalize_point(X)), axis=-1)
+        if overflows.any():
+            i = int(np.argmax(overflows))
+            raise SpaceError(f"{_point_name(label, i)} ({np.asarray(x[i], float).tolist()}) is too far out in the "
+                             f"chart of {g.name} (its model point overflows)")
+        return X
+
+    def move_inside(self, X, V=None, max_steps=10000, label="point"):
+        """Model points (rows; extended precision is kept) and optionally their tangent vectors,
+        moved into the domain by the face pairings: each step applies, to the points still
+        outside, the pairing of the face each is farthest outside of (so a far point costs only
+        its own steps). Returns (X, V, M), M the isometry applied to each row; raises SpaceError
+        naming a point (`label` i; None: the only one) that cannot be moved in: not a point of the
+        geometry, so far out that the domain test overflows or the pairings no longer move it
+        (rounding), or more than max_steps face crossings away."""
+        g = self.geometry
+        given = X
+
+        def refuse(i, why):
+            with np.errstate(all="ignore"):
+                where = np.asarray(g.to_chart(np.asarray(given[i])), float).tolist()
+            raise SpaceError(f"{_point_name(label, i)} ({where}) {why}; it cannot be brought into the domain of "
+                             f"{self.id!r}")
+
+        with np.errstate(all="ignore"):
+            X = g.normalize_point(np.array(X, copy=True))
+            bad = ~(np.all(np.isfinite(X), axis=1) & g.in_chart(np.asarray(g.to_chart(X), float)))
         if bad.any():
-            i = int(np.argmax(bad))
-            raise SpaceError(f"point {i} ({np.asarray(g.to_chart(X[i]), float)}) is not a point of {g.name}; "
-                             f"it cannot be brought into the domain of {self.id!r}")
+            refuse(int(np.argmax(bad)), f"is not a point of {g.name}")
         C = np.asarray(self.domain.covectors(), X.dtype)
         C = C / np.sqrt(np.sum(C * C, axis=1))[:, None]
         maps = np.asarray([f.pairing for f in self.domain.faces], X.dtype)
         M = np.broadcast_to(np.eye(4, dtype=X.dtype), (len(X), 4, 4)).copy()
+        active = np.arange(len(X))  # the points not yet inside
         for _ in range(max_steps):
-            Y = g.plane_coordinates(X)
-            s = Y @ C.T
-            worst = np.argmax(s, axis=1)
-            idx = np.flatnonzero(s[np.arange(len(X)), worst] > 1e-12 * np.sqrt(np.sum(Y * Y, axis=1)))
-            if len(idx) == 0:
+            here = X if len(active) == len(X) else X[active]
+            with np.errstate(over="ignore", invalid="ignore"):
+                Y = g.plane_coordinates(here)
+                s = Y @ C.T
+            worst = np.argmax(s, axis=1)  # (a NaN is the largest)
+            beyond = s[np.arange(len(active)), worst]
+            overflow = ~np.isfinite(beyond)
+            if overflow.any():
+                refuse(int(active[np.argmax(overflow)]), f"is too far out: {g.name}'s domain test overflows there")
+            outside = beyond > 1e-12 * row_norms(Y)
+            active, worst, here = active[outside], worst[outside], here[outside]
+            if len(active) == 0:
                 if V is not None:
                     V = g.normalize_tangent(X, np.einsum("nij,nj->ni", M, np.asarray(V, X.dtype)))
                 return X, V, M
-            X[idx] = g.normalize_point(np.einsum("nij,nj->ni", maps[worst[idx]], X[idx]))
-            M[idx] = maps[worst[idx]] @ M[idx]
-        raise SpaceError(f"point {int(idx[0])} cannot be brought into the domain of {self.id!r}")
+            moved = g.normalize_point(np.einsum("nij,nj->ni", maps[worst], here))
+            stuck = np.all(moved == here, axis=1)
+            if stuck.any():
+                refuse(int(active[np.argmax(stuck)]), "is too far out: the face pairings no longer move it (rounding)")
+            X[active] = moved
+            M[active] = maps[worst] @ M[active]
+        refuse(int(active[0]), f"is more than {max_steps} face crossings from the domain")
+
+    def reduces_to_identity(self, M, probes) -> bool:
+        """Whether the isometry M is an element of the group: the probes' images under M reduce
+        back onto the probes, by a reduction whose isometry undoes M."""
+        g = self.geometry
+        X = np.asarray(probes, float) @ np.asarray(M).T
+        Y, _, R = self.move_inside(X)
+        if not np.allclose(g.to_chart(Y), g.to_chart(probes), atol=1e-8):
+            return False
+        return bool(np.allclose(R @ M, np.eye(4), atol=1e-7))
 
     def _interior_points(self, rng, n):
-        """Random chart points strictly inside the domain."""
+        """Random chart points strictly inside the domain (by a relative margin of 1e-6, less in a
+        domain too thin for that)."""
         g = self.geometry
         lo, hi = self.domain.vertices.min(axis=0), self.domain.vertices.max(axis=0)
         out = np.zeros((0, 3))
+        margin, empty = 1e-6, 0
         while len(out) < n:
             x = rng.uniform(lo, hi, (4 * n, 3))
             x = x[g.in_chart(x)]  # the chart's own points only (the Klein disk's box reaches outside it)
-            out = np.vstack([out, x[self.domain.contains(g.to_model(x), tol=-1e-6)]])
+            found = x[self.domain.contains(g.to_model(x), tol=-margin)]
+            out = np.vstack([out, found])
+            empty = 0 if len(found) else empty + 1
+            if empty == 8:
+                if margin < 1e-12:
+                    raise SpaceError(f"{self.source}: the domain has no interior (its faces leave it flat)")
+                margin, empty = margin / 100, 0
         return out[:n]
 
     def unfolded(self, x, v=None):
@@ -370,6 +452,30 @@ class Space:
         }
 
 
+def _point_name(label: str | None, i: int) -> str:
+    """How a message names point i of those given (label None: the only one)."""
+    return "the point" if label is None else f"{label} {i}"
+
+
+def _text(data: dict, key: str, default: str, where: str) -> str:
+    value = data.get(key, default)
+    if not isinstance(value, str):
+        raise SpaceError(f"{where}: {key} must be a string, got {value!r}")
+    return value
+
+
+def _check_keys(data, source: str):
+    """SpaceError naming a key the file's tables do not have (and the nearest one they do)."""
+    if not isinstance(data, dict):
+        raise SpaceError(f"{source}: expected a table of fields, got {type(data).__name__}")
+    check_keys(data, SPACE_KEYS, source, SpaceError)
+    if isinstance(data.get("camera"), dict):
+        check_keys(data["camera"], CAMERA_KEYS, f"{source}: camera", SpaceError)
+    for i, gen in enumerate(data.get("generator") if isinstance(data.get("generator"), list) else []):
+        if isinstance(gen, dict):
+            check_keys(gen, GENERATOR_KEYS, f"{source}: generator {gen.get('name', i)!r}", SpaceError)
+
+
 def _geometry(data, where):
     known = ", ".join(geometries.GEOMETRIES)
     if not isinstance(data, dict):
@@ -382,6 +488,10 @@ def _geometry(data, where):
         return geometries.get(data["geometry"])
     except ValueError as exc:
         raise SpaceError(f"{where}: {exc}") from None
+
+
+def _is_identity(M) -> bool:
+    return bool(np.allclose(M, np.eye(4), rtol=0, atol=1e-12))
 
 
 def _generator_tables(data, where, geometry):
@@ -413,10 +523,16 @@ def _halfspace_domain(covectors, elements, source, geometry) -> Domain:
     each covector that bounds it (vertex rings counter-clockwise seen from outside)."""
     C = np.array(covectors, float)
     C /= np.linalg.norm(C[:, :3], axis=1)[:, None]
+    away = _unbounded_direction(C)
+    if away is not None:
+        raise SpaceError(f"{source}: the domain is not compact: it reaches out of every bound along "
+                         f"{np.round(away, 6).tolist()} in the chart (the group has too few generators to close it)")
     try:
         hs = HalfspaceIntersection(C, np.zeros(3))
-    except Exception as exc:  # qhull raises its own error types
-        raise SpaceError(f"{source}: the half-spaces of the group do not bound a domain: {exc}") from None
+    except (QhullError, ValueError):
+        raise SpaceError(f"{source}: the faces of the domain cannot be intersected: some of them are parallel or "
+                         "coincide to rounding (generators given to too few digits, or a group that is not "
+                         "discrete)") from None
     pts = hs.intersections
     if not np.all(np.isfinite(pts)) or not np.all(geometry.in_chart(pts)):
         raise SpaceError(f"{source}: the domain is not compact (the group has too few generators)")
@@ -434,6 +550,16 @@ def _halfspace_domain(covectors, elements, source, geometry) -> Domain:
             continue
         faces.append(Face(covector=c, element=M, vertices=_ring(V, on, c[:3])))
     return Domain(vertices=geometry.from_plane_chart(V), faces=faces, plane_coordinates=geometry.plane_coordinates)
+
+
+def _unbounded_direction(C) -> np.ndarray | None:
+    """An axis direction along which the polyhedron {x : C (x, 1) <= 0} (the origin inside) is
+    unbounded, None if it is bounded: a polyhedron unbounded along some direction r is unbounded
+    along the axis direction of a non-zero coordinate of r."""
+    for d in np.vstack([np.eye(3), -np.eye(3)]):
+        if linprog(-d, A_ub=C[:, :3], b_ub=-C[:, 3], bounds=[(None, None)] * 3, method="highs").status == 3:
+            return d
+    return None
 
 
 def _ring(V, idx, normal):
@@ -480,9 +606,12 @@ class DirichletSpace(Space):
             steps = [f.element for f in domain.faces]
             reaches = lambda M: np.max(self.face_distances(np.linalg.solve(M, O))) <= radius + 1e-9
         else:
-            steps = [*self.generators, *(np.linalg.inv(s) for s in self.generators)]
+            steps = [*self._steps, *(np.linalg.inv(s) for s in self._steps)]
             horizon = radius + max(g.distance(O, s[:, 3]) for s in steps)
-            reaches = lambda M: g.distance(O, M[:, 3]) <= horizon + 1e-9
+
+            def reaches(M):
+                self._check_moves_centre(M, "a word in the generators")
+                return g.distance(O, M[:, 3]) <= horizon + 1e-9
         found = self._search([np.eye(4)], steps, reaches, f"near the ball of radius {radius:.3g}")
         self._elements = sorted(found, key=lambda M: g.distance(O, M[:, 3]))
         self._radius = radius
@@ -499,41 +628,124 @@ class DirichletSpace(Space):
             return None
         return len(self.elements_within(self.geometry.diameter + 1e-6))
 
-    def light_elements(self) -> list[np.ndarray]:
-        """A finite group (S3): all of it, so that the nearest copy of a light is always among them."""
-        if self.group_order is not None:
-            return self.elements_within(self.geometry.diameter + 1e-6)
-        return super().light_elements()
-
     # --- the Dirichlet domain --------------------------------------------------------------------
     def _dirichlet_domain(self) -> Domain:
-        """Grow the set of elements until the polyhedron of their bisectors passes Poincaré's
-        polyhedron theorem (faces paired by isometries, edge cycles of 2 pi): it is then a
-        fundamental domain cut out by bisectors of O, hence the Dirichlet domain."""
+        """First the polyhedron of the bisectors of the generators and their inverses: where it
+        passes Poincaré's polyhedron theorem (faces paired by isometries, edge cycles of 2 pi) and
+        every generator is a word in its face pairings, it is a fundamental domain of the group
+        cut out by bisectors of O, so it holds the Dirichlet domain and has its volume: it is the
+        Dirichlet domain (thin or long lattices get here, whose balls about O hold too many
+        elements to list). Else grow the set of elements, all of those within a radius, until
+        the polyhedron of their bisectors passes the theorem."""
         g = self.geometry
         O = geometries.projective.ORIGIN
+        given = [(name, M) for name, M in zip(self.generator_names, self.generators) if not _is_identity(M)]
+        for name, M in given:
+            self._check_moves_centre(M, f"generator {name!r}", generator=True)
+        self._steps = [M for _, M in given]
+        shortened = self._shortened(self._steps)
+        for generators in (self._steps, shortened):
+            nearest = {g.element_key(N): N for M in generators + [np.linalg.inv(M) for M in generators]
+                       for N in [g.reorthonormalize(M)]}
+            try:
+                self._bisector_domain(sorted(nearest.values(), key=lambda M: g.distance(O, M[:, 3])))
+                self._check_pairings()
+                rng = np.random.default_rng(20261203)
+                probes = g.to_model(self._interior_points(rng, 8))
+                if all(self.reduces_to_identity(M, probes) for _, M in given):
+                    return self.domain
+            except SpaceError:
+                pass
+        self.__dict__.pop("domain", None)  # (the enumeration below starts from the generators, not from this domain's faces)
+        self._steps = shortened  # (the ball to enumerate is as large as the longest step)
         full = g.diameter + 1e-6  # in S3 every element lies within distance pi
-        radius = max(g.distance(O, s[:, 3]) for s in self.generators) + 1e-6
+        radius = max(g.distance(O, s[:, 3]) for s in self._steps) + 1e-6
         while True:
             radius = min(radius, full)
             elements = self.elements_within(radius)[1:]
-            if any(g.distance(O, M[:, 3]) < 1e-6 for M in elements):
-                raise SpaceError(f"{self.source}: a group element other than the identity fixes the domain centre; "
-                                 "the group does not act freely (not a manifold) or the generators repeat")
-            self.domain = _halfspace_domain([g.bisector(M[:, 3]) for M in elements], elements, self.source, g)
-            self.__dict__.pop("edge_cycles", None)
-            circumradius = max(g.distance(O, g.to_model(v)) for v in self.domain.vertices)
+            for M in elements:
+                self._check_moves_centre(M, "an element of the group")
+            self._bisector_domain(elements)
             try:
-                self._pair_faces(self.domain)
-                self._validate()
+                self._check_pairings()
             except SpaceError:
                 # faces can only come from elements within twice the circumradius
-                if 2 * circumradius <= radius or radius >= full:
+                if 2 * self.circumradius <= radius or radius >= full:
                     raise
-                radius = min(2 * circumradius + 1e-6, 1.5 * radius)
+                radius = min(2 * self.circumradius + 1e-6, 1.5 * radius)
                 continue
             self._elements, self._radius = [np.eye(4)], 0.0  # enumerate again with face steps
             return self.domain
+
+    def _shortened(self, generators: list[np.ndarray]) -> list[np.ndarray]:
+        """Generators of the same group that move O less: each replaced by its product with powers
+        of another (on either side, the power doubled while the product keeps shortening: Nielsen
+        moves, which keep the group) while that shortens it, and those that become the identity
+        dropped. A skewed lattice basis becomes a reduced one, whose bisectors bound the domain and
+        whose ball about O holds few elements."""
+        g = self.geometry
+        O = geometries.projective.ORIGIN
+        length = lambda M: g.distance(O, M[:, 3])
+        gens = [g.reorthonormalize(M) for M in generators]
+        for _ in range(_SHORTENING_ROUNDS):
+            changed = False
+            for i, j in ((i, j) for i in range(len(gens)) for j in range(len(gens)) if i != j):
+                if _is_identity(gens[i]) or _is_identity(gens[j]):
+                    continue
+                for s in (gens[j], np.linalg.inv(gens[j])):
+                    for product in (lambda M, P: M @ P, lambda M, P: P @ M):
+                        step = s
+                        while True:
+                            shorter = g.reorthonormalize(product(gens[i], step))
+                            if not length(shorter) < length(gens[i]) * (1 - 1e-9):
+                                if step is s:
+                                    break
+                                step = s  # the doubled power overshot: go on from single steps
+                                continue
+                            if not _is_identity(shorter):
+                                self._check_moves_centre(shorter, "a word in the generators")
+                            gens[i], changed = shorter, True
+                            if _is_identity(shorter):
+                                break
+                            step = g.reorthonormalize(step @ step)
+                        if _is_identity(gens[i]):
+                            break
+                    if _is_identity(gens[i]):
+                        break
+            if not changed:
+                break
+        return [M for M in gens if not _is_identity(M)]
+
+    def _bisector_domain(self, elements):
+        """self.domain: the polyhedron of the bisectors of O and the elements' images of it."""
+        g = self.geometry
+        self.domain = _halfspace_domain([g.bisector(M[:, 3]) for M in elements], elements, self.source, g)
+        for cached in ("edge_cycles", "circumradius"):
+            self.__dict__.pop(cached, None)
+
+    def _check_pairings(self):
+        """SpaceError unless the domain's faces are paired, and glue a manifold (Poincaré's theorem)."""
+        self._pair_faces(self.domain)
+        self._validate()
+
+    def _check_moves_centre(self, M, what: str, generator: bool = False):
+        """SpaceError where the element M (not the identity) fixes the domain centre O, or moves it
+        by less than the domain's computation resolves (group elements are told apart to 1e-7)."""
+        X = np.asarray(M, float)[:, 3]
+        moved = float(np.linalg.norm(X[:3]))  # d, sin d or sinh d for the distance d: exact where d is small
+        if X[3] < 0 or moved >= CENTRE_RESOLUTION:  # (X[3] < 0: O's antipode in S3)
+            return
+        if moved < 1e-12:
+            raise SpaceError(f"{self.source}: {what} fixes the domain centre (the chart origin) without being the "
+                             "identity: the group does not act freely, so the space is not a manifold")
+        if generator:
+            raise SpaceError(f"{self.source}: {what} moves the domain centre by only {moved:.3g}, less than the "
+                             f"{CENTRE_RESOLUTION:g} the domain's computation resolves (a flat space can be written "
+                             "in larger chart units, with `scale` set to match)")
+        raise SpaceError(f"{self.source}: {what} moves the domain centre by only {moved:.3g}, less than the "
+                         f"{CENTRE_RESOLUTION:g} the domain's computation resolves: a word in the generators that "
+                         "should be the identity is not (their entries disagree at that level: give them exactly, "
+                         "e.g. 'sqrt(3)/2'), or the group is not discrete")
 
     def _pair_faces(self, domain: Domain):
         g = self.geometry
@@ -688,6 +900,8 @@ class CoordinateSpace(Space):
             if not c[3] < 0:
                 raise SpaceError(f"{where}: generator {name!r} face {c.tolist()} must have the chart origin "
                                  "strictly inside (its last entry < 0)")
+            if _is_identity(M):
+                raise SpaceError(f"{where}: generator {name!r} is the identity: it pairs its face with no other")
             try:
                 image = -self.geometry.pull_back_plane(c, M)
             except ValueError as exc:
@@ -704,19 +918,26 @@ class CoordinateSpace(Space):
         self._validate(data)
 
     def _face_domain(self, covectors, elements) -> Domain:
+        """The polyhedron of the faces (each generator's, then its image), around the chart origin."""
+        for k, image in enumerate(covectors[1::2]):
+            if not image[3] < 0:
+                raise SpaceError(f"{self.source}: generator {self.generator_names[k]!r} carries its face "
+                                 f"{np.round(covectors[2 * k], 12).tolist()} to {np.round(image, 12).tolist()}, which does "
+                                 "not have the chart origin inside: the face must lie between the domain and the "
+                                 "generator's copy of it")
         return _halfspace_domain(covectors, elements, self.source, self.geometry)
 
     group_order = None  # lattices and bundles: infinite
 
     def farthest_distance(self, X) -> float:
-        """The largest distance from the model point X to the domain's points: at a vertex, the domain
-        being the convex hull of its vertices in a geometry whose distance functions are convex (H2xR)."""
-        g = self.geometry
-        return float(np.max(g.distance(X, g.to_model(self.domain.vertices))))
+        """The largest distance from the model point X to the domain's points, or an upper bound of it
+        (the geometry's farthest_distance)."""
+        return self.geometry.farthest_distance(X, self.domain)
 
     @cached_property
     def circumradius(self) -> float:
-        """The largest distance from the chart origin (the domain's centre) to the domain."""
+        """The largest distance from the chart origin (the domain's centre) to the domain (or the
+        geometry's upper bound of it)."""
         return self.farthest_distance(self.geometry.to_model(np.zeros(3)))
 
     @property
@@ -814,16 +1035,6 @@ class CoordinateSpace(Space):
                 jac = abs(np.linalg.det(np.array([centre, p - centre, q - p])))
                 total += float(np.sum(W * jac * g.plane_chart_density(X)))
         return total
-
-    def reduces_to_identity(self, M, probes) -> bool:
-        """Whether the isometry M is an element of the group: the probes' images under M reduce
-        back onto the probes, by a reduction whose isometry undoes M."""
-        g = self.geometry
-        X = np.asarray(probes, float) @ np.asarray(M).T
-        Y, _, R = self.move_inside(X)
-        if not np.allclose(g.to_chart(Y), g.to_chart(probes), atol=1e-8):
-            return False
-        return bool(np.allclose(R @ M, np.eye(4), atol=1e-7))
 
     def _validate(self, data: dict):
         where = self.source
@@ -1032,7 +1243,8 @@ def from_data(data: dict, source: str) -> Space:
     """The space a file's fields describe: a coordinate domain where the generators name their
     faces (a shell where the geometry's faces are spheres), else the Dirichlet domain of the
     chart origin."""
-    gens = data.get("generator") if isinstance(data, dict) else None
+    _check_keys(data, source)
+    gens = data.get("generator")
     given = isinstance(gens, list) and any(isinstance(g, dict) and "face" in g for g in gens)
     if not given:
         return DirichletSpace(data, source)
@@ -1064,11 +1276,9 @@ def load(path_or_id: str | Path) -> Space:
         path = preset_path(str(path_or_id))
         if path is None:
             raise SpaceError(f"unknown space {str(path_or_id)!r}: not a preset ({', '.join(preset_ids())}) and not a file")
-    check_input(path, "space file", SpaceError)
+    text = read_text(path, "space file", SpaceError, "space file")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SpaceError(f"cannot read space file {str(path)!r}: {exc}") from None
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SpaceError(f"space file {str(path)!r} is not valid TOML: {exc}") from None
     return from_data(data, str(path))

@@ -1,12 +1,16 @@
 // Python bindings: argument validation, numpy outputs, and the GIL around traces.
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
+#include <nanobind/stl/array.h>
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 
+#include <algorithm>
 #include <cmath>
 #include <exception>
+#include <iterator>
+#include <limits>
 #include <string>
 #include <utility>
 
@@ -106,10 +110,23 @@ void require_finite(const std::vector<std::array<T, C>>& rows, const char* name)
                                std::to_string(i)).c_str());
 }
 
+// Embree holds vertices and instance maps as float: a finite double beyond float's range would
+// become inf there.
+bool fits_float(double x) { return std::isfinite(x) && std::fabs(x) <= double(std::numeric_limits<float>::max()); }
+
+template <std::size_t C>
+void require_float_range(const std::vector<std::array<double, C>>& rows, const char* name) {
+  for (std::size_t i = 0; i < rows.size(); ++i)
+    for (double x : rows[i])
+      if (!fits_float(x))
+        throw nb::value_error((std::string(name) + " row " + std::to_string(i) +
+                               " is beyond the range of float32, which Embree keeps it in").c_str());
+}
+
 // The optional surface arguments of the constructor, as given.
 struct SurfaceArrays {
   OptionalArray corner_normals, corner_uvs, triangle_material, material_color, material_emission,
-      material_color_texture, material_emission_texture, material_one_sided;
+      material_color_texture, material_emission_texture, material_one_sided, material_scattering;
   std::vector<Array> textures;
 };
 
@@ -166,6 +183,31 @@ Texture make_texture(const Array& a, std::size_t index) {
   return t;
 }
 
+// Each material's scattering from float32 (NM,4) rows (roughness, metallic, specular IOR level,
+// IOR) as Blender's Principled BSDF has them; Lambert where not given.
+std::vector<Principled> make_scattering(const OptionalArray& given, std::int64_t NM) {
+  std::vector<Principled> out(NM);
+  if (!given) return out;
+  check<float>(*given, "material_scattering", {NM, 4}, "(NM,4) with NM = len(material_color)");
+  const auto rows_ = rows<float, 4>(*given);
+  for (std::int64_t m = 0; m < NM; ++m) {
+    const auto& r = rows_[m];
+    const auto bad = [&](const char* what) {
+      return nb::value_error(("material_scattering row " + std::to_string(m) + ": " + what + ", got " +
+                              std::to_string(r[0]) + ", " + std::to_string(r[1]) + ", " +
+                              std::to_string(r[2]) + ", " + std::to_string(r[3])).c_str());
+    };
+    for (float x : r)
+      if (!std::isfinite(x)) throw bad("NaN or inf");
+    if (!(r[0] >= 0.0f && r[0] <= 1.0f)) throw bad("roughness must be in [0, 1]");
+    if (!(r[1] >= 0.0f && r[1] <= 1.0f)) throw bad("metallic must be in [0, 1]");
+    if (!(r[2] >= 0.0f)) throw bad("the specular IOR level must be >= 0");
+    if (!(r[3] > 0.0f)) throw bad("the IOR must be > 0");
+    out[m] = Principled::from(r[0], r[1], r[2], r[3]);
+  }
+  return out;
+}
+
 // Materials by triangle (triangle_material given), their textures and the corner attributes.
 Surfaces make_surfaces(const SurfaceArrays& given, std::int64_t NT) {
   Surfaces s;
@@ -204,8 +246,10 @@ Surfaces make_surfaces(const SurfaceArrays& given, std::int64_t NT) {
     check<std::int32_t>(*given.material_one_sided, "material_one_sided", {NM}, "(NM,) with NM = len(material_color)");
     one_sided = indices(*given.material_one_sided, 2, "material_one_sided", "2 (0: both sides, 1: front)");
   }
+  const std::vector<Principled> scattering = make_scattering(given.material_scattering, NM);
   for (std::int64_t m = 0; m < NM; ++m)
-    s.materials.push_back({colors[m], emissions[m], color_texture[m], emission_texture[m], one_sided[m] == 1});
+    s.materials.push_back({colors[m], emissions[m], color_texture[m], emission_texture[m], one_sided[m] == 1,
+                           scattering[m]});
   s.corner_normals = corner_rows<3>(given.corner_normals, NT, "corner_normals");
   s.corner_uvs = corner_rows<2>(given.corner_uvs, NT, "corner_uvs");
   if (s.corner_uvs.empty())
@@ -269,8 +313,10 @@ void make_instances(const InstanceArrays& given, const std::string& geometry, st
           instance.to_chart.m[4 * r + c] = p[i * t.stride(0) + r * t.stride(1) + c * t.stride(2)];
       const std::string row = "instance_transform row " + std::to_string(i);
       Affine inverse;
-      for (double x : instance.to_chart.m)
+      for (double x : instance.to_chart.m) {
         if (!std::isfinite(x)) throw nb::value_error((row + " contains NaN or inf").c_str());
+        if (!fits_float(x)) throw nb::value_error((row + " is beyond the range of float32, which Embree keeps it in").c_str());
+      }
       if (!instance.to_chart.inverse(inverse))
         throw nb::value_error((row + " is singular (its 3x3 part has no inverse)").c_str());
       if (instance.object < 0 || instance.object + std::max(top[mesh[i]], 0) >= NO)
@@ -326,6 +372,7 @@ SceneData make_scene(const std::string& geometry, const Array& face_covectors, c
   check<double>(vertices, "vertices", {-1, 3}, "(NV,3)");
   const auto vertex_rows = rows<double, 3>(vertices);
   require_finite(vertex_rows, "vertices");
+  require_float_range(vertex_rows, "vertices");
   scene.vertices = vertex_rows;
 
   check<std::int32_t>(triangles, "triangles", {-1, 3}, "(NT,3)");
@@ -356,7 +403,8 @@ SceneData make_scene(const std::string& geometry, const Array& face_covectors, c
     scene.surfaces.corner_normals = corner_rows<3>(surfaces.corner_normals, NT, "corner_normals");
     scene.surfaces.corner_uvs = corner_rows<2>(surfaces.corner_uvs, NT, "corner_uvs");
     if (surfaces.material_color || surfaces.material_emission || surfaces.material_color_texture ||
-        surfaces.material_emission_texture || surfaces.material_one_sided || !surfaces.textures.empty())
+        surfaces.material_emission_texture || surfaces.material_one_sided || surfaces.material_scattering ||
+        !surfaces.textures.empty())
       throw nb::value_error("material arrays and textures need triangle_material (the material of each triangle)");
   }
 
@@ -471,8 +519,12 @@ void check_rays(const Array& a, const Array& b, const char* a_name, const char* 
 nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directions, double max_distance,
                int max_crossings, bool shade, nb::object progress, bool record_segments,
                double tolerance, double tolerance_per_distance, bool skip_empty, double fog,
-               int light_samples, std::uint64_t seed, int bounces) {
+               int light_samples, std::uint64_t seed, int bounces, const std::string& emitter_sampling) {
   if (light_samples < 1) throw nb::value_error("light_samples must be >= 1");
+  const char* const sampling_names[] = {"mis", "light", "bounce"};
+  const auto sampling = std::find(std::begin(sampling_names), std::end(sampling_names), emitter_sampling);
+  if (sampling == std::end(sampling_names))
+    throw nb::value_error(("emitter_sampling must be 'mis', 'light' or 'bounce', got '" + emitter_sampling + "'").c_str());
   if (bounces < 0) throw nb::value_error("bounces must be >= 0 (0: direct light only)");
   check_rays(origins, directions, "origins", "directions", 4, "ray");
   if (!(fog > 0.0)) throw nb::value_error("fog must be a positive distance (inf: none)");
@@ -495,7 +547,8 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
                          object.get(), crossings.get(), stop.get(),   distance.get(),
                          chords.get(), error.get(), end.get()};
   const TraceOptions options{max_distance, max_crossings, shade, record_segments, tolerance,
-                             tolerance_per_distance, skip_empty, fog, light_samples, seed, bounces};
+                             tolerance_per_distance, skip_empty, fog, light_samples, seed, bounces,
+                             EmitterSampling(sampling - std::begin(sampling_names))};
 
   // The callback runs on this thread with the GIL re-acquired; its exception is kept until the
   // workers have stopped.
@@ -550,6 +603,8 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
   result["emitter_energy"] = to_numpy(std::move(emitter_energy), {});
   std::unique_ptr<std::int64_t[]> bounce_paths(new std::int64_t[1]{std::int64_t(stats.bounce_paths)});
   result["bounce_paths"] = to_numpy(std::move(bounce_paths), {});
+  std::unique_ptr<std::int64_t[]> emitter_hits(new std::int64_t[1]{std::int64_t(stats.emitter_hits)});
+  result["emitter_hits"] = to_numpy(std::move(emitter_hits), {});
   if (record_segments) {
     std::size_t s = 0;
     for (const auto& chunk : stats.segments) s += chunk.size() / 6;
@@ -603,10 +658,10 @@ object_color, object_emission: float32 (NO,3), each object's one material where 
 is not given. Triangles of emissive materials cast no shadows on the point lights' light (they do
 on the emitters').
 light_lifts: float64 (K,4) points (copies of the point lights in the universal cover);
-light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3). E3, S3, H3,
-H2xR and S2xR sum every geodesic from a shaded point to each lift no longer than light_reach
-(keyword; S3 also the long arc, of length 2 pi - d; S2xR every arc round the sphere, either way and
-winding); Nil, Sol and SL2 the one to each light's nearest lift.
+light_of_lift: int32 (K,) light index of each lift; light_radiance: float32 (NL,3). Every geodesic
+from a shaded point to each lift no longer than light_reach (keyword) is summed (S3 also the long
+arc, of length 2 pi - d; S2xR every arc round the sphere, either way and winding; Nil, Sol and SL2
+every geodesic of the universal cover, SL2 to the lifts' copies along the fibre by 4 pi too).
 geodesic_loop (keyword): the length after which every geodesic returns to its start (S3 with -1 in
 the group: pi); light paths longer than it from an opaque surface are shadowed by that surface.
 Spot lights (keywords, together): light_cone float64 (NL,2) per light (cos of the cone's half
@@ -621,6 +676,10 @@ elements (model maps) whose copies of their group (emitter_copy_group int32 (C,)
 along every geodesic as a point light does.
 material_one_sided (keyword): int32 (NM,), 1 where a material's emission is seen from the front
 only.
+material_scattering (keyword): float32 (NM,4) per material roughness, metallic, specular IOR level
+and IOR as Blender's Principled BSDF takes them: a Lambert base under a dielectric GGX specular
+layer (the level scales its normal reflectance, 0.5: the IOR's own; 0: no layer) and a metallic
+GGX lobe coloured by the base colour (Schlick). Without it, or with metallic and level 0: Lambert.
 threads: worker threads, 0 for one per hardware thread (ThreadStartError where the system cannot
 start them all).
 Optional surfaces (keywords):
@@ -657,10 +716,12 @@ skip_empty they step through empty space (no triangle near, by a coarse occupanc
 next face without any Embree query (False: chords everywhere, for measuring the saving).
 light_samples points are sampled on the emitters per shaded point, with random numbers from
 `seed` and the ray's index (the same for any thread count).
-bounces: diffuse bounces after each hit (path tracing: a cosine-weighted direction in the metric at
-the hit, its geodesic traced through the pairings, its hit lit by next-event estimation; emission a
-bounce meets is counted by those estimates, not again; Russian roulette from the 4th bounce on);
-0: direct light only.
+bounces: bounces after each hit (path tracing: a direction drawn from the BSDF in the metric's
+orthonormal frame at the hit, its geodesic traced through the pairings, its hit lit by next-event
+estimation; Russian roulette from the 4th bounce on); 0: direct light only.
+emitter_sampling: how the emitters' light is gathered where a bounce follows: "mis" (the emitters'
+samples and the emission the bounces meet, weighed by the power heuristic along each geodesic),
+"light" (the samples alone) or "bounce" (what the bounces meet alone).
 progress(done, total) is called about every 0.1 s (and at the start and end); returning False
 stops the trace like cancel(). Returns a dict of:
 color float32 (N,3), depth float64 (N,) (inf: no hit), position float64 (N,3) chart point of the
@@ -671,12 +732,13 @@ Embree queries of each ray, error float64 (N,) an upper estimate of the hit posi
 (chart units: the path's distance from the true geodesic over the cosine of incidence; NaN: no
 hit), end float64 (N,3) the chart point where the ray stopped (the hit, the point at the distance
 or crossing limit, inside the domain; NaN where there is none), chords int64 () Embree queries of primary rays in all, light_failures int64 () light
-paths that were not found (marching geometries), light_paths int64 () geodesics to lights summed
+paths known to be missed (Sol's shooting: seeds that did not converge), light_paths int64 () geodesics to lights summed
 at the shaded points, light_energy float64 () their mean radiance times falloff (times fog: light
 falls to 1/e over `fog` of its path) summed before cosines and shadows, emitter_paths int64 ()
 and emitter_energy float64 () the same for the emitters' samples (their energy: mean radiance
 times the emitter's cosine times falloff over the sampling density), bounce_paths int64 ()
-geodesics traced for bounces, and with record_segments segment_starts /
+geodesics traced for bounces, emitter_hits int64 () bounces that met an emitter and added its
+light, and with record_segments segment_starts /
 segment_ends float64 (S,3), the chart endpoints of the queries.)";
 
 nb::tuple flow_rows(const std::string& geometry, const Array& points, const Array& velocities,
@@ -701,6 +763,26 @@ nb::tuple flow_rows(const std::string& geometry, const Array& points, const Arra
   return nb::make_tuple(to_numpy(std::move(xt), {n, 3}), to_numpy(std::move(vt), {n, 3}));
 }
 
+// The Python Connections: a marching geometry's light paths within a reach.
+struct ConnectionsHandle {
+  std::unique_ptr<Connections> connections;
+};
+
+nb::tuple connect_points(const ConnectionsHandle& self, const std::array<double, 3>& h,
+                         const std::array<double, 3>& l) {
+  std::vector<LightPath> paths;
+  const int missed = self.connections->connect(h, l, paths);
+  const std::size_t n = paths.size();
+  std::unique_ptr<double[]> directions(new double[3 * n]), lengths(new double[n]), falloffs(new double[n]);
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int a = 0; a < 3; ++a) directions[3 * i + a] = paths[i].direction[a];
+    lengths[i] = paths[i].distance;
+    falloffs[i] = paths[i].falloff;
+  }
+  return nb::make_tuple(to_numpy(std::move(directions), {n, 3}), to_numpy(std::move(lengths), {n}),
+                        to_numpy(std::move(falloffs), {n}), missed);
+}
+
 }  // namespace
 
 NB_MODULE(thurston_core, m) {
@@ -715,6 +797,26 @@ NB_MODULE(thurston_core, m) {
         "The tracer's geodesic flow of a marching geometry (Nil, Sol): chart points and unit "
         "chart velocities (float64 (N,3)) after arclengths (float64 (N,)), asked for `accuracy` "
         "(chart units). Returns (points, velocities), float64 (N,3) each.");
+
+  nb::class_<ConnectionsHandle>(m, "Connections",
+                                "The tracer's light paths of a marching geometry (Nil, Sol, H2xR, S2xR, SL2) "
+                                "within a reach: Connections(geometry, reach)(h, l) gives every geodesic from "
+                                "the chart point h to the chart point l no longer than the reach, as (directions "
+                                "float64 (n,3): unit chart tangents at h, lengths float64 (n,), falloffs float64 "
+                                "(n,): the inverse area density of the geodesic sphere along each, missed: how "
+                                "many the search could tell it missed).")
+      .def(
+          "__init__",
+          [](ConnectionsHandle* self, const std::string& geometry, double reach) {
+            if (!has_geometry(geometry)) throw nb::value_error(("unknown geometry '" + geometry + "'").c_str());
+            if (!(reach >= 0.0) || !std::isfinite(reach))
+              throw nb::value_error("reach must be a finite distance >= 0");
+            std::unique_ptr<Connections> connections = make_connections(geometry, reach);
+            if (!connections) throw nb::value_error((geometry + " has no marching flow").c_str());
+            new (self) ConnectionsHandle{std::move(connections)};
+          },
+          nb::arg("geometry"), nb::arg("reach"))
+      .def("__call__", &connect_points, nb::arg("h"), nb::arg("l"));
 
   nb::class_<TracerHandle>(m, "Tracer", kTracerDoc)
       .def(
@@ -732,7 +834,7 @@ NB_MODULE(thurston_core, m) {
              double geodesic_loop, OptionalArray material_one_sided, OptionalArray light_cone,
              OptionalArray light_axis, OptionalArray emitter_triangles, OptionalArray emitter_radiance,
              OptionalArray emitter_one_sided, OptionalArray emitter_group, OptionalArray emitter_copies,
-             OptionalArray emitter_copy_group) {
+             OptionalArray emitter_copy_group, OptionalArray material_scattering) {
             if (threads < 0) throw nb::value_error("threads must be >= 0 (0: all hardware threads)");
             if (!(light_reach >= 0.0))
               throw nb::value_error("light_reach must be a distance >= 0 (inf: every lift)");
@@ -740,7 +842,7 @@ NB_MODULE(thurston_core, m) {
             const SurfaceArrays surfaces{corner_normals, corner_uvs, triangle_material,
                                          material_color, material_emission, material_color_texture,
                                          material_emission_texture, material_one_sided,
-                                         std::move(textures)};
+                                         material_scattering, std::move(textures)};
             const InstanceArrays instances{mesh_first_triangle, instance_mesh, instance_transform,
                                            instance_object};
             SceneData scene = make_scene(geometry, face_covectors, face_maps, vertices, triangles,
@@ -779,7 +881,8 @@ NB_MODULE(thurston_core, m) {
                   "emitter_one_sided: numpy.ndarray | None = None, "
                   "emitter_group: numpy.ndarray | None = None, "
                   "emitter_copies: numpy.ndarray | None = None, "
-                  "emitter_copy_group: numpy.ndarray | None = None) -> None"),
+                  "emitter_copy_group: numpy.ndarray | None = None, "
+                  "material_scattering: numpy.ndarray | None = None) -> None"),
           nb::arg("geometry"), nb::arg("face_covectors").noconvert(),
           nb::arg("face_maps").noconvert(), nb::arg("vertices").noconvert(),
           nb::arg("triangles").noconvert(), nb::arg("triangle_object").noconvert(),
@@ -807,7 +910,8 @@ NB_MODULE(thurston_core, m) {
           nb::arg("emitter_one_sided").noconvert().none() = nb::none(),
           nb::arg("emitter_group").noconvert().none() = nb::none(),
           nb::arg("emitter_copies").noconvert().none() = nb::none(),
-          nb::arg("emitter_copy_group").noconvert().none() = nb::none())
+          nb::arg("emitter_copy_group").noconvert().none() = nb::none(),
+          nb::arg("material_scattering").noconvert().none() = nb::none())
       .def("trace", &trace,
            nb::sig("def trace(self, origins: numpy.ndarray, directions: numpy.ndarray, "
                    "max_distance: float, max_crossings: int, shade: bool = True, "
@@ -815,14 +919,14 @@ NB_MODULE(thurston_core, m) {
                    "record_segments: bool = False, tolerance: float = 1e-3, "
                    "tolerance_per_distance: float = 0.0, skip_empty: bool = True, "
                    "fog: float = float('inf'), light_samples: int = 1, seed: int = 0, "
-                   "bounces: int = 0) -> "
+                   "bounces: int = 0, emitter_sampling: str = 'mis') -> "
                    "dict[str, numpy.ndarray]"),
            nb::arg("origins").noconvert(), nb::arg("directions").noconvert(),
            nb::arg("max_distance"), nb::arg("max_crossings"), nb::arg("shade") = true,
            nb::arg("progress").none() = nb::none(), nb::arg("record_segments") = false,
            nb::arg("tolerance") = 1e-3, nb::arg("tolerance_per_distance") = 0.0,
            nb::arg("skip_empty") = true, nb::arg("fog") = kInf, nb::arg("light_samples") = 1,
-           nb::arg("seed") = 0, nb::arg("bounces") = 0, kTraceDoc)
+           nb::arg("seed") = 0, nb::arg("bounces") = 0, nb::arg("emitter_sampling") = "mis", kTraceDoc)
       .def("cancel", [](TracerHandle& t) { t.tracer->cancel(); },
            "Stops a running trace(); callable from any Python thread.")
       .def("query_segments", &query_segments,
@@ -842,6 +946,9 @@ NB_MODULE(thurston_core, m) {
                    "The sum over lights of their radiance's mean over RGB.")
       .def_prop_ro("num_emitter_triangles", [](const TracerHandle& t) { return t.tracer->num_emitter_triangles(); })
       .def_prop_ro("num_emitter_copies", [](const TracerHandle& t) { return t.tracer->num_emitter_copies(); })
+      .def_prop_ro("num_unmatched_emitters", [](const TracerHandle& t) { return t.tracer->num_unmatched_emitters(); },
+                   "Emissive triangles (per instance) not found among the emitters' copies: bounces "
+                   "that meet them add nothing (their light comes from the emitters' samples).")
       .def_prop_ro("num_threads", [](const TracerHandle& t) { return t.tracer->num_threads(); })
       .def_prop_ro("num_triangles", [](const TracerHandle& t) { return t.tracer->num_triangles(); },
                    "The meshes' own triangles (each stored once).")

@@ -62,16 +62,6 @@ struct H2xRFlow : ChartPlanes, ClosedForm<H2xRFlow> {
     const double q = 1.0 - p[0] * p[0] - p[1] * p[1], xn = p[0] * n[0] + p[1] * n[1];
     return {q * (n[0] - p[0] * xn), q * (n[1] - p[1] * xn), n[2]};
   }
-  double volume_density(const Vec3& p) const {
-    const double q = 1.0 - p[0] * p[0] - p[1] * p[1];
-    return 1.0 / (q * std::sqrt(q));
-  }
-  // The distance itself: the disk's (cosh d = (1 - q . p) / sqrt((1 - q^2)(1 - p^2))) and z's.
-  double separation(const Vec3& q, const Vec3& p) const {
-    const double c = (1.0 - q[0] * p[0] - q[1] * p[1]) /
-                     std::sqrt((1.0 - q[0] * q[0] - q[1] * q[1]) * (1.0 - p[0] * p[0] - p[1] * p[1]));
-    return std::hypot(std::acosh(std::max(c, 1.0)), p[2] - q[2]);
-  }
 
   // Light along every geodesic: the cover's one geodesic from h to the light's copy l (chart
   // points), if no longer than reach: the H^2 geodesic of the disk parts (length d) times the

@@ -16,14 +16,12 @@
 //   double dot(const Vec4& X, const Vec4& a, const Vec4& b) the metric at X;
 //   bool normalise(const Vec4& X, Vec4& v)                 unit length at X;
 //   Vec3 chart_vector(const Vec4& X, const Vec4& v)         its chart image, unit in the chart;
-//   K::LightHint, K::kEveryLightPath and, where that is true,
-//   void light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
-//       std::vector<LightPath>&)   every geodesic from the surface point H to the lifts no longer
-//       than reach (closed forms: ProjectiveKernel, the marching kernels of H2xR and S2xR), else
-//   bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath&, LightHint&)
-//       the geodesic to the light's nearest copy among the lifts (found by shooting: the marching
-//       kernels of Nil and Sol); the hint carries what one point's search leaves for the next (per
-//       thread);
+//   int light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
+//       std::vector<LightPath>&)   every geodesic from the surface point H to the lifts (copies of a
+//       light) no longer than reach: closed forms (ProjectiveKernel; the marching kernels of H2xR
+//       and S2xR), one-dimensional root searches per branch (Nil, SL2) or shooting from a table of
+//       the exponential map (Sol, which may miss some near caustics); returns how many it could
+//       tell were missed; kernels that need the reach beforehand offer prepare_light_paths(reach);
 //   Vec4 arrival(const Vec4& H, const LightPath&)   the unit tangent at the path's far end that
 //       points back along it (towards H): the direction in which the light leaves;
 //   Vec4 chart_point(const Vec3& x), Vec4 chart_tangent(const Vec4& X, const Vec3& e)   the point

@@ -1,11 +1,11 @@
 // The marching kernel: geodesics that bend in the chart, followed in chords whose deviation from
 // the true curve is bounded by the walk's tolerance.
 //
-// MarchingKernel<Flow> turns a geometry's flow (nil.hpp, sol.hpp, h2xr.hpp) into the kernel
-// interface of kernel.hpp. Points and tangent vectors are chart 4-vectors (x, 1) and (v, 0); the
-// domain is bounded by faces (chart planes, or what the flow's side functions make of the
-// covectors: S2xR's spheres) whose face maps need not map faces onto faces: after every crossing
-// the point is reduced into the domain by the maps of the faces it lies outside of.
+// MarchingKernel<Flow> turns a geometry's flow (nil.hpp, sol.hpp, h2xr.hpp, s2xr.hpp, sl2.hpp) into
+// the kernel interface of kernel.hpp. Points and tangent vectors are chart 4-vectors (x, 1) and
+// (v, 0); the domain is bounded by faces (chart planes, or what the flow's side functions make of
+// the covectors: S2xR's spheres) whose face maps need not map faces onto faces: after every
+// crossing the point is reduced into the domain by the maps of the faces it lies outside of.
 //
 // A Flow provides the meeting of its model with the chart (AffineChart where they are one):
 //   static bool to_chart(Vec4& P, Vec4& V)   a ray's model point and tangent as chart 4-vectors;
@@ -33,14 +33,14 @@
 //                                       (ChartPlanes: 1; S2xR, whose chart scales with |x|: |x| / e);
 //   double dot(const Vec3& x, const Vec3& a, const Vec3& b) const   the metric at x;
 //   Vec3 raise(const Vec3& x, const Vec3& covector) const           g^-1 at x;
-//   double volume_density(const Vec3& x) const                     sqrt det g;
-//   double separation(const Vec3& x, const Vec3& y) const   an isometry-invariant estimate of the
-//                                       distance, to pick the nearest copy of a light;
-// and where the connecting geodesics have a closed form (H2xR, S2xR)
-//   static void connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>&)
-//                                       every geodesic from h to the light's copy l no longer
-//                                       than reach, each with its direction, length and falloff
-//                                       (the kernel then sums every copy, else the nearest one).
+//   void connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>&) const
+//                                       every geodesic from h to the light's copy l (chart points)
+//                                       no longer than reach, each with its direction, length and
+//                                       falloff: closed forms (H2xR, S2xR), one-dimensional root
+//                                       searches per branch (Nil, SL2) or shooting from a table of
+//                                       the exponential map (Sol, which returns the number of
+//                                       geodesics it could tell it missed, and has
+//                                       prepare_connections(reach) to build its table).
 #pragma once
 
 #include <algorithm>
@@ -91,11 +91,11 @@ WalkEnd walk_chords(Walk& w, const WalkContext& context, double length, int max_
   }
 }
 
-// Whether a flow offers its connecting geodesics in closed form (Flow::connections).
+// Whether a flow prepares its connections for a reach (Flow::prepare_connections).
 template <class Flow, class = void>
-struct HasConnections : std::false_type {};
+struct HasPrepare : std::false_type {};
 template <class Flow>
-struct HasConnections<Flow, std::void_t<decltype(&Flow::connections)>> : std::true_type {};
+struct HasPrepare<Flow, std::void_t<decltype(&Flow::prepare_connections)>> : std::true_type {};
 
 template <class Flow>
 class MarchingKernel {
@@ -103,8 +103,6 @@ class MarchingKernel {
   explicit MarchingKernel(Flow flow = Flow()) : flow_(flow) {}
   const Flow& flow() const { return flow_; }
 
-  // Every geodesic to every copy within the reach (light_paths), else the nearest copy's (light_path).
-  static constexpr bool kEveryLightPath = HasConnections<Flow>::value;
   // Chords are not the curve: a refined hit may lie on a neighbour of the chord's triangle.
   static constexpr bool kChordsBend = true;
 
@@ -143,22 +141,21 @@ class MarchingKernel {
     double length;  // its arclength
   };
 
-  // What the last light path found, per light and thread: neighbouring pixels' surface points are
-  // near each other, so their connecting geodesics are too, and Newton's method starts there.
-  struct LightHint {
-    const Vec4* lift = nullptr;
-    Vec3 h{}, w{};
-    std::array<Vec3, 3> jacobian{};
-  };
-
-  // Every geodesic from H to the lifts no longer than reach, in closed form (kEveryLightPath).
-  void light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
-                   std::vector<LightPath>& paths) const {
+  // Every geodesic from H to the lifts no longer than reach (the flow's connections); returns how
+  // many it could tell were missed.
+  int light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
+                  std::vector<LightPath>& paths) const {
+    int missed = 0;
     for (std::size_t i = 0; i < lifts.size(); ++i) {
       const std::size_t first = paths.size();
-      Flow::connections(head3(H), head3(lifts[i]), reach, paths);
+      missed += connect(head3(H), head3(lifts[i]), reach, paths);
       for (std::size_t p = first; p < paths.size(); ++p) paths[p].lift = std::int32_t(i);
     }
+    return missed;
+  }
+  // What the flow needs to know of the reach before it connects (Sol's table of its exponential map).
+  void prepare_light_paths(double reach) {
+    if constexpr (HasPrepare<Flow>::value) flow_.prepare_connections(reach);
   }
   // The path flowed to its end (to the flow's accuracy for light directions, 1e-9).
   Vec4 arrival(const Vec4& H, const LightPath& path) const {
@@ -176,102 +173,20 @@ class MarchingKernel {
     V = vector4(v);
   }
 
-  // The geodesic from H to the light's copy nearest by the flow's separation estimate, found by
-  // Newton's method on the exponential map (from the hint where it is for the same copy, else from
-  // the straight chart guess). False where it does not converge (the light then does not reach H
-  // along this geodesic; conjugate points and the far side of a light behind long geodesics are
-  // where that happens).
-  bool light_path(const Vec4& H, const std::vector<Vec4>& lifts, LightPath& path, LightHint& hint) const {
-    const Vec3 h = head3(H);
-    const Vec4* nearest = nullptr;
-    double best = kInf;
-    for (const Vec4& L : lifts) {
-      const double d = flow_.separation(h, head3(L));
-      if (d < best) {
-        best = d;
-        nearest = &L;
-      }
-    }
-    if (!nearest) return false;
-    // warm where the last point was near (a tenth of the way to the light)
-    const bool warm = hint.lift == nearest && norm3(sub3(h, hint.h)) < 0.1 * norm3(hint.w);
-    hint.lift = nullptr;
-    if (!shoot(h, head3(*nearest), hint.w, hint.jacobian, warm) &&
-        !(warm && shoot(h, head3(*nearest), hint.w, hint.jacobian, false)))
-      return false;
-    hint.lift = nearest;
-    hint.h = h;
-    path.lift = std::int32_t(nearest - lifts.data());
-    const Vec3& w = hint.w;
-    const double r = std::sqrt(flow_.dot(h, w, w));
-    path.direction = vector4(scaled3(1.0 / r, w));
-    path.distance = r;
-    // The wavefront's area density: r^2 |det d exp_H| in orthonormal frames (the same seen from
-    // the light: the van Vleck determinant is symmetric).
-    const std::array<Vec3, 3>& J = hint.jacobian;
-    const double det = dot3(J[0], cross3(J[1], J[2])) * flow_.volume_density(head3(*nearest)) /
-                       flow_.volume_density(h);
-    path.falloff = floored_falloff(r * r * std::abs(det));
-    return true;
-  }
-
-  // exp_h(w) = target for the chart vector w at h (not of unit length), with the Jacobian d exp_h
-  // at the solution (jacobian[i][j] = d x_i / d w_j). Warm: w and jacobian hold a nearby solution
-  // and its Jacobian, which serves as the iteration matrix while it keeps converging; cold: the
-  // straight chart guess and the Jacobian there.
-  bool shoot(const Vec3& h, const Vec3& target, Vec3& w, std::array<Vec3, 3>& jacobian, bool warm) const {
-    constexpr int kIterations = 24;
-    if (!warm) w = sub3(target, h);
-    bool fresh = false;  // whether the iteration matrix is the Jacobian at the current w
-    double residual = kInf;
-    for (int iteration = 0; iteration < kIterations; ++iteration) {
-      Vec3 x;
-      if (!exp(h, w, x)) return false;
-      const Vec3 miss = sub3(x, target);
-      const double size = norm3(miss);
-      if (size < 1e-9 * (1.0 + norm3(target))) return jacobian_at(h, w, x, jacobian);
-      if (!(size < 0.5 * residual) || !warm) {  // slow (or no) progress: a fresh Jacobian
-        if (fresh && !(size < 2.0 * residual)) return false;  // diverging with a fresh one
-        if (!jacobian_at(h, w, x, jacobian)) return false;
-        warm = fresh = true;
-      } else {
-        fresh = false;
-      }
-      residual = size;
-      Vec3 step;
-      if (!solve3(jacobian, miss, step)) return false;
-      w = sub3(w, step);
-    }
-    return false;
-  }
-
   class Walk;
   template <class Query, class OnHit>
   WalkEnd walk(const WalkContext& context, const Vec4& P, const Vec4& V, double length,
                int max_crossings, double first_skip, Query&& query, OnHit&& on_hit) const;
 
  private:
-  // exp_h(w) for a chart vector w at h (not of unit length).
-  bool exp(const Vec3& h, const Vec3& w, Vec3& x) const {
-    constexpr double kAccuracy = 1e-9;
-    const double r = std::sqrt(flow_.dot(h, w, w));
-    if (!(r > 0.0) || !std::isfinite(r)) return false;
-    Vec3 v;
-    double error;
-    flow_.flow(h, scaled3(1.0 / r, w), r, kAccuracy, x, v, error);
-    return std::isfinite(x[0]) && std::isfinite(x[1]) && std::isfinite(x[2]);
-  }
-  // d exp_h at w (x = exp_h(w)) by forward differences of the flow: good to about 1e-4, which a
-  // light's direction and falloff need (and Newton's method, which then converges quickly).
-  bool jacobian_at(const Vec3& h, const Vec3& w, const Vec3& x, std::array<Vec3, 3>& jacobian) const {
-    const double delta = 3e-5 * std::max(norm3(w), 1e-3);
-    for (int j = 0; j < 3; ++j) {
-      Vec3 plus = w, xp;
-      plus[j] += delta;
-      if (!exp(h, plus, xp)) return false;
-      for (int i = 0; i < 3; ++i) jacobian[i][j] = (xp[i] - x[i]) / delta;
+  // The flow's connections, with the misses they count (none where they are closed forms).
+  int connect(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>& paths) const {
+    if constexpr (std::is_void_v<decltype(flow_.connections(h, l, reach, paths))>) {
+      flow_.connections(h, l, reach, paths);
+      return 0;
+    } else {
+      return flow_.connections(h, l, reach, paths);
     }
-    return true;
   }
 
   // The root of Sides::side(c, x(t)) = 0 in [t0, t1] along the segment (Sides: the flow's faces, or

@@ -226,12 +226,10 @@ struct ProjectiveKernel {
   // Every geodesic from H to the lifts (model points) no longer than reach, in closed form: the
   // segment to each lift, and in S3 also the long arc round the great circle, of length 2 pi - d,
   // leaving in the opposite direction (the same falloff, sin^2 being symmetric). A lift on H (or
-  // antipodal to it in S3) has no direction and is skipped. Nothing to remember between points.
-  struct LightHint {};
+  // antipodal to it in S3) has no direction and is skipped. None is missed.
   static constexpr bool kChordsBend = false;  // each chord is the geodesic itself
-  static constexpr bool kEveryLightPath = true;
-  void light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
-                   std::vector<LightPath>& paths) const {
+  int light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
+                  std::vector<LightPath>& paths) const {
     for (std::size_t i = 0; i < lifts.size(); ++i) {
       const Vec4& L = lifts[i];
       const double r = distance(H, L);
@@ -242,6 +240,7 @@ struct ProjectiveKernel {
       if (k > 0 && long_arc <= reach)
         paths.push_back({scaled(-1.0, direction), long_arc, falloff(long_arc), std::int32_t(i)});
     }
+    return 0;
   }
   Vec4 arrival(const Vec4& H, const LightPath& path) const {
     Vec4 X, Xv;

@@ -48,15 +48,7 @@ struct S2xRFlow : AffineChart, ClosedForm<S2xRFlow> {
 
   double dot(const Vec3& x, const Vec3& a, const Vec3& b) const { return dot3(a, b) / dot3(x, x); }
   Vec3 raise(const Vec3& x, const Vec3& n) const { return scaled3(dot3(x, x), n); }
-  double volume_density(const Vec3& x) const {
-    const double r2 = dot3(x, x);
-    return 1.0 / (r2 * std::sqrt(r2));
-  }
-  // The distance itself: the sphere angle of the directions and the difference of w.
-  double separation(const Vec3& q, const Vec3& p) const {
-    const double angle = std::atan2(norm3(cross3(q, p)), dot3(q, p));
-    return std::hypot(angle, 0.5 * std::log(dot3(p, p) / dot3(q, q)));
-  }
+
 
   // Light along every geodesic: from h to the light's copy l (chart points) the cover holds one
   // geodesic per great-circle arc between their directions, the sphere angle alpha going either

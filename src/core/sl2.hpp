@@ -15,8 +15,11 @@
 #include <algorithm>
 #include <cmath>
 #include <complex>
+#include <vector>
 
 #include "closed_form.hpp"
+#include "kernel.hpp"
+#include "roots.hpp"
 #include "vec.hpp"
 
 namespace thurston {
@@ -31,22 +34,11 @@ struct SL2Flow : ClosedForm<SL2Flow> {
     const Complex horizontal = lam * dw;
     const double c = v[2] + lam * std::imag(std::conj(w) * dw);
     const double a2 = std::norm(horizontal);
-    const double s2 = 0.25 * (a2 - c * c) * t * t;
     double C, S;
-    if (s2 >= 0.0) {
-      const double s = std::sqrt(s2);
-      C = std::cosh(s);
-      S = 0.5 * t * (s > 0.0 ? std::sinh(s) / s : 1.0);
-    } else {
-      const double s = std::sqrt(-s2);
-      C = std::cos(s);
-      S = 0.5 * t * std::sin(s) / s;
-    }
+    radial(a2, c, t, C, S);
     const Complex turn = std::polar(1.0, c * t);
     const Complex alpha = turn * Complex(C, -c * S), beta = S * horizontal / turn;
-    // Arg(alpha) turns without bound where a < |c|; e^{-i sigma} alpha keeps a positive real part
-    const double sigma = (c - 0.5 * std::copysign(std::sqrt(std::max(c * c - a2, 0.0)), c)) * t;
-    const double phi = 2.0 * sigma + 2.0 * std::arg(alpha * std::polar(1.0, -sigma));
+    const double phi = fibre_angle(a2, c, t, C, S);
     const Complex out = horizontal / (turn * turn);  // the body velocity at t
     // compose with the element (1, w) / sqrt(q) taking the origin to p
     const Complex wt = beta / std::conj(alpha), along = 1.0 + std::conj(w) * wt;
@@ -94,16 +86,84 @@ struct SL2Flow : ClosedForm<SL2Flow> {
     const double mx = (n[0] - fx * n[2]) / lam, my = (n[1] - fy * n[2]) / lam;
     return {mx / lam, my / lam, n[2] - (fx * mx + fy * my) / lam};
   }
-  double volume_density(const Vec3& p) const {
-    const double lam = 2.0 / (1.0 - p[0] * p[0] - p[1] * p[1]);
-    return lam * lam;
-  }
-  // Isometry-invariant: where the element taking q to the origin puts p, its hyperbolic distance
-  // from the centre and its fibre angle.
-  double separation(const Vec3& q, const Vec3& p) const {
-    const Complex wq(q[0], q[1]), wp(p[0], p[1]), along = 1.0 - std::conj(wq) * wp;
-    const double r = std::abs((wp - wq) / along);
-    return std::hypot(2.0 * std::atanh(std::min(r, 1.0 - 1e-16)), p[2] - q[2] - 2.0 * std::arg(along));
+
+  // Light along every geodesic: every geodesic from h to the light's copies l + (0, 0, 4 pi k) (chart
+  // points; the model, SU(1,1), is SL2~ modulo the fibre translation by 4 pi) no longer than reach.
+  // Rotations of the disk about the origin are isometries, so seen from h (moved to the origin)
+  // the target is its hyperbolic distance d from the fibre through h and its fibre angle Phi, and
+  // a geodesic leaving with body velocity (a e^{i a0}, c) reaches them at arclength t where
+  //   sinh(d / 2) = a |S| =: sigma,   Phi = phi(t, c)
+  // (|w| = a |S| / |C + i c S| and 1 - |w|^2 = 1 / |C + i c S|^2), which a0 does not enter. With
+  // k^2 = a^2 - c^2 = 1 - 2 c^2 the first gives t for each c: below |c| = 1/sqrt 2 one t,
+  // sinh(k t / 2) = k sigma / a; above it |sin u| = k' sigma / a for u = k' t / 2, k'^2 = -k^2, i.e.
+  //   c^2 = (sigma^2 + sin^2 u) / (2 sigma^2 + sin^2 u),   t = 2 u sqrt(2 sigma^2 + sin^2 u) / |sin u|.
+  // Along these curves phi (for c >= 0; c -> -c turns Phi to -Phi) rises monotonically from 0 at
+  // c = 0 through the parabolic point to infinity as u -> pi (component 0: the one geodesic to each
+  // Phi, the shortest), and on each u in (n pi, (n + 1) pi), n >= 1, falls from and returns to
+  // infinity (two geodesics where its minimum is below Phi, none elsewhere), with t >= 2 n pi /
+  // k' >= 2 n pi there: within a reach below 2 pi, one geodesic per copy. On the fibre through h
+  // (sigma = 0) the geodesics of every u = n pi form cones that focus there: only the fibre itself
+  // (t = |Phi|) is kept. Volume: sinh d dd = 2 d(sigma^2) and arg w = a0 + f(t, c), so
+  //   r^2 |det d exp| = |d(2 sigma^2, phi) / d(t, c)|
+  // (the sphere of directions has area da0 dc). Length bounds for the copies: t >= d, and
+  // t >= |Phi| / sqrt 2, since phi' = c - lam Im(conj(w) w') has |phi'| <= |c| + |w| a < sqrt 2.
+  static void connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>& paths) {
+    const Complex wh(h[0], h[1]), wl(l[0], l[1]), along = 1.0 - std::conj(wh) * wl;
+    const Complex w = (wl - wh) / along;  // the target seen from h
+    const double r = std::abs(w);
+    if (!(r < 1.0)) return;
+    const double sigma = r / std::sqrt((1.0 - r) * (1.0 + r)), phi0 = l[2] - h[2] - 2.0 * std::arg(along);
+    if (!(2.0 * std::asinh(sigma) <= reach)) return;
+    const double widest = kSqrt2 * reach;  // of |Phi|
+    for (double k = std::ceil((-widest - phi0) / (4.0 * kPi)); phi0 + 4.0 * kPi * k <= widest; ++k) {
+      const double Phi = phi0 + 4.0 * kPi * k, up = Phi < 0.0 ? -1.0 : 1.0, P = std::abs(Phi);
+      // the geodesic of fibre speed up * c and length t (c >= 0), if no longer than reach
+      const auto add = [&](double c, double t) {
+        if (t <= reach && t > 0.0) paths.push_back(connection(h, w, r, up * c, t));
+      };
+      if (!(sigma > kAxis * (1.0 + P))) {  // on the fibre through h
+        add(1.0, P);
+        continue;
+      }
+      const double s2 = sigma * sigma, tolerance = 1e-15;
+      // component 0, below the parabolic point: t from c in [0, 1/sqrt 2]
+      const auto below = [&](double c) {
+        const double k = std::sqrt(std::max(1.0 - 2.0 * c * c, 0.0)), x = k * sigma / std::sqrt(1.0 - c * c);
+        return 2.0 * sigma / std::sqrt(1.0 - c * c) * (x > 1e-8 ? std::asinh(x) / x : 1.0 - x * x / 6.0);
+      };
+      const auto f_below = [&](double c) { return phase(c, below(c)) - P; };
+      const double parabolic = kSqrt2 / 2.0, f_parabolic = f_below(parabolic);
+      if (f_parabolic >= 0.0) {
+        const double c = bracketed_root(f_below, 0.0, parabolic, -P, f_parabolic, tolerance);
+        add(c, below(c));
+      }
+      // above it (and the components n >= 1): c and t from u
+      const auto c_of = [&](double u) {
+        const double s = sq(std::sin(u));
+        return std::sqrt((s2 + s) / (2.0 * s2 + s));
+      };
+      const auto t_of = [&](double u) {  // (at u = 0 the parabolic point's 2 sqrt 2 sigma)
+        const double s = std::sin(u);
+        return u > 0.0 ? 2.0 * u * std::sqrt(2.0 * s2 + s * s) / std::abs(s) : 2.0 * kSqrt2 * sigma;
+      };
+      const auto f_above = [&](double u) { return phase(c_of(u), t_of(u)) - P; };
+      const auto root = [&](double lo, double f_lo, double end) {  // from lo (f_lo <= 0) towards end
+        double hi = lo, f_hi = f_lo;
+        for (int i = 0; i < 64 && f_hi <= 0.0; ++i) f_hi = f_above(hi = 0.5 * (hi + end));
+        if (f_hi > 0.0) {
+          const double u = bracketed_root(f_above, lo, hi, f_lo, f_hi, tolerance * (1.0 + end));
+          add(c_of(u), t_of(u));
+        }
+      };
+      if (f_parabolic < 0.0) root(0.0, f_parabolic, kPi);
+      for (int n = 1; 2.0 * kPi * n <= reach; ++n) {
+        const double lo = kPi * n, hi = lo + kPi;
+        const double bottom = unimodal_minimum(f_above, lo, hi, 1e-12 * hi), f_bottom = f_above(bottom);
+        if (f_bottom > 0.0) continue;
+        root(bottom, f_bottom, lo);
+        root(bottom, f_bottom, hi);
+      }
+    }
   }
 
   // A model point (Re alpha, Im alpha, Re beta, Im beta) and tangent vector as chart (x, 1), (v, 0).
@@ -152,6 +212,67 @@ struct SL2Flow : ClosedForm<SL2Flow> {
   }
 
  private:
+  static constexpr double kSqrt2 = 1.4142135623730951;
+  // Targets closer than this to the fibre through h (sigma relative to 1 + |Phi|) count as on it.
+  static constexpr double kAxis = 1e-12;
+  static double sq(double x) { return x * x; }
+
+  // C = cosh sqrt(s2) and S = (t/2) sinh(sqrt s2) / sqrt(s2) for s2 = (a^2 - c^2) t^2 / 4 (cos and
+  // sin of sqrt(-s2) below zero), a2 = a^2: the radial part of the geodesic from the origin.
+  static void radial(double a2, double c, double t, double& C, double& S) {
+    const double s2 = 0.25 * (a2 - c * c) * t * t;
+    if (s2 >= 0.0) {
+      const double s = std::sqrt(s2);
+      C = std::cosh(s);
+      S = 0.5 * t * (s > 0.0 ? std::sinh(s) / s : 1.0);
+    } else {
+      const double s = std::sqrt(-s2);
+      C = std::cos(s);
+      S = 0.5 * t * std::sin(s) / s;
+    }
+  }
+  // phi = 2 Arg(alpha), alpha = e^{ict} (C - i c S), unwrapped: Arg(alpha) turns without bound
+  // where a < |c|, and e^{-i sigma} alpha keeps a positive real part.
+  static double fibre_angle(double a2, double c, double t, double C, double S) {
+    const double sigma = (c - 0.5 * std::copysign(std::sqrt(std::max(c * c - a2, 0.0)), c)) * t;
+    return 2.0 * sigma + 2.0 * std::arg(std::polar(1.0, c * t - sigma) * Complex(C, -c * S));
+  }
+  // phi at arclength t of a geodesic from the origin with unit body velocity of fibre part c.
+  static double phase(double c, double t) {
+    const double a2 = 1.0 - c * c;
+    double C, S;
+    radial(a2, c, t, C, S);
+    return fibre_angle(a2, c, t, C, S);
+  }
+  // The connecting geodesic of fibre speed c and length t from h towards the target w seen from h
+  // (|w| = r): its direction at h, from the body velocity (a e^{i a0}, c) with
+  // e^{i a0} = (w / r) sign(S) (C + i c S) / |C + i c S|, carried to h by the element (1, w_h) / n;
+  // and its falloff from d(2 sigma^2, phi) / d(t, c) (connections), with S' = C / 2 along t,
+  // dC/dq = Shat / 2, q = (1 - 2 c^2) t^2 / 4, S = (t / 2) Shat(q).
+  static LightPath connection(const Vec3& h, Complex w, double r, double c, double t) {
+    const double a2 = 1.0 - c * c, a = std::sqrt(a2), k2 = a2 - c * c, q = 0.25 * k2 * t * t;
+    double C, S;
+    radial(a2, c, t, C, S);
+    const Complex A(C, -c * S);
+    const Complex toward = r > 0.0 ? w / r : Complex(1.0, 0.0);
+    const Complex heading = toward * (S < 0.0 ? -1.0 : 1.0) * std::conj(A) / std::abs(A);
+    const Complex dw = 0.5 * a * heading;  // the chart velocity at the origin
+    const Complex wh(h[0], h[1]);
+    const Complex dw_h = dw * (1.0 - std::norm(wh));
+    const Vec3 direction{dw_h.real(), dw_h.imag(), c - 2.0 * std::imag(std::conj(wh) * dw)};
+    // derivatives along t and c
+    const double Shat = 2.0 * S / t;
+    const double dShat = std::abs(q) < 0.1
+        ? 1.0 / 6.0 + q * (1.0 / 60.0 + q * (1.0 / 1680.0 + q * (1.0 / 90720.0 + q / 7983360.0)))
+        : (C - Shat) / (2.0 * q);
+    const double S_t = 0.5 * C, S_c = 0.5 * t * dShat * (-c * t * t);
+    const double C_t = 0.5 * k2 * S, C_c = 0.5 * Shat * (-c * t * t);
+    const double area_t = 2.0 * a2 * 2.0 * S * S_t, area_c = 2.0 * (-2.0 * c * S * S + a2 * 2.0 * S * S_c);
+    const double phi_t = 2.0 * c + 2.0 * std::imag(Complex(C_t, -c * S_t) / A);
+    const double phi_c = 2.0 * t + 2.0 * std::imag(Complex(C_c, -S - c * S_c) / A);
+    return {vector4(direction), t, floored_falloff(std::abs(area_t * phi_c - area_c * phi_t))};
+  }
+
   // The chart state as a model point and tangent: (alpha, beta) = (e^{i phi/2}, w e^{-i phi/2}) / sqrt(1 - |w|^2).
   static void to_model(const Vec3& x, const Vec3& v, Vec4& P, Vec4& V) {
     const Complex w(x[0], x[1]), dw(v[0], v[1]);

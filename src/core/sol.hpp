@@ -4,14 +4,19 @@
 // this reduced system is integrated by a Taylor series method (the series of z', e^{2z} and
 // e^{-2z} by their recurrences; order and step from the accuracy asked for, Jorba and Zou's rule),
 // started from the origin by the isometry that moves the point there, so that far from z = 0 it is
-// as accurate. The first integrals p_x, p_y are kept exactly.
+// as accurate. The first integrals p_x, p_y are kept exactly. Connecting geodesics by Newton's
+// method on the exponential map from seeds out of a table of it (connections).
 #pragma once
 
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <memory>
+#include <vector>
 
 #include "affine_chart.hpp"
+#include "exp_table.hpp"
+#include "kernel.hpp"
 #include "vec.hpp"
 
 namespace thurston {
@@ -199,16 +204,152 @@ struct SolFlow : AffineChart {
     const double e2 = std::exp(2.0 * p[2]);
     return {n[0] / e2, e2 * n[1], n[2]};
   }
-  double volume_density(const Vec3&) const { return 1.0; }
-  // The chart length of p moved by the isometry that takes q to the origin.
-  double separation(const Vec3& q, const Vec3& p) const {
-    const double ez = std::exp(q[2]);
-    const Vec3 d{ez * (p[0] - q[0]), (p[1] - q[1]) / ez, p[2] - q[2]};
-    return norm3(d);
+
+  // Light along every geodesic. Sol is homogeneous, so the geodesics from h to l are those from
+  // the origin to T, l moved by the isometry that takes h there, carried back: exp_O(w) = T for
+  // the tangent vectors w of the ball of radius reach. The table of exp_O over that ball
+  // (prepare_connections) gives a seed in each cell whose linear interpolation reaches T; Newton's
+  // method from each converges to the geodesic in that cell. Its falloff: r^2 |det d exp_O(w)|
+  // (det g = 1: chart determinants are the frames'). Every geodesic whose seed converges is found:
+  // below the shortest period of Sol's oscillation in z, pi sqrt 2 = 4.44, the one geodesic of each
+  // copy (the shortest; beyond a period the cut locus begins, Coiculescu and Schwartz); beyond it
+  // near caustics, where exp_O folds within a cell, two geodesics may have no seeds or seeds that
+  // do not converge: those seeds are counted (the return value), the others cannot be.
+  void prepare_connections(double reach) {
+    const double radius = std::min(reach, kLongestConnection);
+    if (table_ && table_->radius() == radius) return;
+    table_ = std::make_shared<const ExpTable>(
+        radius, kTableCell, kTableCells,
+        [this](const Vec3& d, const std::vector<double>& radii, std::vector<Vec3>& images) {
+          Vec3 x{0.0, 0.0, 0.0}, v = d;
+          double done = 0.0, error;
+          for (std::size_t k = 0; k < radii.size(); ++k) {
+            Vec3 u;
+            flow(x, v, radii[k] - done, kTableAccuracy, images[k], u, error);
+            x = images[k];
+            v = u;
+            done = radii[k];
+          }
+        });
+  }
+  int connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>& paths) const {
+    if (!table_) return 0;
+    reach = std::min(reach, table_->radius());
+    const double ez = std::exp(h[2]);
+    const Vec3 T{ez * (l[0] - h[0]), (l[1] - h[1]) / ez, l[2] - h[2]};
+    if (!(std::abs(T[2]) <= reach) || !(std::abs(T[0]) <= drift(reach, T[2])) ||
+        !(std::abs(T[1]) <= drift(reach, -T[2])))
+      return 0;
+    thread_local std::vector<ExpTable::Seed> seeds;
+    thread_local std::vector<Vec3> found;
+    seeds.clear();
+    found.clear();
+    table_->seeds(T, kSeedMargin, seeds);
+    const auto near = [&](const Vec3& w, double within) {  // a geodesic found already
+      return std::any_of(found.begin(), found.end(), [&](const Vec3& f) { return norm3(sub3(f, w)) <= within; });
+    };
+    int missed = 0;
+    for (const ExpTable::Seed& seed : seeds) {
+      if (near(seed.w, kSameSeed * table_->cell())) continue;  // a seed beside one leads to it
+      Vec3 w;
+      std::array<Vec3, 3> J;
+      if (!shoot(T, seed, w, J)) {
+        ++missed;
+        continue;
+      }
+      const double r = norm3(w);
+      if (!(r <= reach) || near(w, 1e-7 * (1.0 + r))) continue;
+      found.push_back(w);
+      paths.push_back({vector4({w[0] / (ez * r), w[1] * ez / r, w[2] / r}), r,
+                       floored_falloff(r * r * std::abs(dot3(J[0], cross3(J[1], J[2]))))});
+    }
+    return missed;
   }
 
  private:
   static constexpr double kMaxStep = 2.0;
+  // The table: cells about this long in w at its rim, at most this many (the longest reach it
+  // serves is kLongestConnection), its images to this accuracy (seeds need no more).
+  static constexpr double kTableCell = 0.15;
+  static constexpr std::size_t kTableCells = 200000;
+  static constexpr double kLongestConnection = 12.0;
+  static constexpr double kTableAccuracy = 1e-8;
+  // Seeds from tetrahedra this far outside (barycentric): the cells' seams, rounding.
+  static constexpr double kSeedMargin = 0.02;
+  // Seeds within this many cells of a geodesic found are taken for it.
+  static constexpr double kSameSeed = 0.3;
+  // Connections are flowed to this accuracy and end within kConverged (1 + |T|) of the target.
+  static constexpr double kConnectionAccuracy = 1e-11;
+  static constexpr double kConverged = 1e-9;
+
+  // How far x can get from 0 (in the coordinates at the origin) along a curve of length L from
+  // the origin to height Z: |x'| <= e^{-z} and z >= max(-s, Z - (L - s)) at arclength s, so
+  // |x| <= int_0^L min(e^s, e^{L - s - Z}) ds (y likewise with -Z, as |y'| <= e^z).
+  static double drift(double L, double Z) {
+    const double middle = 0.5 * (L - Z);
+    if (middle <= 0.0) return std::exp(-Z) * std::expm1(L);
+    if (middle >= L) return std::expm1(L);
+    return 2.0 * std::exp(middle) - 1.0 - std::exp(-Z);
+  }
+  // exp_O(w) for a tangent vector w at the origin (orthonormal there).
+  bool exp_origin(const Vec3& w, Vec3& x) const {
+    const double r = norm3(w);
+    if (!(r > 0.0) || !std::isfinite(r)) return false;
+    Vec3 v;
+    double error;
+    flow({0.0, 0.0, 0.0}, scaled3(1.0 / r, w), r, kConnectionAccuracy, x, v, error);
+    return std::isfinite(x[0] + x[1] + x[2]);
+  }
+  // d exp_O at w (x = exp_O(w)) by forward differences, good to about 1e-5 (the falloff needs no more).
+  bool jacobian(const Vec3& w, const Vec3& x, std::array<Vec3, 3>& J) const {
+    const double delta = 1e-5 * std::max(norm3(w), 1e-3);
+    for (int j = 0; j < 3; ++j) {
+      Vec3 plus = w, xp;
+      plus[j] += delta;
+      if (!exp_origin(plus, xp)) return false;
+      for (int i = 0; i < 3; ++i) J[i][j] = (xp[i] - x[i]) / delta;
+    }
+    return true;
+  }
+  // exp_O(w) = T by Newton's method from the seed: its interpolation's inverse as the iteration
+  // matrix while it converges fast, the Jacobian (forward differences) once the steps are small
+  // (and wherever they stop shrinking), which is then d exp_O at the solution to the falloff's need.
+  bool shoot(const Vec3& T, const ExpTable::Seed& seed, Vec3& w, std::array<Vec3, 3>& J) const {
+    constexpr int kIterations = 16;
+    const double tolerance = kConverged * (1.0 + norm3(T));
+    w = seed.w;
+    std::array<Vec3, 3> inverse = seed.inverse;
+    bool exact = false;
+    double previous = kInf;
+    for (int iteration = 0; iteration < kIterations; ++iteration) {
+      Vec3 x;
+      if (!exp_origin(w, x)) return false;
+      const Vec3 miss = sub3(x, T);
+      const double size = norm3(miss);
+      Vec3 step{dot3(inverse[0], miss), dot3(inverse[1], miss), dot3(inverse[2], miss)};
+      const bool small = norm3(step) < 1e-5 * (1.0 + norm3(w));
+      if (!exact && (small || !(size < 0.5 * previous))) {
+        if (!jacobian(w, x, J)) return false;
+        Vec3 column;
+        for (int c = 0; c < 3; ++c) {  // the inverse's columns: J^-1 e_c
+          Vec3 e{0.0, 0.0, 0.0};
+          e[c] = 1.0;
+          if (!solve3(J, e, column)) return false;
+          for (int r = 0; r < 3; ++r) inverse[r][c] = column[r];
+        }
+        exact = true;
+        step = {dot3(inverse[0], miss), dot3(inverse[1], miss), dot3(inverse[2], miss)};
+      } else if (exact && !(size < 0.5 * previous) && !(size < tolerance)) {
+        return false;  // diverging with the Jacobian
+      }
+      if (size < tolerance && exact) return true;
+      previous = size;
+      w = sub3(w, step);
+    }
+    return false;
+  }
+
+  std::shared_ptr<const ExpTable> table_;
 };
 
 }  // namespace thurston

@@ -1,7 +1,7 @@
 // What a hit point's surface looks like: materials (base colour and emission, each optionally
-// times an image texture through the triangle's UVs) and the shading normal interpolated from
-// the triangle's corner normals. Kept apart from the walk so that shading models (Lambert now, a
-// path tracer later) share one lookup.
+// times an image texture through the triangle's UVs, and how they scatter: bsdf.hpp) and the
+// shading normal interpolated from the triangle's corner normals. Kept apart from the walk so that
+// direct light and path tracing share one lookup.
 #pragma once
 
 #include <array>
@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "bsdf.hpp"
 #include "vec.hpp"
 
 namespace thurston {
@@ -41,11 +42,13 @@ struct Texture {
   }
 };
 
-// Base colour and emission, each a constant times its texture (index into the textures, -1: none).
+// Base colour and emission, each a constant times its texture (index into the textures, -1: none),
+// and the scattering (Lambert unless glossy).
 struct Material {
   Rgb color{}, emission{};
   std::int32_t color_texture = -1, emission_texture = -1;
   bool one_sided = false;  // emits from the front only (the side of the triangle's winding normal)
+  Principled scattering{};
 
   bool emits() const { return emission[0] > 0.0f || emission[1] > 0.0f || emission[2] > 0.0f; }
 };

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <optional>
 #include <stdexcept>
 #include <string>
 
@@ -425,7 +426,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   // Kept by chunk, so that the recording does not depend on the thread count.
   std::vector<std::vector<double>> chunk_segments(options.record_segments ? chunks : 0);
   std::atomic<std::uint64_t> chords{0}, light_failures{0}, light_paths{0}, emitter_paths{0},
-      bounce_paths{0};
+      bounce_paths{0}, emitter_hits{0};
   // summed in chunk order: the same for any threads
   std::vector<double> chunk_energy(chunks, 0.0), chunk_emitter_energy(chunks, 0.0);
   const std::size_t traced = run_chunks(
@@ -439,6 +440,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
         light_paths.fetch_add(local.light_paths);
         emitter_paths.fetch_add(local.emitter_paths);
         bounce_paths.fetch_add(local.bounce_paths);
+        emitter_hits.fetch_add(local.emitter_hits);
         chunk_energy[chunk] = local.light_energy;
         chunk_emitter_energy[chunk] = local.emitter_energy;
       },
@@ -450,6 +452,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   stats.light_paths = light_paths.load();
   stats.emitter_paths = emitter_paths.load();
   stats.bounce_paths = bounce_paths.load();
+  stats.emitter_hits = emitter_hits.load();
   for (const double e : chunk_energy) stats.light_energy += e;
   for (const double e : chunk_emitter_energy) stats.emitter_energy += e;
   stats.segments = std::move(chunk_segments);
@@ -511,21 +514,15 @@ std::size_t Tracer::run_chunks(std::size_t count,
 
 namespace {
 
-// The geodesics from H to a light that illumination() sums. Kernels with closed forms
-// (kEveryLightPath) give every one within the reach; the others the one to the light's nearest
-// copy (false where it was not found), whatever the reach.
+// What a kernel needs to know of the light reach before it connects points to lights (Sol's table
+// of its exponential map); nothing for the others.
+template <class Kernel, class = void>
+struct PreparesLightPaths : std::false_type {};
 template <class Kernel>
-bool light_paths(const Kernel& kernel, const Vec4& H, const std::vector<Vec4>& lifts, double reach,
-                 typename Kernel::LightHint& hint, std::vector<LightPath>& paths) {
-  if constexpr (Kernel::kEveryLightPath) {
-    kernel.light_paths(H, lifts, reach, paths);
-    return true;
-  } else {
-    LightPath path;
-    if (!kernel.light_path(H, lifts, path, hint)) return false;
-    paths.push_back(path);
-    return true;
-  }
+struct PreparesLightPaths<Kernel, std::void_t<decltype(&Kernel::prepare_light_paths)>> : std::true_type {};
+template <class Kernel>
+void prepare_light_paths(Kernel& kernel, double reach) {
+  if constexpr (PreparesLightPaths<Kernel>::value) kernel.prepare_light_paths(reach);
 }
 
 // The random numbers of one ray: splitmix64 from the trace's seed and the ray's index, so that a
@@ -548,14 +545,16 @@ template <class Kernel>
 class KernelTracer final : public Tracer {
  public:
   KernelTracer(Kernel kernel, SceneData scene, unsigned threads, bool occupancy)
-      : Tracer(scene, threads, occupancy), kernel_(kernel) {}
+      : Tracer(scene, threads, occupancy), kernel_(kernel) {
+    prepare_light_paths(kernel_, light_reach_);
+    match_emitters();
+  }
 
  private:
   using Chord = typename Kernel::Chord;
-  // Per chunk: the kernel's hint per light, and the buffers of one point's light paths and of an
-  // emitter sample's copies (points and their unit normals).
+  // Per chunk: what light gathering reuses from point to point, the buffers of one point's light
+  // paths and of an emitter sample's copies (points and their unit normals).
   struct LightHints {
-    std::vector<typename Kernel::LightHint> kernel;
     std::vector<LightPath> paths;
     std::vector<Vec4> lifts, normals;
   };
@@ -565,8 +564,7 @@ class KernelTracer final : public Tracer {
                    const TraceOutputs& out, std::vector<double>* segments,
                    TraceStats& stats) const override {
     const WalkContext context = this->context(options);
-    // rays of a chunk are neighbouring pixels
-    LightHints hints{std::vector<typename Kernel::LightHint>(light_lifts_.size()), {}, {}, {}};
+    LightHints hints;
     for (std::size_t i = begin; i < end; ++i) {
       const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
       const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
@@ -604,7 +602,7 @@ class KernelTracer final : public Tracer {
     out.error[i] = path_error / std::max(std::abs(surface.incidence), 1e-3);
     const Vec3 chart_normal = Kernel::chart_vector(h.X, surface.S);
 
-    Rgb light{1.0f, 1.0f, 1.0f};
+    Rgb albedo = surface.base, light{1.0f, 1.0f, 1.0f}, glossy{0.0f, 0.0f, 0.0f};
     Rgb bounced{0.0f, 0.0f, 0.0f};
     if (options.shade) {
       // Shadow rays need the accuracy of the point they shade, which the pixel sees at its depth;
@@ -612,9 +610,13 @@ class KernelTracer final : public Tracer {
       WalkContext shadows = context;
       shadows.tolerance = context.tolerance_at(out.depth[i]);
       shadows.tolerance_per_distance = 0.0;
-      light = illumination(shadows, h.X, surface.S, !surface.emits, options, stats, hints, random);
-      if (options.bounces > 0 && !context.stopped())
-        bounced = bounce(shadows, h.X, surface, options, stats, hints, random);
+      const Vertex vertex = vertex_at(h.X, surface, 0, options);
+      const Reflected direct = illumination(shadows, vertex, options, stats, hints, random);
+      albedo = diffuse_albedo(vertex);
+      light = direct.diffuse;
+      glossy = direct.specular;
+      if (vertex.bounce_follows && !context.stopped())
+        bounced = bounce(shadows, vertex, options, stats, hints, random);
       if (context.stopped()) {  // a shadow or bounce walk may have been cut short: the light is not known
         write_miss(out, i, kCancelled, 0, 0.0, found.chords);
         return;
@@ -623,8 +625,8 @@ class KernelTracer final : public Tracer {
     for (int a = 0; a < 3; ++a) {
       out.position[3 * i + a] = out.end[3 * i + a] = h.x[a];
       out.normal[3 * i + a] = float(chart_normal[a]);
-      out.color[3 * i + a] = (options.shade ? surface.emission[a] : 0.0f) + surface.base[a] * light[a] +
-                             bounced[a];
+      out.color[3 * i + a] = (options.shade ? surface.emission[a] : 0.0f) + albedo[a] * light[a] +
+                             glossy[a] + bounced[a];
     }
     out.object[i] = surface.object;
   }
@@ -699,18 +701,22 @@ class KernelTracer final : public Tracer {
   }
 
   // A hit's surface as shading sees it: the unit geometric and shading normals, both facing the
-  // ray, the metric cosine of incidence (of the winding normal), the material's base colour and
-  // emission there (none from the back of a one-sided emitter), whether it emits, and the object.
+  // ray, the metric cosine of incidence (of the winding normal), the material and its base colour
+  // and emission there (none from the back of a one-sided emitter), whether it emits, the object,
+  // the ray's tangent there and the hit's barycentric weights on its triangle.
   struct Surface {
-    Vec4 N, S;
+    Vec4 N, S, V;
     double incidence;
+    const Material* material;
     Rgb base, emission;
     bool emits;
     std::int32_t object;
+    Vec3 weights;
   };
   Surface surface_at(const Found& f) const {
     const Hit& h = f.hit;
     Surface s;
+    s.V = h.V;
     s.N = kernel_.plane_normal(h.X, f.plane);
     if (!kernel_.normalise(h.X, s.N)) s.N = scaled(-1.0, h.V);  // degenerate triangle
     s.incidence = kernel_.dot(h.X, s.N, h.V);
@@ -718,65 +724,23 @@ class KernelTracer final : public Tracer {
     if (s.incidence > 0.0) s.N = scaled(-1.0, s.N);
     const auto& tri = triangles_[f.prim];
     const Vec3 in_mesh = f.placed->from_chart.point(h.x);
-    const Vec3 weights =
-        Surfaces::barycentric(vertices_[tri[0]], vertices_[tri[1]], vertices_[tri[2]], in_mesh);
-    s.S = shading_normal(f.prim, weights, *f.placed, in_mesh, h, s.N);
+    s.weights = Surfaces::barycentric(vertices_[tri[0]], vertices_[tri[1]], vertices_[tri[2]], in_mesh);
+    s.S = shading_normal(f.prim, s.weights, *f.placed, in_mesh, h, s.N);
     s.object = f.placed->object + triangle_object_[f.prim];
-    surfaces_.look_up(f.prim, weights, s.base, s.emission);
-    const Material& material = surfaces_.materials[surfaces_.triangle_material[f.prim]];
-    s.emits = material.emits();
-    if (material.one_sided && !front) s.emission = {0.0f, 0.0f, 0.0f};
+    surfaces_.look_up(f.prim, s.weights, s.base, s.emission);
+    s.material = &surfaces_.materials[surfaces_.triangle_material[f.prim]];
+    s.emits = s.material->emits();
+    if (s.material->one_sided && !front) s.emission = {0.0f, 0.0f, 0.0f};
     return s;
   }
 
-  // Russian roulette from this bounce on: a path goes on with probability its throughput's largest
-  // channel (at most kSurvival), and its throughput is divided by that.
-  static constexpr int kRouletteFrom = 4;
-  static constexpr double kSurvival = 0.95;
-
-  // The light that options.bounces diffuse bounces bring to the camera ray's hit X (surface
-  // `first`). Each bounce leaves in a cosine-weighted direction about the shading normal, whose
-  // density cos / pi cancels the Lambert BRDF's cos / pi, so the throughput takes the albedo
-  // alone (and the fog along the bounce), and its hit adds throughput * albedo * its next-event
-  // estimate. Emission that a bounce meets is not added: the next-event estimates count it.
-  Rgb bounce(const WalkContext& context, const Vec4& X0, const Surface& first,
-             const TraceOptions& options, TraceStats& stats, LightHints& hints, Random& random) const {
-    std::array<double, 3> throughput{first.base[0], first.base[1], first.base[2]};
-    Rgb sum{0.0f, 0.0f, 0.0f};
-    Vec4 X = X0, N = first.N, S = first.S;
-    for (int b = 1; b <= options.bounces; ++b) {
-      if (b >= kRouletteFrom) {
-        const double survive =
-            std::min(kSurvival, std::max({throughput[0], throughput[1], throughput[2]}));
-        if (!(random.uniform() < survive)) break;
-        for (double& t : throughput) t /= survive;
-      }
-      Vec4 V = cosine_direction(X, S, random);
-      // Shading normals can send a bounce below the surface: absorbed.
-      if (!(kernel_.dot(X, N, V) > 0.0) || !kernel_.normalise(X, V)) break;
-      ++stats.bounce_paths;
-      const Found f = first_hit(context, X, V, options.max_distance, options.max_crossings,
-                                kSelfSkip * scale_, nullptr);
-      if (f.end.stop != kHit || context.stopped()) break;
-      const Surface s = surface_at(f);
-      const Rgb light = illumination(context, f.hit.X, s.S, !s.emits, options, stats, hints, random);
-      const double fog = std::exp(-(f.end.distance + f.hit.s) / options.light_fog);
-      for (int a = 0; a < 3; ++a) {
-        throughput[a] *= fog * s.base[a];
-        sum[a] += float(throughput[a] * light[a]);
-      }
-      if (!(std::max({throughput[0], throughput[1], throughput[2]}) > 0.0)) break;
-      X = f.hit.X;
-      N = s.N;
-      S = s.S;
-    }
-    return sum;
-  }
-
-  // A unit direction at X about the unit normal S with density cos / pi over its hemisphere, in
-  // an orthonormal frame of the metric at X: S and the two chart axes least along S, made
-  // orthonormal to S and to each other.
-  Vec4 cosine_direction(const Vec4& X, const Vec4& S, Random& random) const {
+  // An orthonormal frame of the metric at X about the unit normal S: S and the two chart axes
+  // least along S, made orthonormal to S and to each other. Directions in it (local coordinates,
+  // z along S) are where the BSDF is written.
+  struct Frame {
+    Vec4 T1, T2, S;
+  };
+  Frame frame_at(const Vec4& X, const Vec4& S) const {
     const Vec3 n = Kernel::chart_vector(X, S);
     std::array<int, 3> axes{0, 1, 2};
     std::sort(axes.begin(), axes.end(), [&](int a, int b) { return std::abs(n[a]) < std::abs(n[b]); });
@@ -785,15 +749,137 @@ class KernelTracer final : public Tracer {
       e[a] = 1.0;
       return kernel_.chart_tangent(X, e);
     };
-    Vec4 T1 = axis_tangent(axes[0]);
-    T1 = lin4(1.0, T1, -kernel_.dot(X, T1, S), S);
-    kernel_.normalise(X, T1);
-    Vec4 T2 = axis_tangent(axes[1]);
-    T2 = lin4(1.0, T2, -kernel_.dot(X, T2, S), S);
-    T2 = lin4(1.0, T2, -kernel_.dot(X, T2, T1), T1);
-    kernel_.normalise(X, T2);
+    Frame frame{axis_tangent(axes[0]), axis_tangent(axes[1]), S};
+    frame.T1 = lin4(1.0, frame.T1, -kernel_.dot(X, frame.T1, S), S);
+    kernel_.normalise(X, frame.T1);
+    frame.T2 = lin4(1.0, frame.T2, -kernel_.dot(X, frame.T2, S), S);
+    frame.T2 = lin4(1.0, frame.T2, -kernel_.dot(X, frame.T2, frame.T1), frame.T1);
+    kernel_.normalise(X, frame.T2);
+    return frame;
+  }
+  Vec3 local(const Vec4& X, const Frame& frame, const Vec4& V) const {
+    return {kernel_.dot(X, V, frame.T1), kernel_.dot(X, V, frame.T2), kernel_.dot(X, V, frame.S)};
+  }
+  static Vec4 world(const Frame& frame, const Vec3& v) {
+    return lin4(1.0, lin4(v[0], frame.T1, v[1], frame.T2), v[2], frame.S);
+  }
+
+  // A point that scatters light: where (X), its unit geometric and shading normals N and S (facing
+  // the ray that met it), whether it is opaque (emitters are not), its base colour, and whether a
+  // bounce will leave it (then the emitters' samples there are weighed against the bounce's
+  // density: multiple importance sampling). Glossy materials have their BSDF, in `frame`;
+  // Lambert's (base / pi) needs neither. A vertex `depth` bounces from the camera is left by a
+  // bounce below the bounce limit; at the limit, one that gathers emission only where the
+  // emitters' light is gathered by bounces alone, or by MIS at a glossy vertex (whose highlights of
+  // emitters the samples on them find poorly), so that direct light only stays as it was on
+  // Lambert surfaces.
+  struct Vertex {
+    Vec4 X, N, S;
+    bool opaque, bounce_follows;
+    Rgb base;
+    Frame frame{};
+    std::optional<Bsdf> bsdf;
+  };
+  Vertex vertex_at(const Vec4& X, const Surface& s, int depth, const TraceOptions& options) const {
+    Vertex v{X, s.N, s.S, !s.emits, depth < options.bounces, s.base, {}, std::nullopt};
+    const Principled& scattering = s.material->scattering;
+    if (scattering.glossy()) {
+      v.frame = frame_at(X, s.S);
+      v.bsdf.emplace(scattering, Color{s.base[0], s.base[1], s.base[2]}, local(X, v.frame, scaled(-1.0, s.V)));
+    }
+    v.bounce_follows |= depth == options.bounces && !emitters_.triangles.empty() &&
+                        (options.emitter_sampling == EmitterSampling::kBounces ||
+                         (options.emitter_sampling == EmitterSampling::kMis && v.bsdf));
+    return v;
+  }
+  // What the Lambert part of a vertex's BSDF reflects (of the light summed by illumination's
+  // `diffuse`): the base colour, dimmed under a glossy material's specular layer.
+  static Rgb diffuse_albedo(const Vertex& v) {
+    if (!v.bsdf) return v.base;
+    return {float(v.bsdf->diffuse[0]), float(v.bsdf->diffuse[1]), float(v.bsdf->diffuse[2])};
+  }
+  // The density (solid angle) with which a bounce leaves the vertex along V: zero below its
+  // geometric surface (such bounces are absorbed).
+  double bounce_density(const Vertex& v, const Vec4& V) const {
+    if (!(kernel_.dot(v.X, v.N, V) > 0.0)) return 0.0;
+    if (v.bsdf) return v.bsdf->density(local(v.X, v.frame, V));
+    return std::max(kernel_.dot(v.X, v.S, V), 0.0) / kPi;
+  }
+  // Multiple importance sampling's power heuristic: the weight of the technique of density a
+  // against b (each density times its number of samples).
+  static double power_weight(double a, double b) { return a * a / (a * a + b * b); }
+
+  // Russian roulette from this bounce on: a path goes on with probability its throughput's largest
+  // channel (at most kSurvival), and its throughput is divided by that.
+  static constexpr int kRouletteFrom = 4;
+  static constexpr double kSurvival = 0.95;
+
+  // The light that options.bounces bounces bring to the camera ray's hit (vertex `v`). Each bounce
+  // leaves in a direction drawn from the vertex's BSDF (Lambert: cosine-weighted about the shading
+  // normal, whose density cos / pi cancels the BRDF's, so the throughput takes the albedo; glossy:
+  // a mixture of that and GGX's visible normals, the throughput f cos / density), its geodesic
+  // traced as camera rays are, with the fog along it; its hit adds the throughput times the
+  // emission met there (weighed against the emitters' samples of that geodesic, MIS) and times
+  // the light its next-event estimate reflects. A bounce beyond the limit (vertex_at) gathers
+  // emission only.
+  Rgb bounce(const WalkContext& context, Vertex v, const TraceOptions& options, TraceStats& stats,
+             LightHints& hints, Random& random) const {
+    Color throughput{1.0, 1.0, 1.0};
+    Rgb sum{0.0f, 0.0f, 0.0f};
+    for (int b = 1; v.bounce_follows; ++b) {
+      Vec4 V;
+      double density;
+      if (v.bsdf) {
+        const double u0 = random.uniform(), u1 = random.uniform(), u2 = random.uniform();
+        const Vec3 wi = v.bsdf->sample(u0, u1, u2);
+        density = v.bsdf->density(wi);
+        if (!(density > 0.0)) break;
+        const Color f = v.bsdf->specular(wi);
+        for (int a = 0; a < 3; ++a) throughput[a] *= (v.bsdf->diffuse[a] / kPi + f[a]) * wi[2] / density;
+        V = world(v.frame, wi);
+      } else {
+        V = cosine_direction(v.X, v.S, random);
+        density = std::max(kernel_.dot(v.X, v.S, V), 0.0) / kPi;
+        for (int a = 0; a < 3; ++a) throughput[a] *= v.base[a];
+      }
+      if (b >= kRouletteFrom) {
+        const double survive =
+            std::min(kSurvival, std::max({throughput[0], throughput[1], throughput[2]}));
+        if (!(random.uniform() < survive)) break;
+        for (double& t : throughput) t /= survive;
+      }
+      // Shading normals can send a bounce below the surface: absorbed.
+      if (!(kernel_.dot(v.X, v.N, V) > 0.0) || !kernel_.normalise(v.X, V)) break;
+      ++stats.bounce_paths;
+      const Found f = first_hit(context, v.X, V, options.max_distance, options.max_crossings,
+                                kSelfSkip * scale_, nullptr);
+      if (f.end.stop != kHit || context.stopped()) break;
+      const Surface s = surface_at(f);
+      const double length = f.end.distance + f.hit.s;
+      const double fog = std::exp(-length / options.light_fog);
+      for (double& t : throughput) t *= fog;
+      if (s.emits && options.emitter_sampling != EmitterSampling::kLightSamples) {
+        const double weight = emission_weight(v, V, density, length, f, s, options, hints);
+        stats.emitter_hits += weight > 0.0;
+        for (int a = 0; a < 3; ++a) sum[a] += float(throughput[a] * s.emission[a] * weight);
+      }
+      if (b > options.bounces) break;
+      Vertex next = vertex_at(f.hit.X, s, b, options);
+      const Reflected light = illumination(context, next, options, stats, hints, random);
+      const Rgb albedo = diffuse_albedo(next);
+      for (int a = 0; a < 3; ++a)
+        sum[a] += float(throughput[a] * (double(albedo[a]) * light.diffuse[a] + light.specular[a]));
+      if (!(std::max({throughput[0], throughput[1], throughput[2]}) > 0.0)) break;
+      v = std::move(next);
+    }
+    return sum;
+  }
+
+  // A unit direction at X about the unit normal S with density cos / pi over its hemisphere, in
+  // the metric's orthonormal frame at X (frame_at).
+  Vec4 cosine_direction(const Vec4& X, const Vec4& S, Random& random) const {
     const double u = random.uniform(), phi = 2.0 * kPi * random.uniform(), r = std::sqrt(u);
-    return lin4(1.0, lin4(r * std::cos(phi), T1, r * std::sin(phi), T2), std::sqrt(1.0 - u), S);
+    return world(frame_at(X, S), {r * std::cos(phi), r * std::sin(phi), std::sqrt(1.0 - u)});
   }
 
   // The unit shading normal at the hit: the metric normal of the chart plane through the hit
@@ -809,20 +895,24 @@ class KernelTracer final : public Tracer {
     return kernel_.dot(h.X, S, N) < 0.0 ? scaled(-1.0, S) : S;
   }
 
-  // Sum over lights and over the geodesics from the surface point H (normal N) to each of them of
-  // radiance * cos * falloff * fog * cone * visibility, each geodesic with its own shadow ray;
-  // then the emitters' light, from options.light_samples points sampled on them.
-  Rgb illumination(const WalkContext& context, const Vec4& H, const Vec4& N, bool opaque,
-                   const TraceOptions& options, TraceStats& stats, LightHints& hints,
-                   Random& random) const {
-    Rgb sum{0.0f, 0.0f, 0.0f};
+  // The light a vertex reflects towards its viewer, in two parts: `diffuse`, the sum of
+  // radiance * cos * falloff * fog * cone (* the MIS weight) over the lights and the geodesics to
+  // them (irradiance / pi, which the Lambert albedo multiplies), and `specular`, the same sum each
+  // term times pi times the specular BRDF (glossy materials).
+  struct Reflected {
+    Rgb diffuse{0.0f, 0.0f, 0.0f}, specular{0.0f, 0.0f, 0.0f};
+  };
+
+  // Sum over lights and over the geodesics from the vertex to each of them, each geodesic with its
+  // own shadow ray; then the emitters' light, from options.light_samples points sampled on them.
+  Reflected illumination(const WalkContext& context, const Vertex& v, const TraceOptions& options,
+                         TraceStats& stats, LightHints& hints, Random& random) const {
+    Reflected sum;
+    const Vec4& H = v.X;
     std::vector<LightPath>& paths = hints.paths;
     for (std::size_t l = 0; l < light_lifts_.size(); ++l) {
       paths.clear();
-      if (!light_paths(kernel_, H, light_lifts_[l], light_reach_, hints.kernel[l], paths)) {
-        ++stats.light_failures;
-        continue;
-      }
+      stats.light_failures += kernel_.light_paths(H, light_lifts_[l], light_reach_, paths);
       const Rgb& radiance = light_radiance_[l];
       const SpotCone& cone = light_cone_[l];
       const double mean_radiance = mean_rgb(radiance);
@@ -833,43 +923,40 @@ class KernelTracer final : public Tracer {
                                                  kernel_.arrival(H, path)));
         ++stats.light_paths;
         stats.light_energy += weight * mean_radiance;
-        const double cosine = kernel_.dot(H, N, path.direction);
-        if (!(cosine > 0.0) || !(weight > 0.0) || (opaque && path.distance > geodesic_loop_) ||
-            !visible(context, occluders_, H, path.direction, path.distance * (1.0 - 1e-6),
-                     options.max_crossings))
+        const double cosine = kernel_.dot(H, v.S, path.direction);
+        if (!(cosine > 0.0) || !(weight > 0.0) || (v.opaque && path.distance > geodesic_loop_) ||
+            shadow(context, occluders_, H, path.direction, path.distance * (1.0 - 1e-6),
+                   options.max_crossings) == kHit)
           continue;
-        for (int a = 0; a < 3; ++a) sum[a] += float(cosine * weight * radiance[a]);
+        reflect(sum, v, path.direction, cosine * weight, radiance);
       }
     }
-    if (!emitters_.triangles.empty())
+    if (!emitters_.triangles.empty() && options.emitter_sampling != EmitterSampling::kBounces)
       for (int s = 0; s < options.light_samples; ++s)
-        sample_emitters(context, H, N, opaque, options, stats, hints, random, sum);
+        sample_emitters(context, v, options, stats, hints, random, sum);
     return sum;
   }
+  // Adds one geodesic's light (term: everything but the BSDF and the radiance) to the sums.
+  void reflect(Reflected& sum, const Vertex& v, const Vec4& direction, double term, const Rgb& radiance) const {
+    for (int a = 0; a < 3; ++a) sum.diffuse[a] += float(term * radiance[a]);
+    if (!v.bsdf) return;
+    const Color f = v.bsdf->specular(local(v.X, v.frame, direction));
+    for (int a = 0; a < 3; ++a) sum.specular[a] += float(kPi * f[a] * term * radiance[a]);
+  }
 
-  // One point y sampled on the emitters (a triangle with probability its share of their chart
-  // area, y uniform on it in the chart) lights H along the geodesics to its copies as a point
-  // light of radiance Le cos' / pi per unit area would: the estimate of
-  // (1 / pi) integral Le cos cos' falloff dA is Le cos cos' falloff dA/dA_chart A_chart / pi, over
-  // light_samples (cos' at the emitter's copy, towards H: one-sided emitters light only their front,
-  // the others both sides). The shadow rays meet every triangle, emitters too (so that a closed
-  // emitter's far side is hidden by its near side), and stop just short of the sample.
-  void sample_emitters(const WalkContext& context, const Vec4& H, const Vec4& N, bool opaque,
-                       const TraceOptions& options, TraceStats& stats, LightHints& hints,
-                       Random& random, Rgb& sum) const {
-    const std::size_t t = pick_emitter(random.uniform());
+  // A point y of emitter triangle t as the emitters' samples light with it: its point of the
+  // geometry and unit normal (of the triangle's winding), the metric's area per chart area of the
+  // triangle there, and in hints its copies (points and normals), one per group element of the
+  // emitter's copies. False where the triangle has no normal there.
+  bool emitter_point(std::size_t t, const Vec3& y, LightHints& hints, double& area_density) const {
     const std::array<Vec3, 3>& p = emitters_.triangles[t];
-    const double root = std::sqrt(random.uniform()), v = random.uniform();
     const Vec3 e1 = sub3(p[1], p[0]), e2 = sub3(p[2], p[0]), n = cross3(e1, e2);
-    const Vec3 y = add3(p[0], add3(scaled3(root * (1.0 - v), e1), scaled3(root * v, e2)));
     const Vec4 Y = kernel_.chart_point(y);
     Vec4 normal = kernel_.plane_normal(Y, {n[0], n[1], n[2], -dot3(n, p[0])});
-    if (!kernel_.normalise(Y, normal)) return;
+    if (!kernel_.normalise(Y, normal)) return false;
     const Vec4 a = kernel_.chart_tangent(Y, e1), b = kernel_.chart_tangent(Y, e2);
     const double ab = kernel_.dot(Y, a, b);
-    const double area_density =
-        std::sqrt(std::max(kernel_.dot(Y, a, a) * kernel_.dot(Y, b, b) - ab * ab, 0.0)) / norm3(n);
-    const double scale = area_density * emitter_area_sum_.back() / (kPi * options.light_samples);
+    area_density = std::sqrt(std::max(kernel_.dot(Y, a, a) * kernel_.dot(Y, b, b) - ab * ab, 0.0)) / norm3(n);
     std::vector<Vec4>&lifts = hints.lifts, &normals = hints.normals;
     lifts.clear();
     normals.clear();
@@ -879,41 +966,189 @@ class KernelTracer final : public Tracer {
       lifts.push_back(X);
       normals.push_back(U);
     }
+    return true;
+  }
+  // The emitters' samples' density (solid angle, all light_samples of them together) of the
+  // geodesic `path` to a point of emitter triangle t of area density `area_density`, reached at
+  // cos' = emitted: a point is drawn with density 1 / (A_chart area_density) per area, and an area
+  // dA at the far end of the geodesic is cos' falloff dA of solid angle at its start.
+  double emitter_density(double area_density, double emitted, const LightPath& path,
+                         const TraceOptions& options) const {
+    return options.light_samples / (emitter_area_sum_.back() * area_density * emitted * path.falloff);
+  }
+  // Whether an emitter's copy shines towards the far end of a geodesic that arrives there with
+  // tangent `arrival` (towards its start): cos' at the copy, from its front only where one-sided.
+  double emitted_cosine(std::size_t t, const Vec4& lift, const Vec4& normal, const Vec4& arrival) const {
+    const double towards = kernel_.dot(lift, normal, arrival);
+    return emitters_.one_sided[t] ? towards : std::abs(towards);
+  }
+
+  // One point y sampled on the emitters (a triangle with probability its share of their chart
+  // area, y uniform on it in the chart) lights the vertex along the geodesics to its copies as a
+  // point light of radiance Le cos' / pi per unit area would: the estimate of
+  // (1 / pi) integral Le cos cos' falloff dA is Le cos cos' falloff dA/dA_chart A_chart / pi, over
+  // light_samples (cos' at the emitter's copy, towards the vertex: one-sided emitters light only
+  // their front, the others both sides). The shadow rays meet every triangle, emitters too (so that
+  // a closed emitter's far side is hidden by its near side), and stop just short of the sample.
+  // Where a bounce leaves the vertex and could meet the same point along the same geodesic, the
+  // two estimates are weighed by the power heuristic.
+  void sample_emitters(const WalkContext& context, const Vertex& v, const TraceOptions& options,
+                       TraceStats& stats, LightHints& hints, Random& random, Reflected& sum) const {
+    const Vec4& H = v.X;
+    const std::size_t t = pick_emitter(random.uniform());
+    const std::array<Vec3, 3>& p = emitters_.triangles[t];
+    const double root = std::sqrt(random.uniform()), u = random.uniform();
+    const Vec3 y = add3(p[0], add3(scaled3(root * (1.0 - u), sub3(p[1], p[0])), scaled3(root * u, sub3(p[2], p[0]))));
+    double area_density;
+    if (!emitter_point(t, y, hints, area_density)) return;
+    const double scale = area_density * emitter_area_sum_.back() / (kPi * options.light_samples);
     std::vector<LightPath>& paths = hints.paths;
     paths.clear();
-    typename Kernel::LightHint cold{};  // every sample is a new point: nothing to start from
-    if (!light_paths(kernel_, H, lifts, light_reach_, cold, paths)) {
-      ++stats.light_failures;
-      return;
-    }
+    stats.light_failures += kernel_.light_paths(H, hints.lifts, light_reach_, paths);
     const Rgb& radiance = emitters_.radiance[t];
     const double mean_radiance = mean_rgb(radiance);
+    const bool weighed = v.bounce_follows && options.emitter_sampling == EmitterSampling::kMis;
     for (const LightPath& path : paths) {
-      const double towards = kernel_.dot(lifts[path.lift], normals[path.lift], kernel_.arrival(H, path));
-      const double emitted = emitters_.one_sided[t] ? towards : std::abs(towards);
+      const double emitted =
+          emitted_cosine(t, hints.lifts[path.lift], hints.normals[path.lift], kernel_.arrival(H, path));
       const double weight = path.falloff * std::exp(-path.distance / options.light_fog) * scale;
       ++stats.emitter_paths;
       stats.emitter_energy += weight * std::max(emitted, 0.0) * mean_radiance;
-      const double cosine = kernel_.dot(H, N, path.direction);
+      const double cosine = kernel_.dot(H, v.S, path.direction);
       const double short_of = path.distance * (1.0 - 1e-6) - kSelfSkip * scale_;
-      if (!(cosine > 0.0) || !(emitted > 0.0) || (opaque && path.distance > geodesic_loop_) ||
-          !visible(context, scene_.get(), H, path.direction, short_of, options.max_crossings))
+      if (!(cosine > 0.0) || !(emitted > 0.0) || (v.opaque && path.distance > geodesic_loop_))
         continue;
-      for (int c = 0; c < 3; ++c) sum[c] += float(cosine * emitted * weight * radiance[c]);
+      const Stop stop = shadow(context, scene_.get(), H, path.direction, short_of, options.max_crossings);
+      if (stop == kHit) continue;
+      double mis = 1.0;
+      // a bounce meets the point along this geodesic if it is drawn and its walk gets there
+      if (weighed && stop != kCrossingLimit && path.distance <= options.max_distance)
+        mis = power_weight(emitter_density(area_density, emitted, path, options), bounce_density(v, path.direction));
+      reflect(sum, v, path.direction, cosine * emitted * weight * mis, radiance);
     }
   }
 
-  // Whether the geodesic from the surface point H along dir reaches distance r unobstructed by
-  // the triangles of `blockers`. A shadow ray that runs out of crossings found no blocker and
-  // counts as visible.
-  bool visible(const WalkContext& context, RTCScene blockers, const Vec4& H, const Vec4& dir,
-               double r, int max_crossings) const {
+  // The MIS weight of the emission that a bounce from vertex v along V (drawn with `density`) met
+  // at the end of a geodesic of `length` (hit f, surface s): the emitters' samples light the same
+  // point along this geodesic where it is one of those they sum (within the reach, or the one the
+  // light search finds), so the two are weighed by the power heuristic; 1 where they do not (an
+  // emitter beyond the reach lights through bounces alone), 0 for a triangle not found among the
+  // emitters' copies (their samples alone count it).
+  double emission_weight(const Vertex& v, const Vec4& V, double density, double length, const Found& f,
+                         const Surface& s, const TraceOptions& options, LightHints& hints) const {
+    if (options.emitter_sampling == EmitterSampling::kBounces) return 1.0;
+    const auto match = emitter_of_.find(emitter_key(std::size_t(f.placed - instances_.data()), f.prim));
+    if (match == emitter_of_.end()) return 0.0;
+    const std::size_t t = std::size_t(match->second);
+    // The hit's point on the emitter triangle it is a copy of: its barycentric weights carried over
+    // in homogeneous coordinates (the chart's in affine charts; the model's, which the projective
+    // isometries keep, in the projective ones).
+    const std::array<Vec3, 3>& p = emitters_.triangles[t];
+    const auto& tri = triangles_[f.prim];
+    std::array<double, 3> w;
+    double total = 0.0;
+    for (int k = 0; k < 3; ++k) {
+      const Vec4 Q = kernel_.chart_point(f.placed->to_chart.point(vertices_[tri[k]]));
+      w[k] = s.weights[k] * kernel_.chart_point(p[k])[3] / Q[3];
+      total += w[k];
+    }
+    const Vec3 y = add3(scaled3(w[0] / total, p[0]), add3(scaled3(w[1] / total, p[1]), scaled3(w[2] / total, p[2])));
+    double area_density;
+    if (!emitter_point(t, y, hints, area_density)) return 1.0;
+    std::vector<LightPath>& paths = hints.paths;
+    paths.clear();
+    kernel_.light_paths(v.X, hints.lifts, light_reach_, paths);  // a geodesic missed: not among them
+    // the emitters' samples' geodesic along V of this length, if they have it
+    const LightPath* same = nullptr;
+    double best = 1.0 - kSameDirection;
+    for (const LightPath& path : paths) {
+      const double along = kernel_.dot(v.X, path.direction, V);
+      if (along > best && std::abs(path.distance - length) <= kSameLength * (1.0 + length)) {
+        best = along;
+        same = &path;
+      }
+    }
+    if (!same || (v.opaque && same->distance > geodesic_loop_)) return 1.0;
+    const double emitted =
+        emitted_cosine(t, hints.lifts[same->lift], hints.normals[same->lift], kernel_.arrival(v.X, *same));
+    if (!(emitted > 0.0)) return 1.0;
+    return power_weight(density, emitter_density(area_density, emitted, *same, options));
+  }
+  // A bounce's geodesic and a light sample's are the same where their directions agree to this
+  // (1 - cos) and their lengths to this relative tolerance: far looser than the walk's errors, far
+  // tighter than two geodesics between the same points differ but at focal points.
+  static constexpr double kSameDirection = 1e-4, kSameLength = 1e-3;
+
+  // How the geodesic from the surface point H along dir ends within distance r among the
+  // triangles of `blockers`: kHit where one blocks it; a shadow ray that runs out of crossings
+  // found no blocker (kCrossingLimit: visible).
+  Stop shadow(const WalkContext& context, RTCScene blockers, const Vec4& H, const Vec4& dir,
+              double r, int max_crossings) const {
     const auto query = [&](const Chord& chord, float tnear) {
       return embree::occluded(blockers, chord_ray(chord.x0, chord.x1, tnear));
     };
     return kernel_.walk(context, H, dir, r, max_crossings, kSelfSkip * scale_, query,
-                        [](const auto&) {}).stop != kHit;
+                        [](const auto&) {}).stop;
   }
+
+  // Finds, for every emissive triangle the walk can meet (each instance's), the emitter triangle
+  // it is a copy of: its corners' points equal to those of a group element's copy of the emitter
+  // triangle (the emitters' copies hold every copy near the domain). Both are compared as the
+  // kernel's move() leaves points (SL2~'s chart reads its fibre angle back in (-2 pi, 2 pi]).
+  void match_emitters() {
+    if (emitters_.triangles.empty()) return;
+    const auto moved = [&](const Mat4& M, const std::array<Vec3, 3>& p) {
+      std::array<Vec4, 3> X;
+      for (int k = 0; k < 3; ++k) {
+        X[k] = kernel_.chart_point(p[k]);
+        Vec4 U = kernel_.chart_tangent(X[k], sub3(p[(k + 1) % 3], p[k]));
+        kernel_.move(M, X[k], U);
+      }
+      return X;
+    };
+    const Mat4 identity{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+    struct Seen {
+      std::array<Vec4, 3> corners;
+      std::uint64_t key;
+    };
+    std::vector<Seen> seen;
+    for (std::size_t i = 0; i < instances_.size(); ++i) {
+      const Placement& placed = instances_[i];
+      for (std::size_t t = mesh_first_[placed.mesh]; t < mesh_first_[placed.mesh + 1]; ++t) {
+        if (!surfaces_.materials[surfaces_.triangle_material[t]].emits()) continue;
+        std::array<Vec3, 3> p;
+        for (int k = 0; k < 3; ++k) p[k] = placed.to_chart.point(vertices_[triangles_[t][k]]);
+        seen.push_back({moved(identity, p), emitter_key(i, t)});
+      }
+    }
+    std::sort(seen.begin(), seen.end(), [](const Seen& a, const Seen& b) { return a.corners[0][0] < b.corners[0][0]; });
+    const auto size = [](const Vec4& a) {
+      return 1.0 + std::max({std::abs(a[0]), std::abs(a[1]), std::abs(a[2]), std::abs(a[3])});
+    };
+    const auto close = [&](const Vec4& a, const Vec4& b) {
+      for (int c = 0; c < 4; ++c)
+        if (!(std::abs(a[c] - b[c]) <= kSamePoint * size(a))) return false;
+      return true;
+    };
+    std::vector<std::vector<std::size_t>> of_group(emitter_copies_.size());
+    for (std::size_t t = 0; t < emitters_.triangles.size(); ++t) of_group[emitters_.group[t]].push_back(t);
+    for (std::size_t g = 0; g < of_group.size(); ++g)
+      for (const Mat4& M : emitter_copies_[g])
+        for (const std::size_t t : of_group[g]) {
+          const std::array<Vec4, 3> lifted = moved(M, emitters_.triangles[t]);
+          const double x = lifted[0][0], margin = 2.0 * kSamePoint * size(lifted[0]);
+          auto it = std::lower_bound(seen.begin(), seen.end(), x - margin,
+                                     [](const Seen& s, double value) { return s.corners[0][0] < value; });
+          for (; it != seen.end() && it->corners[0][0] <= x + margin; ++it)
+            if (close(it->corners[0], lifted[0]) && close(it->corners[1], lifted[1]) &&
+                close(it->corners[2], lifted[2]))
+              emitter_of_.emplace(it->key, std::int32_t(t));
+        }
+    unmatched_emitters_ = seen.size() - emitter_of_.size();
+  }
+  // Corners of a seen triangle and of an emitter's copy are the same point within this (relative
+  // to the points' size): both come from the same vertices through a few float64 maps.
+  static constexpr double kSamePoint = 1e-7;
 
   Kernel kernel_;
 };
@@ -956,6 +1191,7 @@ struct Geometry {
   bool (*normalise)(int curvature, Vec4& X);
   bool (*start)(int curvature, Vec4& X, Vec4& V);
   bool (*flow)(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt);
+  std::unique_ptr<Connections> (*connections)(double reach);
 };
 
 std::unique_ptr<Tracer> make_projective(int k, SceneData scene, unsigned threads) {
@@ -976,18 +1212,39 @@ bool flow_of(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, 
   return true;
 }
 
+// A marching kernel prepared for a reach, as Connections.
+template <class Flow>
+class MarchingConnections final : public Connections {
+ public:
+  explicit MarchingConnections(double reach) : reach_(reach) { kernel_.prepare_light_paths(reach); }
+  int connect(const Vec3& h, const Vec3& l, std::vector<LightPath>& paths) const override {
+    return kernel_.light_paths(point4(h), {point4(l)}, reach_, paths);
+  }
+
+ private:
+  MarchingKernel<Flow> kernel_;
+  double reach_;
+};
+
+template <class Flow>
+std::unique_ptr<Connections> connections_of(double reach) {
+  return std::make_unique<MarchingConnections<Flow>>(reach);
+}
+
 const Geometry kGeometries[] = {
-    {"E3", 0, make_projective, normalise_projective, start_projective, nullptr},
-    {"S3", 1, make_projective, normalise_projective, start_projective, nullptr},
-    {"H3", -1, make_projective, normalise_projective, start_projective, nullptr},
-    {"Nil", 0, make_marching<NilFlow>, normalise_affine, start_marching<NilFlow>, flow_of<NilFlow>},
-    {"Sol", 0, make_marching<SolFlow>, normalise_affine, start_marching<SolFlow>, flow_of<SolFlow>},
+    {"E3", 0, make_projective, normalise_projective, start_projective, nullptr, nullptr},
+    {"S3", 1, make_projective, normalise_projective, start_projective, nullptr, nullptr},
+    {"H3", -1, make_projective, normalise_projective, start_projective, nullptr, nullptr},
+    {"Nil", 0, make_marching<NilFlow>, normalise_affine, start_marching<NilFlow>, flow_of<NilFlow>,
+     connections_of<NilFlow>},
+    {"Sol", 0, make_marching<SolFlow>, normalise_affine, start_marching<SolFlow>, flow_of<SolFlow>,
+     connections_of<SolFlow>},
     {"H2xR", 0, make_marching<H2xRFlow>, H2xRFlow::normalise_lift, start_marching<H2xRFlow>,
-     flow_of<H2xRFlow>},
+     flow_of<H2xRFlow>, connections_of<H2xRFlow>},
     {"S2xR", 0, make_marching<S2xRFlow>, normalise_affine, start_marching<S2xRFlow>,
-     flow_of<S2xRFlow>},
+     flow_of<S2xRFlow>, connections_of<S2xRFlow>},
     {"SL2", 0, make_marching<SL2Flow>, SL2Flow::normalise_lift, start_marching<SL2Flow>,
-     flow_of<SL2Flow>},
+     flow_of<SL2Flow>, connections_of<SL2Flow>},
 };
 
 const Geometry& find(const std::string& name) {
@@ -1029,6 +1286,11 @@ bool geodesic_flow(const std::string& geometry, const Vec3& x, const Vec3& v, do
                    double accuracy, Vec3& xt, Vec3& vt) {
   const Geometry& g = find(geometry);
   return g.flow && g.flow(x, v, t, accuracy, xt, vt);
+}
+
+std::unique_ptr<Connections> make_connections(const std::string& geometry, double reach) {
+  const Geometry& g = find(geometry);
+  return g.connections ? g.connections(reach) : nullptr;
 }
 
 }  // namespace thurston

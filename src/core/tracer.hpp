@@ -11,6 +11,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <unordered_map>
 #include <vector>
 
 #include "embree.hpp"
@@ -70,7 +71,7 @@ struct SceneData {
   std::vector<SpotCone> light_cone;  // per light (empty: no spot lights)
   std::vector<Vec4> light_axis;      // per lift of a spot light: its unit axis there (else zero)
   Emitters emitters;
-  double light_reach = kInf;  // light paths longer than this are not summed (kEveryLightPath kernels)
+  double light_reach = kInf;  // light paths longer than this are not summed
   // Every geodesic returns to its start after this length (S3 with -1 in the group: pi), so a light
   // path longer than it from an opaque surface passes through that surface again: shadowed.
   double geodesic_loop = kInf;
@@ -86,6 +87,12 @@ struct Strided2 {
   }
 };
 
+// How the emissive meshes' light reaches the shaded points: next-event estimates and bounces that
+// meet them, combined by multiple importance sampling (kMis); the next-event estimates alone
+// (kLightSamples: what a bounce meets is not added); or the bounces alone (kBounces: no samples on
+// the emitters). The last two are for measuring the first.
+enum class EmitterSampling : std::uint8_t { kMis = 0, kLightSamples = 1, kBounces = 2 };
+
 struct TraceOptions {
   double max_distance;
   int max_crossings;
@@ -97,7 +104,8 @@ struct TraceOptions {
   double light_fog;               // distance over which light falls to 1/e along its path (inf: none)
   int light_samples;              // points sampled on the emitters per shaded point
   std::uint64_t seed;             // of the samples' random numbers (a ray's depend on it and its index)
-  int bounces;                    // diffuse bounces after the camera ray's hit (0: direct light only)
+  int bounces;                    // bounces after the camera ray's hit (0: direct light only)
+  EmitterSampling emitter_sampling = EmitterSampling::kMis;
 };
 
 // Caller-allocated per-ray outputs (N rows each).
@@ -117,7 +125,7 @@ struct TraceOutputs {
 
 struct TraceStats {
   std::uint64_t chords = 0;
-  std::uint64_t light_failures = 0;  // light paths that were not found (shooting: Nil, Sol)
+  std::uint64_t light_failures = 0;  // light paths known to be missed (Sol's shooting)
   std::uint64_t light_paths = 0;     // geodesics to lights summed (a shadow ray each where facing)
   // Sum over shaded points of the mean radiance times falloff (and fog) along the summed paths,
   // before cosines and shadows: what the reach lets in, against which the part left out is told.
@@ -127,6 +135,7 @@ struct TraceStats {
   std::uint64_t emitter_paths = 0;
   double emitter_energy = 0.0;
   std::uint64_t bounce_paths = 0;  // geodesics traced for bounces (path tracing)
+  std::uint64_t emitter_hits = 0;  // bounces that met an emitter (its light weighted by MIS)
   // Recorded chords by chunk of rays, in ray order: 6 doubles each, start xyz and end xyz.
   std::vector<std::vector<double>> segments;
 };
@@ -154,6 +163,9 @@ class Tracer {
   double light_power() const;
   std::size_t num_emitter_triangles() const { return emitters_.triangles.size(); }
   std::size_t num_emitter_copies() const { return emitters_.copies.size(); }
+  // Emissive triangles the walk can meet (per instance) that were not found among the emitters'
+  // copies: a bounce meeting one adds no light (their light comes from the emitters' samples).
+  std::size_t num_unmatched_emitters() const { return unmatched_emitters_; }
 
   TraceStats trace(std::size_t count, Strided2<double> origins, Strided2<double> directions,
                    const TraceOptions& options, const TraceOutputs& out, const Poll& poll);
@@ -218,6 +230,14 @@ class Tracer {
   std::vector<double> emitter_area_sum_;
   std::vector<std::vector<Mat4>> emitter_copies_;
   std::size_t pick_emitter(double u) const;
+  // The emitter triangle (index into emitters_) that each emissive triangle the walk can meet is
+  // a copy of, by instance << 32 | mesh triangle: a bounce that meets it weighs its light against
+  // the emitters' samples of the same point.
+  std::unordered_map<std::uint64_t, std::int32_t> emitter_of_;
+  std::size_t unmatched_emitters_ = 0;
+  static std::uint64_t emitter_key(std::size_t instance, std::size_t triangle) {
+    return (std::uint64_t(instance) << 32) | std::uint64_t(triangle);
+  }
   double light_reach_;
   double geodesic_loop_;
   double scale_ = 0.0;              // largest extent or coordinate magnitude of the scene
@@ -281,5 +301,15 @@ std::unique_ptr<Tracer> make_tracer(const std::string& geometry, SceneData scene
 // ones, whose geodesics are exact lines).
 bool geodesic_flow(const std::string& geometry, const Vec3& x, const Vec3& v, double t,
                    double accuracy, Vec3& xt, Vec3& vt);
+// The tracer's light paths of a marching geometry within a reach, for the bindings: every
+// geodesic from the chart point h to the chart point l no longer than the reach, and how many the
+// search could tell it missed.
+class Connections {
+ public:
+  virtual ~Connections() = default;
+  virtual int connect(const Vec3& h, const Vec3& l, std::vector<LightPath>& paths) const = 0;
+};
+// nullptr for geometries without a marching flow.
+std::unique_ptr<Connections> make_connections(const std::string& geometry, double reach);
 
 }  // namespace thurston

@@ -124,7 +124,10 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
             if light.type == "SUN":
                 skipped.setdefault(SUN_NOTE, []).append(original.name)
                 continue
-            light_object = export_light(light, np.array(inst.matrix_world, float), scale)
+            try:
+                light_object = export_light(light, np.array(inst.matrix_world, float), scale)
+            except scenes.SceneError as exc:
+                raise ExportError(f"light {original.name!r}: {exc}") from None
             if isinstance(light_object, scenes.SceneObject):
                 scene.objects.append(light_object)
             else:

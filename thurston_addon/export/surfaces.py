@@ -1,7 +1,8 @@
 """Blender meshes and materials -> scene objects: vertices in chart coordinates, Blender's corner
 normals (shade smooth/flat, sharp edges, custom normals), the active render UV map, and one
 material per material slot (Principled BSDF or Emission node; an Image Texture node feeding the
-base or emission colour gives a texture)."""
+base or emission colour gives a texture; the Principled BSDF's Roughness, Metallic, Specular IOR
+Level and IOR where they are constants)."""
 from __future__ import annotations
 
 import bpy
@@ -68,15 +69,22 @@ def _get(collection, attribute, count, dtype):
     return values
 
 
+# The Principled BSDF's inputs that become the material's scattering (scene.Material's names).
+SCATTERING_INPUTS = {"roughness": "Roughness", "metallic": "Metallic", "specular": "Specular IOR Level", "ior": "IOR"}
+
+
 def material(mat, object_name: str) -> scenes.Material:
     """Base colour and emission of a material: Principled BSDF or Emission node inputs; an Image
     Texture node linked to a colour gives its image (times the strength for emission); other links
-    fall back to the material's viewport colour."""
+    fall back to the material's viewport colour. The Principled BSDF's scattering inputs are taken
+    as their constants (a link to them is not followed: its socket's own value counts); an Emission
+    shader reflects nothing."""
     if mat is None:
         return scenes.Material(name="")
     where = f"object {object_name!r}, material {mat.name!r}"
     color, emission = np.array(mat.diffuse_color[:3], float), np.zeros(3)
     color_texture = emission_texture = None
+    scattering = {}
     # Blender 5 always uses material nodes (use_nodes is deprecated there)
     if mat.node_tree and (bpy.app.version >= (5, 0, 0) or mat.use_nodes):
         for node in mat.node_tree.nodes:
@@ -87,13 +95,25 @@ def material(mat, object_name: str) -> scenes.Material:
                 if em is not None:
                     value, emission_texture = _input(em, np.zeros(3), where)
                     emission = value * (strength.default_value if strength else 1.0)
+                scattering = {key: _clamped(key, node.inputs[name].default_value)
+                              for key, name in SCATTERING_INPUTS.items() if name in node.inputs}
                 break
             if node.type == "EMISSION":
                 color = np.zeros(3)
                 value, emission_texture = _input(node.inputs["Color"], np.zeros(3), where)
                 emission = value * node.inputs["Strength"].default_value
                 break
-    return scenes.Material(color, emission, color_texture, emission_texture, name=mat.name)
+    try:
+        return scenes.Material(color, emission, color_texture, emission_texture, name=mat.name, **scattering)
+    except scenes.SceneError as exc:
+        raise scenes.SceneError(f"{where}: {exc}") from None
+
+
+def _clamped(key: str, value: float) -> float:
+    """A scattering input as Cycles takes it: roughness and metallic within [0, 1], the specular
+    level at least 0, the IOR at least 1e-5 (below 1 it reflects as its inverse does)."""
+    (low, high), = [bounds for name, bounds, _ in scenes.SCATTERING if name == key]
+    return float(np.clip(value, max(low, 1e-5) if key == "ior" else low, high))
 
 
 def _input(socket, fallback, where):

@@ -9,7 +9,8 @@ isometries act on chart points as the affine maps M themselves: E3, Nil, Sol), `
 `tangent_to_chart`, `normalize_point`, `normalize_tangent`); the metric (`metric`, `christoffel`,
 `volume_density`, `dot`); geodesics (`geodesic`, `chart_geodesic`); isometries (`is_isometry`,
 `reorthonormalize`, `element_key`, `transform_points`, `pull_back_plane`); distances (`distance`,
-`chord_distance`) and light (`connect`, `falloff_along`); `plane_coordinates`, the homogeneous
+`chord_distance`, and where the light's copies are summed bounds: `distance_bound`,
+`farthest_distance`, `domain_distance`) and light (`connect`, `falloff_along`); `plane_coordinates`, the homogeneous
 vectors a domain's face covectors pair with. The C++ core has a kernel of the same name for each.
 """
 from __future__ import annotations
@@ -35,9 +36,6 @@ class Geometry:
     # Whether an isometry M maps chart points affinely, as M on (x, 1): copies of an instanced mesh
     # are then instances themselves (render.py)
     affine_isometries = False
-    # Whether the tracer lights a point along every geodesic to every copy of a light within the
-    # light reach (closed-form connecting geodesics), else from each light's nearest copy (shooting)
-    sums_light_copies = False
     # The default light reach in circumradii of the domain (render.default_light_reach): more where
     # the copies within a reach grow slowly
     light_reach_circumradii = 1.0
@@ -54,6 +52,17 @@ class Geometry:
         V = self.normalize_tangent(X, self.tangent_to_model(x, u))
         Xt, Vt = self.geodesic(X, V, t)
         return self.to_chart(Xt), self.tangent_to_chart(Xt, Vt)
+
+    def distance_bound(self, A, B):
+        """An upper bound of the distance between model points A and B (the length of some curve
+        between them): the distance itself where it has a closed form."""
+        return self.distance(A, B)
+
+    def farthest_distance(self, X, domain):
+        """An upper bound of the largest distance from the model point X to the points of a
+        coordinate domain: the largest to its vertices, which is that where distance functions are
+        convex and the domain is the convex hull of its vertices (H2xR)."""
+        return float(np.max(self.distance(X, self.to_model(domain.vertices))))
 
     def chord_distance(self, A, B):
         """The distance of nearby points to first order: the metric length at A of B - A."""

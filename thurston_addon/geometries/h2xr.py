@@ -45,13 +45,34 @@ def _in_plane(x):
     return x
 
 
+def polygon_distance(Y, covectors, ends):
+    """H^2 distances from hyperboloid points Y (..., 3) = (X1, X2, X0) to the convex polygon of the
+    Klein disk {k : c . (k, 1) <= 0} (covectors c, rows), whose sides run between the Klein points
+    ends[i] (each (2+, 2): a side's vertices): 0 inside, else to the nearest side, to its line
+    where the foot of the perpendicular lies on the side, else to the nearer end."""
+    Y = _floats(Y)
+    inside = np.all(Y @ np.asarray(covectors, float).T <= 0, axis=-1)
+    J = np.array([1.0, 1.0, -1.0])  # the Lorentz form on (X1, X2, X0)
+    to_side = np.inf
+    for side in ends:
+        a, b = np.unique(np.round(np.asarray(side, float), 12), axis=0)
+        A, B = (np.r_[p, 1.0] / math.sqrt(1.0 - p @ p) for p in (a, b))
+        n = J * np.cross(A, B)
+        n /= math.sqrt(n @ (J * n))
+        s = Y @ (J * n)  # <Y, n>: sinh of the distance to the side's line
+        foot = Y - s[..., None] * n
+        t = ((foot[..., :2] / foot[..., 2:3] - a) @ (b - a)) / ((b - a) @ (b - a))
+        ends_distance = np.minimum(*(np.arccosh(np.maximum(-(Y @ (J * E)), 1.0)) for E in (A, B)))
+        to_side = np.minimum(to_side, np.where((t >= 0) & (t <= 1), np.arcsinh(np.abs(s)), ends_distance))
+    return np.where(inside, 0.0, to_side)
+
+
 class H2xR(Geometry):
     name = "H2xR"
     kernel = "h2xr"
     projective = False
     diameter = math.inf
     copy_rings = 1  # hyperbolic rings of copies grow too fast for more
-    sums_light_copies = True  # one geodesic per copy, in closed form
     light_reach_circumradii = 1.0  # the copies within R grow like exp(R)
     chord_scale = 4.0  # its chords stray far less than K h^2 / 8 (docs/front.md, "The chord rule")
     # Far in the cover the disk coordinates grow like e^t, as in H3 (see Hyperbolic).
@@ -183,29 +204,15 @@ class H2xR(Geometry):
 
     def domain_distance(self, X, domain):
         """Distances from model points X (..., 4) to a domain polygon x [z0, z1] (vertical faces and
-        two lids): the hypot of the H^2 distance to the polygon (0 inside it, else to the nearest
-        side: to its line where the foot of the perpendicular lies on the side, else to the nearer
-        end) and the distance of z beyond the lids."""
+        two lids): the hypot of the H^2 distance to the polygon (polygon_distance) and the distance
+        of z beyond the lids."""
         C = domain.covectors()
         d = self.plane_distances(X, C)
         vertical = C[:, 2] == 0
         beyond_lids = np.maximum(np.max(np.where(vertical, -np.inf, d), axis=-1), 0.0)
-        inside = np.all(np.where(vertical, d, -np.inf) <= 0, axis=-1)
-        J = np.array([1.0, 1.0, -1.0])  # the Lorentz form on (X1, X2, X0)
-        Y = _floats(X)[..., DISK]
-        to_side = np.inf
-        for face in (f for f, v in zip(domain.faces, vertical) if v):
-            ends = np.unique(np.round(domain.vertices[face.vertices, :2], 12), axis=0)
-            a, b = ends
-            A, B = (np.r_[p, 1.0] / math.sqrt(1.0 - p @ p) for p in (a, b))
-            n = J * np.cross(A, B)
-            n /= math.sqrt(n @ (J * n))
-            s = Y @ (J * n)  # <Y, n>: sinh of the distance to the side's line
-            foot = Y - s[..., None] * n
-            t = ((foot[..., :2] / foot[..., 2:3] - a) @ (b - a)) / ((b - a) @ (b - a))
-            ends_distance = np.minimum(*(np.arccosh(np.maximum(-(Y @ (J * E)), 1.0)) for E in (A, B)))
-            to_side = np.minimum(to_side, np.where((t >= 0) & (t <= 1), np.arcsinh(np.abs(s)), ends_distance))
-        return np.hypot(np.where(inside, 0.0, to_side), beyond_lids)
+        sides = [f for f, v in zip(domain.faces, vertical) if v]
+        ends = [domain.vertices[f.vertices, :2] for f in sides]
+        return np.hypot(polygon_distance(_floats(X)[..., DISK], C[vertical][:, DISK], ends), beyond_lids)
 
     def falloff_along(self, P, V, r):
         """1 / (r^2 |det d exp_P(r V)|): the exponential map is H^2's times the identity, whose

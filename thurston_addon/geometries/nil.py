@@ -37,6 +37,28 @@ def theta_minus_sin_over_square(theta):
     return np.where(small, s * series, (safe - np.sin(safe)) / (safe * safe))
 
 
+def shortest_for_height(lift):
+    """A lower bound of the length of any curve whose end lies |Z_s| = lift above its start in the
+    symmetric model z_s = z - x y / 2 (seen from the start): dz_s = w dt + (x dy - y dx) / 2, so
+    lift <= L + L^2 / pi (the vertical part at most L, the area the shadow encloses with the chord
+    at most L^2 / pi, isoperimetric): L >= (pi / 2)(sqrt(1 + 4 lift / pi) - 1)."""
+    return 0.5 * math.pi * (np.sqrt(1.0 + 4.0 * np.asarray(lift, float) / math.pi) - 1.0)
+
+
+def _box_corners(domain):
+    """The 8 corners (8, 3) of the chart box around a domain's vertices."""
+    lo, hi = domain.vertices.min(axis=0), domain.vertices.max(axis=0)
+    return np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1]) for c in (lo[2], hi[2])])
+
+
+def _seen_from(a, q):
+    """(rho, h): the horizontal distance and the symmetric height of q seen from a (a^-1 q in the
+    symmetric model), chart points broadcasting: h = q_z - a_z - (q_y - a_y)(q_x + a_x) / 2."""
+    a, q = _floats(a), _floats(q)
+    rho = np.hypot(q[..., 0] - a[..., 0], q[..., 1] - a[..., 1])
+    return rho, q[..., 2] - a[..., 2] - 0.5 * (q[..., 1] - a[..., 1]) * (q[..., 0] + a[..., 0])
+
+
 def multiply(p, q):
     """Group product p . q of chart points (..., 3)."""
     p, q = np.broadcast_arrays(_floats(p), _floats(q))
@@ -53,6 +75,10 @@ def inverse(p):
 class Nil(AffineGeometry):
     name = "Nil"
     kernel = "nil"
+    # the circumradius bound (farthest_distance: 1.33 for the unit cube, whose corners lie 0.94 from
+    # its centre), as the copies within R grow like R^4; below 2 pi each copy is reached along one
+    # geodesic, the shortest (nil.hpp's connections)
+    light_reach_circumradii = 1.0
 
     def metric(self, x):
         x = _floats(x)
@@ -73,6 +99,34 @@ class Nil(AffineGeometry):
         G[..., 2, 0, 1] = G[..., 2, 1, 0] = 0.5 * (a * a - 1.0)
         G[..., 2, 0, 2] = G[..., 2, 2, 0] = -0.5 * a
         return G
+
+    # --- bounds of distances, for the light's copies -----------------------------------------------
+    def distance_bound(self, A, B):
+        """The length of a curve from A to B: the straight horizontal geodesic of the symmetric
+        model seen from A (length rho), then the vertical one (|Z_s|)."""
+        rho, h = _seen_from(self.to_chart(A), self.to_chart(B))
+        return rho + np.abs(h)
+
+    def farthest_distance(self, X, domain):
+        """An upper bound of the distance from X to the domain's points: distance_bound's rho and
+        |Z_s| each at their largest over the box around the domain, which they reach at its corners
+        (rho is convex, Z_s bilinear in the corner's x and y and linear in its z)."""
+        rho, h = _seen_from(self.to_chart(X), _box_corners(domain))
+        return float(np.max(rho) + np.max(np.abs(h)))
+
+    def domain_distance(self, X, domain):
+        """A lower bound of the distances from model points X (..., 4) to the domain: the larger of
+        the horizontal distance to the box around it (the projection to the xy plane shortens no
+        curve less) and shortest_for_height of the smallest |Z_s| of X seen from the box's points
+        (Z_s bilinear in their x and y, linear in z: its range is its corners')."""
+        x = self.to_chart(X)
+        corners = _box_corners(domain)
+        lo, hi = corners[0], corners[-1]
+        outside = np.maximum(np.maximum(lo[:2] - x[..., :2], x[..., :2] - hi[:2]), 0.0)
+        _, h = _seen_from(corners, x[..., None, :])  # (..., 8): X seen from each corner
+        low, high = np.min(h, axis=-1), np.max(h, axis=-1)
+        lift = np.where((low <= 0) & (high >= 0), 0.0, np.minimum(np.abs(low), np.abs(high)))
+        return np.maximum(np.linalg.norm(outside, axis=-1), shortest_for_height(lift))
 
     # --- isometries -------------------------------------------------------------------------------
     def left_multiplication(self, p):

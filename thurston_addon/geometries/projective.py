@@ -29,7 +29,6 @@ class ProjectiveGeometry(Geometry):
     curvature: int
     form: np.ndarray  # diagonal of the ambient form on R^4 (the last entry is unused in E3)
     projective = True  # geodesics and bisectors are straight in the chart: Dirichlet domains
-    sums_light_copies = True
     copy_rings = 3  # rings of neighbouring domains searched for the parts of large objects
     reference_depth = math.inf  # how deep `geodesic` in the universal cover is a reference
 

@@ -48,7 +48,6 @@ class S2xR(AffineGeometry):
     name = "S2xR"
     kernel = "s2xr"
     copy_rings = 1  # a shell's neighbours are its two dilated copies
-    sums_light_copies = True  # a few geodesics per copy (the arcs either way round), in closed form
     light_reach_circumradii = 2.0  # the copies within R grow like R, their geodesics like R^2
     chord_scale = 4.0  # its chords stray far less than K h^2 / 8 (docs/front.md, "The chord rule")
     chart_plane_faces = False  # faces are spheres |x| = const

@@ -33,6 +33,7 @@ import math
 import numpy as np
 
 from .base import Geometry, _floats
+from .h2xr import polygon_distance
 from .hyperbolic import Hyperbolic
 
 
@@ -240,10 +241,19 @@ def lorentz(alpha, beta):
     return np.linalg.solve(_hyperboloid(w), _hyperboloid(image)).T
 
 
+def _disk_distance(w, v):
+    """The H^2 distance between Poincare points w and v: 2 atanh |(v - w) / (1 - conj(w) v)|."""
+    return 2 * np.arctanh(np.minimum(np.abs((v - w) / (1 - np.conj(w) * v)), 1 - 1e-16))
+
+
 class SL2(Geometry):
     name = "SL2"
     projective = False
     diameter = math.inf
+    # 1.5 times the circumradius, which is H^2's (farthest_distance: the octagon's, 2.45): 3.7, past
+    # the pi a point may lie from its light's fibre copies; the copies within R grow like e^R, each
+    # reached along one geodesic below 2 pi (sl2.hpp's connections)
+    light_reach_circumradii = 1.5
     plane_chart_is_chart = False  # face planes are planes of (Klein(w), phi)
     copy_rings = 1  # hyperbolic rings of copies grow too fast for more
     chord_scale = 4.0  # its chords stray far less than K h^2 / 8 (docs/front.md, "The chord rule")
@@ -395,6 +405,35 @@ class SL2(Geometry):
         w = r[..., None] * b
         J = np.stack([(end(w + step * e) - end(w - step * e)) / (2 * step) for e in np.eye(3)], -1)
         return 1.0 / (r * r * np.abs(np.linalg.det(J)) * self.volume_density(end(w)))
+
+    # --- bounds of distances, for the light's copies -----------------------------------------------
+    # The projection (w, phi) -> w to H^2 shortens every curve, and the group's copies of the domain
+    # project to the octagon tiling: render.cover_copies' walk, which needs a lower bound of the
+    # distance to the domain (domain_distance) and the largest distance from the light to it
+    # (farthest_distance), works in that projection as it does in H2xR's disk, taking both in H^2;
+    # the copies along each fibre (two in the model, which is SL2~ modulo the fibre translation by
+    # 4 pi) it passes through its lids' element.
+    def distance_bound(self, A, B):
+        """The length of a curve from A to B: the horizontal geodesic over the H^2 geodesic (along
+        which phi, seen from A moved to the origin, stays 0), then the fibre by the fibre angle left
+        (modulo 4 pi, into [-2 pi, 2 pi])."""
+        a, b = self.to_chart(A), self.to_chart(B)
+        w, v = _w(a), _w(b)
+        turn = b[..., 2] - a[..., 2] - 2 * np.angle(1 - np.conj(w) * v)
+        return _disk_distance(w, v) + np.abs(np.remainder(turn + 2 * np.pi, 4 * np.pi) - 2 * np.pi)
+
+    def farthest_distance(self, X, domain):
+        """The largest H^2 distance from X's point of the disk to the octagon's (at a vertex)."""
+        return float(np.max(_disk_distance(_w(self.to_chart(X)), _w(domain.vertices))))
+
+    def domain_distance(self, X, domain):
+        """The H^2 distance from model points' disk points to the octagon (a lower bound of the
+        distance to the domain)."""
+        C = domain.covectors()
+        sides = [f for f, c in zip(domain.faces, C) if c[2] == 0]
+        ends = [_klein(_w(domain.vertices[f.vertices])) for f in sides]
+        return polygon_distance(_hyperboloid(_w(self.to_chart(X))), C[C[:, 2] == 0][:, [0, 1, 3]],
+                                [np.stack([k.real, k.imag], -1) for k in ends])
 
     # --- isometries -------------------------------------------------------------------------------
     def is_isometry(self, M, tol=1e-9):

@@ -11,6 +11,8 @@ Jacobi elliptic functions (Troyanov's; derived for this metric below).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.special import ellipeinc, ellipj, ellipkinc
 
@@ -126,9 +128,34 @@ def elliptic_flow(v, t):
     return position, velocity
 
 
+def drift(L, Z):
+    """How far x can get from 0 along a curve of length L from the origin to height Z: |x'| <= e^{-z}
+    and z >= max(-s, Z - (L - s)) at arclength s, so |x| <= int_0^L min(e^s, e^{L - s - Z}) ds
+    (y likewise with -Z, as |y'| <= e^z). Increasing in L."""
+    L, Z = np.broadcast_arrays(_floats(L), _floats(Z))
+    middle = np.clip(0.5 * (L - Z), 0.0, L)
+    return np.expm1(middle) + np.exp(-Z) * np.expm1(L - middle)
+
+
+def _shortest_for_drift(a, Z, longest=200.0, steps=60):
+    """The least L with drift(L, Z) >= a (bisection, elementwise; L <= longest)."""
+    a, Z = np.broadcast_arrays(_floats(a), _floats(Z))
+    lo, hi = np.zeros(a.shape), np.full(a.shape, longest)
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        short = drift(mid, Z) < a
+        lo, hi = np.where(short, mid, lo), np.where(short, hi, mid)
+    return lo
+
+
 class Sol(AffineGeometry):
     name = "Sol"
     kernel = "sol"
+    # 3/4 of the circumradius bound (farthest_distance, 1.33 for the preset's prism): 1.0, about the
+    # distance from the centre to the prism's corners (0.97), as the copies within R grow like e^R
+    # and each is shot at (sol.hpp's connections); below pi sqrt 2 each copy is reached along one
+    # geodesic, the shortest
+    light_reach_circumradii = 0.75
 
     def metric(self, x):
         x = _floats(x)
@@ -186,6 +213,35 @@ class Sol(AffineGeometry):
         sign = lambda value: -1.0 if value < 0 else 1.0
         R = self.translation(*M[:3, 3]) @ self.flip(sign(x_entry), sign(y_entry))
         return R @ self.swap() if swapped else R
+
+    # --- bounds of distances, for the light's copies -----------------------------------------------
+    def _path(self, a, q):
+        """The length of the curve from chart point a to q that moves x, then y at a's height, then z."""
+        e = np.exp(a[..., 2])
+        d = np.abs(q - a)
+        return e * d[..., 0] + d[..., 1] / e + d[..., 2]
+
+    def distance_bound(self, A, B):
+        """The length of a curve from A to B: x and y moved at A's height or at B's, then z (the shorter)."""
+        a, b = self.to_chart(A), self.to_chart(B)
+        return np.minimum(self._path(a, b), self._path(b, a))
+
+    def farthest_distance(self, X, domain):
+        """An upper bound of the distance from X to the domain's points: the curve of distance_bound
+        moving at X's height, whose length is convex in the far end, so largest at a vertex."""
+        return float(np.max(self._path(self.to_chart(X), domain.vertices)))
+
+    def domain_distance(self, X, domain):
+        """A lower bound of the distances from model points X (..., 4) to the domain, from the box
+        [lo, hi] around it: a curve from a point q of the box to X is at least as long as z moves
+        (|z'| <= 1), and as it takes to move x: z(s) >= lo_z - s and z(s) >= z_X - (L - s), so
+        |x_X - x_q| <= e^{-lo_z} drift(L, z_X - lo_z); y likewise with e^{z} and hi_z."""
+        x = self.to_chart(X)
+        lo, hi = domain.vertices.min(axis=0), domain.vertices.max(axis=0)
+        outside = np.maximum(np.maximum(lo - x, x - hi), 0.0)
+        along_x = _shortest_for_drift(outside[..., 0] * math.exp(lo[2]), x[..., 2] - lo[2])
+        along_y = _shortest_for_drift(outside[..., 1] * math.exp(-hi[2]), hi[2] - x[..., 2])
+        return np.maximum(outside[..., 2], np.maximum(along_x, along_y))
 
     # --- geodesics --------------------------------------------------------------------------------
     def flow_from_origin(self, v, t):
