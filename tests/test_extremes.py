@@ -327,7 +327,8 @@ def test_grazing_hits_stay_on_their_ball_at_a_coarse_tolerance(space_of, sid):
     tolerance = 0.03
     radius = 0.3 * space.chart_inradius
     centres = np.array([c for c in space._interior_points(rng, 200)
-                        if space.domain.contains(g.to_model(c + 1.3 * radius * BALL.vertices), tol=-1e-9).all()][:2])
+                        for around in [c + 1.3 * radius * BALL.vertices]
+                        if g.in_chart(around).all() and space.domain.contains(g.to_model(around), tol=-1e-9).all()][:2])
     scene = Scene(objects=[SceneObject(f"ball{k}", c + radius * BALL.vertices, BALL.faces) for k, c in enumerate(centres)])
     x = space._interior_points(rng, 6000)
     x = x[np.min(np.linalg.norm(x[:, None] - centres[None], axis=2), axis=1) > 1.5 * radius][:3000]
