@@ -95,17 +95,17 @@ class Material:
         self.emission_texture = _texture(self.emission_texture, f"material {self.name!r}: emission")
         for key, (low, high), meaning in SCATTERING:
             value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) or \
-                    not (low <= value <= high and (key != "ior" or value > 0)):
+            # (the tracer keeps them as float32: the IOR must stay positive there)
+            if not (_is_number(value) and low <= value <= high and (key != "ior" or np.float32(value) > 0)):
                 raise SceneError(f"material {self.name!r}: {key} must be {meaning}, got {value!r}")
             setattr(self, key, float(value))
 
 
-
-# The scattering parameters of a material, their ranges (as Cycles clamps the Principled BSDF's) and
-# what the error says.
+# The scattering parameters of a material, their ranges (as Cycles clamps the Principled BSDF's,
+# within the tracer's float32) and what the error says.
 SCATTERING = (("roughness", (0.0, 1.0), "a number in [0, 1]"), ("metallic", (0.0, 1.0), "a number in [0, 1]"),
-              ("specular", (0.0, math.inf), "a number >= 0"), ("ior", (0.0, math.inf), "a number > 0"))
+              ("specular", (0.0, FLOAT32_MAX), f"a number >= 0 within the tracer's float32 (at most {FLOAT32_MAX:.3g})"),
+              ("ior", (0.0, FLOAT32_MAX), f"a number > 0 within the tracer's float32 (1.4e-45 to {FLOAT32_MAX:.3g})"))
 
 
 @dataclass
