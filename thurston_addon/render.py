@@ -1032,9 +1032,6 @@ def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: fl
     4 pi dr p / vol (the exponential map's Jacobian, which the falloff divides by, is the change of
     variables from the light's directions to the points). Without the limit the sum diverges
     (Olbers) wherever it is not cut at S3's two arcs."""
-    stats = {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0,
-             "emitter_triangles": tracer.num_emitter_triangles, "emitter_copies": tracer.num_emitter_copies,
-             "light_samples": settings.light_samples}
     reach = tracer.light_reach
     longest = min(settings.max_distance or space.max_distance, 2 * space.geometry.diameter)
     if reach >= longest:
@@ -1044,7 +1041,9 @@ def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: fl
         shell = f * (math.exp(-reach / f) - math.exp(-longest / f)) if f else longest - reach
         left_out = 4 * math.pi * tracer.light_power * shell / space.volume
     summed = energy / shaded if shaded else 0.0
-    return {**stats, "light_reach": reach,
+    return {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0,
+            "emitter_triangles": tracer.num_emitter_triangles, "emitter_copies": tracer.num_emitter_copies,
+            "light_samples": settings.light_samples, "light_reach": reach,
             "light_energy_left_out": left_out / summed if summed > 0 else (0.0 if left_out == 0 else math.inf)}
 
 

@@ -737,7 +737,6 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
     check_keys(data, SCENE_KEYS, str(path), SceneError)
     scene = Scene()
     primitive_triangles = 0
-    every_object_key = sorted({*OBJECT_KEYS, *FILE_OBJECT_KEYS, *(k for keys in PRIMITIVE_KEYS.values() for k in keys)})
     for i, spec in enumerate(_tables(data, "object", path)):
         where = f"{path}: object {i}"
         if "file" in spec and "primitive" in spec:
@@ -756,8 +755,9 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
             if primitive_triangles > MAX_PRIMITIVE_TRIANGLES:
                 raise SceneError(f"{where}: the file's primitives have more than {MAX_PRIMITIVE_TRIANGLES} triangles; "
                                  "place copies of one with `transforms` (instances) instead")
-        else:
-            check_keys(spec, every_object_key, where, SceneError)  # a misspelt file or primitive
+        else:  # a misspelt file or primitive: the error names the nearest of every object key
+            every_object_key = sorted({*OBJECT_KEYS, *FILE_OBJECT_KEYS, *(k for keys in PRIMITIVE_KEYS.values() for k in keys)})
+            check_keys(spec, every_object_key, where, SceneError)
             raise SceneError(f"{where}: needs 'file' or 'primitive'")
         for o in objs:  # overrides apply to every material of the file (textures included)
             if "color" in spec:
