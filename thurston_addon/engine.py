@@ -155,12 +155,12 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         fov = 2 * np.degrees(np.arctan(1.0 / view.window_matrix[0][0]))
         camera = scenes.Camera(inverse[:3, 3] / scale, -inverse[:3, 2], inverse[:3, 1], float(fov))
         settings = export.render_settings(bscene.thurston, w, h, transparent=bscene.render.film_transparent)
-        samples = settings.samples or render.QUALITY[settings.quality].samples
+        samples = settings.samples_per_pixel
         settings.quality = "draft"
 
         def frame(level, sample, cancelled):
-            view = replace(settings, width=max(1, w // level), height=max(1, h // level))
-            shifted, one = progressive.one_sample(camera, view, sample, samples)
+            sized = replace(settings, width=max(1, w // level), height=max(1, h // level))
+            shifted, one = progressive.one_sample(camera, sized, sample, samples)
             result = render.render(space, None, one, camera=shifted, tracer=tracer,
                                    progress=lambda done, total: not cancelled())
             return _flip_rows(export.combined(result.passes))

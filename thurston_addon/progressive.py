@@ -89,8 +89,9 @@ class ProgressiveView:
                     if not cancelled():
                         self.error = exc
                 return
-            frame = Frame(key, level, pixels)
-            if level == 1:  # the running mean of the full-resolution samples
+            if level > 1:
+                frame = Frame(key, level, pixels)
+            else:  # the running mean of the full-resolution samples
                 pixels = np.asarray(pixels, np.float64)
                 brightness = pixels[..., :3].mean(axis=-1).ravel()
                 total = pixels if total is None else total + pixels
@@ -119,4 +120,3 @@ class ProgressiveView:
         thread = self._thread
         if thread is not None:
             thread.join(timeout)
-

@@ -112,9 +112,9 @@ class ThurstonSettings(bpy.types.PropertyGroup):
                                    description="Bounces after each camera hit: global illumination by path tracing "
                                                "along geodesics, at any quality (0: direct light only)")
     tolerance: bpy.props.FloatProperty(name="Tolerance", default=0.0, min=0.0, precision=6, step=0.001,
-                                       description="Where geodesics bend (Nil, Sol): how far the traced chords may stray "
-                                                   "from the true geodesic, in Blender units (0: the quality's bound, a "
-                                                   "fraction of the pixel footprint)")
+                                       description="Where geodesics bend (Nil, Sol, S2xR, H2xR, SL2): how far the traced "
+                                                   "chords may stray from the true geodesic, in Blender units (0: from "
+                                                   "the quality's bound, a fraction of the pixel footprint)")
     passes: bpy.props.EnumProperty(
         name="Passes", options={"ENUM_FLAG"},
         items=[(p.upper(), p.title(), f"Write the {p} pass") for p in render.PASSES],

@@ -15,6 +15,7 @@ from .files import physical_memory
 from .scene import Camera, Scene, SceneError
 from .spaces import Space, SpaceError
 
+
 @dataclass(frozen=True)
 class Quality:
     """A quality level: samples per pixel (antialiasing), and the bound of the hit-position error
@@ -94,6 +95,11 @@ class Settings:
     def window(self) -> tuple[int, int, int, int]:
         return self.region or (0, 0, self.width, self.height)
 
+    @property
+    def samples_per_pixel(self) -> int:
+        """The samples per pixel: the given count, else the quality's."""
+        return self.samples or QUALITY[self.quality].samples
+
     def check(self):
         if self.width < 1 or self.height < 1:
             raise RenderError(f"image size {self.width}x{self.height} is not usable")
@@ -145,8 +151,8 @@ class Settings:
         chord rule")."""
         if self.tolerance is not None:
             return self.tolerance, 0.0
-        slope = space.geometry.chord_scale * QUALITY[self.quality].footprint_fraction * pixel_angle
-        return slope * NEAR_FRACTION * space.metric_extent, slope
+        fraction = space.geometry.chord_scale * QUALITY[self.quality].footprint_fraction
+        return fraction * footprint(space, pixel_angle, 0.0), fraction * pixel_angle
 
 
 def footprint(space: Space, pixel_angle: float, depth):
@@ -154,6 +160,7 @@ def footprint(space: Space, pixel_angle: float, depth):
     (a straight-line view's, with distances counted from NEAR_FRACTION of the domain's metric
     extent behind the camera)."""
     return pixel_angle * (depth + NEAR_FRACTION * space.metric_extent)
+
 
 def _whole(n) -> bool:
     return isinstance(n, (int, np.integer)) and not isinstance(n, bool)
@@ -902,7 +909,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     t0 = time.perf_counter()
     frame = camera_frame(space, camera)  # once: bring_inside and the re-orthonormalised frame
     tracer = tracer or make_tracer(space, scene, settings.threads, light_reach_for(space, settings))
-    offsets = _sample_offsets(settings.samples or QUALITY[settings.quality].samples)
+    offsets = _sample_offsets(settings.samples_per_pixel)
     W = settings.width
     _, _, w, h = settings.window  # the pixels rendered
     pixel_angle = (math.radians(camera.fov) if settings.projection == "perspective" else 2 * math.pi) / W
@@ -1025,9 +1032,6 @@ def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: fl
     4 pi dr p / vol (the exponential map's Jacobian, which the falloff divides by, is the change of
     variables from the light's directions to the points). Without the limit the sum diverges
     (Olbers) wherever it is not cut at S3's two arcs."""
-    stats = {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0,
-             "emitter_triangles": tracer.num_emitter_triangles, "emitter_copies": tracer.num_emitter_copies,
-             "light_samples": settings.light_samples}
     reach = tracer.light_reach
     longest = min(settings.max_distance or space.max_distance, 2 * space.geometry.diameter)
     if reach >= longest:
@@ -1037,7 +1041,9 @@ def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: fl
         shell = f * (math.exp(-reach / f) - math.exp(-longest / f)) if f else longest - reach
         left_out = 4 * math.pi * tracer.light_power * shell / space.volume
     summed = energy / shaded if shaded else 0.0
-    return {**stats, "light_reach": reach,
+    return {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0,
+            "emitter_triangles": tracer.num_emitter_triangles, "emitter_copies": tracer.num_emitter_copies,
+            "light_samples": settings.light_samples, "light_reach": reach,
             "light_energy_left_out": left_out / summed if summed > 0 else (0.0 if left_out == 0 else math.inf)}
 
 

@@ -95,17 +95,17 @@ class Material:
         self.emission_texture = _texture(self.emission_texture, f"material {self.name!r}: emission")
         for key, (low, high), meaning in SCATTERING:
             value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) or \
-                    not (low <= value <= high and (key != "ior" or value > 0)):
+            # (the tracer keeps them as float32: the IOR must stay positive there)
+            if not (_is_number(value) and low <= value <= high and (key != "ior" or np.float32(value) > 0)):
                 raise SceneError(f"material {self.name!r}: {key} must be {meaning}, got {value!r}")
             setattr(self, key, float(value))
 
 
-
-# The scattering parameters of a material, their ranges (as Cycles clamps the Principled BSDF's) and
-# what the error says.
+# The scattering parameters of a material, their ranges (as Cycles clamps the Principled BSDF's,
+# within the tracer's float32) and what the error says.
 SCATTERING = (("roughness", (0.0, 1.0), "a number in [0, 1]"), ("metallic", (0.0, 1.0), "a number in [0, 1]"),
-              ("specular", (0.0, math.inf), "a number >= 0"), ("ior", (0.0, math.inf), "a number > 0"))
+              ("specular", (0.0, FLOAT32_MAX), f"a number >= 0 within the tracer's float32 (at most {FLOAT32_MAX:.3g})"),
+              ("ior", (0.0, FLOAT32_MAX), f"a number > 0 within the tracer's float32 (1.4e-45 to {FLOAT32_MAX:.3g})"))
 
 
 @dataclass
@@ -737,7 +737,6 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
     check_keys(data, SCENE_KEYS, str(path), SceneError)
     scene = Scene()
     primitive_triangles = 0
-    every_object_key = sorted({*OBJECT_KEYS, *FILE_OBJECT_KEYS, *(k for keys in PRIMITIVE_KEYS.values() for k in keys)})
     for i, spec in enumerate(_tables(data, "object", path)):
         where = f"{path}: object {i}"
         if "file" in spec and "primitive" in spec:
@@ -756,8 +755,9 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
             if primitive_triangles > MAX_PRIMITIVE_TRIANGLES:
                 raise SceneError(f"{where}: the file's primitives have more than {MAX_PRIMITIVE_TRIANGLES} triangles; "
                                  "place copies of one with `transforms` (instances) instead")
-        else:
-            check_keys(spec, every_object_key, where, SceneError)  # a misspelt file or primitive
+        else:  # a misspelt file or primitive: the error names the nearest of every object key
+            every_object_key = sorted({*OBJECT_KEYS, *FILE_OBJECT_KEYS, *(k for keys in PRIMITIVE_KEYS.values() for k in keys)})
+            check_keys(spec, every_object_key, where, SceneError)
             raise SceneError(f"{where}: needs 'file' or 'primitive'")
         for o in objs:  # overrides apply to every material of the file (textures included)
             if "color" in spec:

@@ -14,6 +14,7 @@ g^-1. A space that fails validation raises SpaceError naming the file and the pr
 from __future__ import annotations
 
 import ast
+import itertools
 import math
 import operator
 import os
@@ -553,9 +554,10 @@ def _halfspace_domain(covectors, elements, source, geometry) -> Domain:
 
 
 def _unbounded_direction(C) -> np.ndarray | None:
-    """An axis direction along which the polyhedron {x : C (x, 1) <= 0} (the origin inside) is
-    unbounded, None if it is bounded: a polyhedron unbounded along some direction r is unbounded
-    along the axis direction of a non-zero coordinate of r."""
+    """An axis direction d on which the polyhedron {x : C (x, 1) <= 0} (the origin inside) has no
+    largest d . x, None if it is bounded: a polyhedron unbounded along some direction r (a ray
+    x + t r in it) has no largest d . x for the axis direction d of a non-zero coordinate of r, its
+    sign's."""
     for d in np.vstack([np.eye(3), -np.eye(3)]):
         if linprog(-d, A_ub=C[:, :3], b_ub=-C[:, 3], bounds=[(None, None)] * 3, method="highs").status == 3:
             return d
@@ -645,10 +647,10 @@ class DirichletSpace(Space):
         self._steps = [M for _, M in given]
         shortened = self._shortened(self._steps)
         for generators in (self._steps, shortened):
-            nearest = {g.element_key(N): N for M in generators + [np.linalg.inv(M) for M in generators]
-                       for N in [g.reorthonormalize(M)]}
+            distinct = {g.element_key(N): N for M in generators + [np.linalg.inv(M) for M in generators]
+                        for N in [g.reorthonormalize(M)]}
             try:
-                self._bisector_domain(sorted(nearest.values(), key=lambda M: g.distance(O, M[:, 3])))
+                self._bisector_domain(sorted(distinct.values(), key=lambda M: g.distance(O, M[:, 3])))
                 self._check_pairings()
                 rng = np.random.default_rng(20261203)
                 probes = g.to_model(self._interior_points(rng, 8))
@@ -684,37 +686,39 @@ class DirichletSpace(Space):
         dropped. A skewed lattice basis becomes a reduced one, whose bisectors bound the domain and
         whose ball about O holds few elements."""
         g = self.geometry
-        O = geometries.projective.ORIGIN
-        length = lambda M: g.distance(O, M[:, 3])
         gens = [g.reorthonormalize(M) for M in generators]
         for _ in range(_SHORTENING_ROUNDS):
             changed = False
-            for i, j in ((i, j) for i in range(len(gens)) for j in range(len(gens)) if i != j):
-                if _is_identity(gens[i]) or _is_identity(gens[j]):
-                    continue
-                for s in (gens[j], np.linalg.inv(gens[j])):
-                    for product in (lambda M, P: M @ P, lambda M, P: P @ M):
-                        step = s
-                        while True:
-                            shorter = g.reorthonormalize(product(gens[i], step))
-                            if not length(shorter) < length(gens[i]) * (1 - 1e-9):
-                                if step is s:
-                                    break
-                                step = s  # the doubled power overshot: go on from single steps
-                                continue
-                            if not _is_identity(shorter):
-                                self._check_moves_centre(shorter, "a word in the generators")
-                            gens[i], changed = shorter, True
-                            if _is_identity(shorter):
-                                break
-                            step = g.reorthonormalize(step @ step)
-                        if _is_identity(gens[i]):
-                            break
-                    if _is_identity(gens[i]):
+            for i, j in itertools.permutations(range(len(gens)), 2):
+                for s, left in itertools.product((gens[j], np.linalg.inv(gens[j])), (False, True)):
+                    if _is_identity(gens[i]) or _is_identity(gens[j]):
                         break
+                    shorter = self._shortened_by(gens[i], s, left)
+                    if shorter is not gens[i]:
+                        gens[i], changed = shorter, True
             if not changed:
                 break
         return [M for M in gens if not _is_identity(M)]
+
+    def _shortened_by(self, M, s, left: bool):
+        """M times powers of s (s^k M where left, else M s^k) while that moves O less, the power
+        doubled while the product keeps shortening and back to s where it overshoots; M itself
+        where no power shortens it, the identity where one cancels it."""
+        g = self.geometry
+        O = geometries.projective.ORIGIN
+        length = lambda N: g.distance(O, N[:, 3])
+        step = s
+        while not _is_identity(M):
+            shorter = g.reorthonormalize(step @ M if left else M @ step)
+            if not length(shorter) < length(M) * (1 - 1e-9):
+                if step is s:
+                    break
+                step = s  # the doubled power overshot: go on from single steps
+                continue
+            if not _is_identity(shorter):
+                self._check_moves_centre(shorter, "a word in the generators")
+            M, step = shorter, g.reorthonormalize(step @ step)
+        return M
 
     def _bisector_domain(self, elements):
         """self.domain: the polyhedron of the bisectors of O and the elements' images of it."""

@@ -4,13 +4,14 @@ A geometry (ProjectiveGeometry for E3, S3, H3; AffineGeometry for Nil, Sol) work
 tangent vectors as homogeneous 4-vectors ("model" coordinates) with chart point x = X[:3] / X[3],
 and on isometries as 4x4 matrices acting linearly on them. It offers: `name`, `projective`
 (geodesics and bisectors straight in the chart: Dirichlet domains), `affine_isometries` (the
-isometries act on chart points as the affine maps M themselves: E3, Nil, Sol), `diameter`, `copy_rings`,
-`reference_depth`; charts (`to_chart`, `to_model`, `in_chart`, `tangent_to_model`,
-`tangent_to_chart`, `normalize_point`, `normalize_tangent`); the metric (`metric`, `christoffel`,
-`volume_density`, `dot`); geodesics (`geodesic`, `chart_geodesic`); isometries (`is_isometry`,
-`reorthonormalize`, `element_key`, `transform_points`, `pull_back_plane`); distances (`distance`,
-`chord_distance`, and where the light's copies are summed bounds: `distance_bound`,
-`farthest_distance`, `domain_distance`) and light (`connect`, `falloff_along`); `plane_coordinates`, the homogeneous
+isometries act on chart points as the affine maps M themselves: E3, Nil, Sol), `diameter`,
+`copy_rings`, `reference_depth`, `light_reach_circumradii`, `chord_scale`; charts (`to_chart`,
+`to_model`, `in_chart`, `tangent_to_model`, `tangent_to_chart`, `normalize_point`,
+`normalize_tangent`); the metric (`metric`, `christoffel`, `volume_density`, `dot`); geodesics
+(`geodesic`, `chart_geodesic`); isometries (`is_isometry`, `reorthonormalize`, `element_key`,
+`transform_points`, `pull_back_plane`); distances (`distance`, `chord_distance`; the bounds that
+render.cover_copies' walk to a light's copies uses: `distance_bound`, `farthest_distance`,
+`domain_distance`) and light (`connect`, `falloff_along`); `plane_coordinates`, the homogeneous
 vectors a domain's face covectors pair with. The C++ core has a kernel of the same name for each.
 """
 from __future__ import annotations

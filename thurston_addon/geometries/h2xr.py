@@ -210,8 +210,7 @@ class H2xR(Geometry):
         d = self.plane_distances(X, C)
         vertical = C[:, 2] == 0
         beyond_lids = np.maximum(np.max(np.where(vertical, -np.inf, d), axis=-1), 0.0)
-        sides = [f for f, v in zip(domain.faces, vertical) if v]
-        ends = [domain.vertices[f.vertices, :2] for f in sides]
+        ends = [domain.vertices[f.vertices, :2] for f, v in zip(domain.faces, vertical) if v]
         return np.hypot(polygon_distance(_floats(X)[..., DISK], C[vertical][:, DISK], ends), beyond_lids)
 
     def falloff_along(self, P, V, r):

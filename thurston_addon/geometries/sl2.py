@@ -430,9 +430,9 @@ class SL2(Geometry):
         """The H^2 distance from model points' disk points to the octagon (a lower bound of the
         distance to the domain)."""
         C = domain.covectors()
-        sides = [f for f, c in zip(domain.faces, C) if c[2] == 0]
-        ends = [_klein(_w(domain.vertices[f.vertices])) for f in sides]
-        return polygon_distance(_hyperboloid(_w(self.to_chart(X))), C[C[:, 2] == 0][:, [0, 1, 3]],
+        vertical = C[:, 2] == 0  # the octagon's sides (the others are the lids)
+        ends = [_klein(_w(domain.vertices[f.vertices])) for f, v in zip(domain.faces, vertical) if v]
+        return polygon_distance(_hyperboloid(_w(self.to_chart(X))), C[vertical][:, [0, 1, 3]],
                                 [np.stack([k.real, k.imag], -1) for k in ends])
 
     # --- isometries -------------------------------------------------------------------------------
