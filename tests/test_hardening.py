@@ -471,6 +471,25 @@ def test_valid_lattices_are_accepted(tmp_path, name, generators, volume, faces):
         assert space.reduces_to_identity(M, g.to_model(space._interior_points(np.random.default_rng(1), 4)))
 
 
+def test_random_lattice_bases_give_the_lattices_covolume(tmp_path):
+    """Random lattices given by skewed bases (a random basis times a random unimodular integer
+    matrix): the Dirichlet domain's volume is the lattice's covolume |det B| (closed form). Most of
+    them need the growing search after the generators' bisectors (several passes of it)."""
+    rng = np.random.default_rng(5)
+    checked = 0
+    while checked < 24:
+        B = rng.normal(size=(3, 3))
+        if abs(np.linalg.det(B)) < 0.3:
+            continue
+        U = np.eye(3, dtype=int)
+        for _ in range(4):
+            i, j = rng.choice(3, 2, replace=False)
+            U[i] += rng.integers(-3, 4) * U[j]
+        space = spaces.load(space_file(tmp_path, *[translation(*map(repr, t)) for t in U @ B]))
+        assert space.volume == pytest.approx(abs(np.linalg.det(B)), rel=1e-9)
+        checked += 1
+
+
 def test_a_screw_far_from_the_centre_is_shortened(tmp_path):
     """The half-turn space with its screw's axis 150 lattice steps away from the domain centre (the
     same group): the half-turn space's domain, of volume 1 (before: "more than 20000 group

@@ -658,11 +658,12 @@ class DirichletSpace(Space):
                     return self.domain
             except SpaceError:
                 pass
-        self.__dict__.pop("domain", None)  # (the enumeration below starts from the generators, not from this domain's faces)
         self._steps = shortened  # (the ball to enumerate is as large as the longest step)
         full = g.diameter + 1e-6  # in S3 every element lies within distance pi
         radius = max(g.distance(O, s[:, 3]) for s in self._steps) + 1e-6
         while True:
+            # the enumeration steps by the generators, not by the faces of a polyhedron that failed
+            self.__dict__.pop("domain", None)
             radius = min(radius, full)
             elements = self.elements_within(radius)[1:]
             for M in elements:
