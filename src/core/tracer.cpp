@@ -514,17 +514,6 @@ std::size_t Tracer::run_chunks(std::size_t count,
 
 namespace {
 
-// What a kernel needs to know of the light reach before it connects points to lights (Sol's table
-// of its exponential map); nothing for the others.
-template <class Kernel, class = void>
-struct PreparesLightPaths : std::false_type {};
-template <class Kernel>
-struct PreparesLightPaths<Kernel, std::void_t<decltype(&Kernel::prepare_light_paths)>> : std::true_type {};
-template <class Kernel>
-void prepare_light_paths(Kernel& kernel, double reach) {
-  if constexpr (PreparesLightPaths<Kernel>::value) kernel.prepare_light_paths(reach);
-}
-
 // The random numbers of one ray: splitmix64 from the trace's seed and the ray's index, so that a
 // ray's samples depend on neither the threads nor the chunks.
 class Random {
@@ -546,7 +535,8 @@ class KernelTracer final : public Tracer {
  public:
   KernelTracer(Kernel kernel, SceneData scene, unsigned threads, bool occupancy)
       : Tracer(scene, threads, occupancy), kernel_(kernel) {
-    prepare_light_paths(kernel_, light_reach_);
+    // (only where there is light to connect: Sol's table takes a tenth of a second)
+    if (!light_lifts_.empty() || !emitters_.triangles.empty()) kernel_.prepare_light_paths(light_reach_);
     match_emitters();
   }
 
