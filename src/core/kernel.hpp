@@ -21,7 +21,9 @@
 //       light) no longer than reach: closed forms (ProjectiveKernel; the marching kernels of H2xR
 //       and S2xR), one-dimensional root searches per branch (Nil, SL2) or shooting from a table of
 //       the exponential map (Sol, which may miss some near caustics); returns how many it could
-//       tell were missed; kernels that need the reach beforehand offer prepare_light_paths(reach);
+//       tell were missed;
+//   void prepare_light_paths(double reach)   what light_paths needs to know of the reach before
+//       it is asked (Sol's table of its exponential map; nothing for the others);
 //   Vec4 arrival(const Vec4& H, const LightPath&)   the unit tangent at the path's far end that
 //       points back along it (towards H): the direction in which the light leaves;
 //   Vec4 chart_point(const Vec3& x), Vec4 chart_tangent(const Vec4& X, const Vec3& e)   the point

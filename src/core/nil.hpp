@@ -114,17 +114,8 @@ struct NilFlow : AffineChart, ClosedForm<NilFlow> {
     for (int i = 0; i < 64 && f_hi < 0.0; ++i) f_hi = f(hi = 0.5 * (hi + 2.0 * kPi));
     if (f_hi >= 0.0) add(bracketed_root(f, 0.0, hi, -lift, f_hi, tolerance));
     // branch k >= 1: the geodesics there are longer than 2 pi k
-    for (int k = 1; 2.0 * kPi * k <= reach; ++k) {
-      const double lo = 2.0 * kPi * k, top = lo + 2.0 * kPi;
-      const double bottom = unimodal_minimum(f, lo, top, 1e-12 * top);
-      const double f_bottom = f(bottom);
-      if (f_bottom > 0.0) continue;
-      for (const double end : {lo, top}) {  // each side: step from the minimum towards the end
-        double far = bottom, f_far = f_bottom;
-        for (int i = 0; i < 64 && f_far <= 0.0; ++i) f_far = f(far = 0.5 * (far + end));
-        if (f_far > 0.0) add(bracketed_root(f, bottom, far, f_bottom, f_far, tolerance));
-      }
-    }
+    for (int k = 1; 2.0 * kPi * k <= reach; ++k)
+      roots_about_minimum(f, 2.0 * kPi * k, 2.0 * kPi * (k + 1), tolerance, add);
   }
 
  private:

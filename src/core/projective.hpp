@@ -223,11 +223,14 @@ struct ProjectiveKernel {
     static constexpr double margin = 0.0;  // the curve is the chord
   };
 
+  static constexpr bool kChordsBend = false;  // each chord is the geodesic itself
+
   // Every geodesic from H to the lifts (model points) no longer than reach, in closed form: the
   // segment to each lift, and in S3 also the long arc round the great circle, of length 2 pi - d,
   // leaving in the opposite direction (the same falloff, sin^2 being symmetric). A lift on H (or
-  // antipodal to it in S3) has no direction and is skipped. None is missed.
-  static constexpr bool kChordsBend = false;  // each chord is the geodesic itself
+  // antipodal to it in S3) has no direction and is skipped. None is missed, and nothing needs
+  // preparing for the reach.
+  void prepare_light_paths(double) {}
   int light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
                   std::vector<LightPath>& paths) const {
     for (std::size_t i = 0; i < lifts.size(); ++i) {

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <initializer_list>
 
 namespace thurston {
 
@@ -84,6 +85,30 @@ double unimodal_minimum(F&& f, double a, double b, double tol) {
     }
   }
   return 0.5 * (a + b);
+}
+
+// A root of f beyond `from` (where f = f_from <= 0) towards `end`: the midpoints towards end are
+// tried until f is positive at one (at most 64 halvings), and that bracket is solved to tol.
+// False where f stayed at or below zero.
+template <class F>
+bool root_towards(F&& f, double from, double f_from, double end, double tol, double& root) {
+  double far = from, f_far = f_from;
+  for (int i = 0; i < 64 && f_far <= 0.0; ++i) f_far = f(far = 0.5 * (far + end));
+  if (!(f_far > 0.0)) return false;
+  root = bracketed_root(f, from, far, f_from, f_far, tol);
+  return true;
+}
+
+// The roots of f on [lo, hi], where f falls to one minimum and rises again: none where the
+// minimum (to 1e-12 hi) is above zero, else the one on each side of it (to tol), each passed to
+// add, the side towards lo first.
+template <class F, class Add>
+void roots_about_minimum(F&& f, double lo, double hi, double tol, Add&& add) {
+  const double bottom = unimodal_minimum(f, lo, hi, 1e-12 * hi), f_bottom = f(bottom);
+  if (f_bottom > 0.0) return;
+  double root;
+  for (const double end : {lo, hi})
+    if (root_towards(f, bottom, f_bottom, end, tol, root)) add(root);
 }
 
 }  // namespace thurston

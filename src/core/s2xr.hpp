@@ -49,7 +49,6 @@ struct S2xRFlow : AffineChart, ClosedForm<S2xRFlow> {
   double dot(const Vec3& x, const Vec3& a, const Vec3& b) const { return dot3(a, b) / dot3(x, x); }
   Vec3 raise(const Vec3& x, const Vec3& n) const { return scaled3(dot3(x, x), n); }
 
-
   // Light along every geodesic: from h to the light's copy l (chart points) the cover holds one
   // geodesic per great-circle arc between their directions, the sphere angle alpha going either
   // way round and winding (theta + 2 pi n, 2 pi (n + 1) - theta), times the straight w part, so

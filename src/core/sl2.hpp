@@ -147,22 +147,12 @@ struct SL2Flow : ClosedForm<SL2Flow> {
         return u > 0.0 ? 2.0 * u * std::sqrt(2.0 * s2 + s * s) / std::abs(s) : 2.0 * kSqrt2 * sigma;
       };
       const auto f_above = [&](double u) { return phase(c_of(u), t_of(u)) - P; };
-      const auto root = [&](double lo, double f_lo, double end) {  // from lo (f_lo <= 0) towards end
-        double hi = lo, f_hi = f_lo;
-        for (int i = 0; i < 64 && f_hi <= 0.0; ++i) f_hi = f_above(hi = 0.5 * (hi + end));
-        if (f_hi > 0.0) {
-          const double u = bracketed_root(f_above, lo, hi, f_lo, f_hi, tolerance * (1.0 + end));
-          add(c_of(u), t_of(u));
-        }
-      };
-      if (f_parabolic < 0.0) root(0.0, f_parabolic, kPi);
-      for (int n = 1; 2.0 * kPi * n <= reach; ++n) {
-        const double lo = kPi * n, hi = lo + kPi;
-        const double bottom = unimodal_minimum(f_above, lo, hi, 1e-12 * hi), f_bottom = f_above(bottom);
-        if (f_bottom > 0.0) continue;
-        root(bottom, f_bottom, lo);
-        root(bottom, f_bottom, hi);
-      }
+      const auto add_above = [&](double u) { add(c_of(u), t_of(u)); };
+      double u;
+      if (f_parabolic < 0.0 && root_towards(f_above, 0.0, f_parabolic, kPi, tolerance * (1.0 + kPi), u))
+        add_above(u);
+      for (int n = 1; 2.0 * kPi * n <= reach; ++n)
+        roots_about_minimum(f_above, kPi * n, kPi * (n + 1), tolerance * (1.0 + kPi * (n + 1)), add_above);
     }
   }
 

@@ -514,17 +514,6 @@ std::size_t Tracer::run_chunks(std::size_t count,
 
 namespace {
 
-// What a kernel needs to know of the light reach before it connects points to lights (Sol's table
-// of its exponential map); nothing for the others.
-template <class Kernel, class = void>
-struct PreparesLightPaths : std::false_type {};
-template <class Kernel>
-struct PreparesLightPaths<Kernel, std::void_t<decltype(&Kernel::prepare_light_paths)>> : std::true_type {};
-template <class Kernel>
-void prepare_light_paths(Kernel& kernel, double reach) {
-  if constexpr (PreparesLightPaths<Kernel>::value) kernel.prepare_light_paths(reach);
-}
-
 // The random numbers of one ray: splitmix64 from the trace's seed and the ray's index, so that a
 // ray's samples depend on neither the threads nor the chunks.
 class Random {
@@ -546,15 +535,16 @@ class KernelTracer final : public Tracer {
  public:
   KernelTracer(Kernel kernel, SceneData scene, unsigned threads, bool occupancy)
       : Tracer(scene, threads, occupancy), kernel_(kernel) {
-    prepare_light_paths(kernel_, light_reach_);
+    // (only where there is light to connect: Sol's table takes a tenth of a second)
+    if (!light_lifts_.empty() || !emitters_.triangles.empty()) kernel_.prepare_light_paths(light_reach_);
     match_emitters();
   }
 
  private:
   using Chord = typename Kernel::Chord;
-  // Per chunk: what light gathering reuses from point to point, the buffers of one point's light
-  // paths and of an emitter sample's copies (points and their unit normals).
-  struct LightHints {
+  // Per chunk, reused from point to point: the buffers of one point's light paths and of an
+  // emitter sample's copies (points and their unit normals).
+  struct LightBuffers {
     std::vector<LightPath> paths;
     std::vector<Vec4> lifts, normals;
   };
@@ -564,18 +554,18 @@ class KernelTracer final : public Tracer {
                    const TraceOutputs& out, std::vector<double>* segments,
                    TraceStats& stats) const override {
     const WalkContext context = this->context(options);
-    LightHints hints;
+    LightBuffers buffers;
     for (std::size_t i = begin; i < end; ++i) {
       const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
       const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
       Random random(options.seed, i);
-      trace_ray(i, o, d, context, options, out, segments, stats, hints, random);
+      trace_ray(i, o, d, context, options, out, segments, stats, buffers, random);
     }
   }
 
   void trace_ray(std::size_t i, const Vec4& origin, const Vec4& direction,
                  const WalkContext& context, const TraceOptions& options, const TraceOutputs& out,
-                 std::vector<double>* segments, TraceStats& stats, LightHints& hints,
+                 std::vector<double>* segments, TraceStats& stats, LightBuffers& buffers,
                  Random& random) const {
     Vec4 P = origin, V = direction;
     if (!kernel_.start(P, V)) {  // no point or no direction: the ray goes nowhere
@@ -611,12 +601,12 @@ class KernelTracer final : public Tracer {
       shadows.tolerance = context.tolerance_at(out.depth[i]);
       shadows.tolerance_per_distance = 0.0;
       const Vertex vertex = vertex_at(h.X, surface, 0, options);
-      const Reflected direct = illumination(shadows, vertex, options, stats, hints, random);
+      const Reflected direct = illumination(shadows, vertex, options, stats, buffers, random);
       albedo = diffuse_albedo(vertex);
       light = direct.diffuse;
       glossy = direct.specular;
       if (vertex.bounce_follows && !context.stopped())
-        bounced = bounce(shadows, vertex, options, stats, hints, random);
+        bounced = bounce(shadows, vertex, options, stats, buffers, random);
       if (context.stopped()) {  // a shadow or bounce walk may have been cut short: the light is not known
         write_miss(out, i, kCancelled, 0, 0.0, found.chords);
         return;
@@ -823,7 +813,7 @@ class KernelTracer final : public Tracer {
   // the light its next-event estimate reflects. A bounce beyond the limit (vertex_at) gathers
   // emission only.
   Rgb bounce(const WalkContext& context, Vertex v, const TraceOptions& options, TraceStats& stats,
-             LightHints& hints, Random& random) const {
+             LightBuffers& buffers, Random& random) const {
     Color throughput{1.0, 1.0, 1.0};
     Rgb sum{0.0f, 0.0f, 0.0f};
     for (int b = 1; v.bounce_follows; ++b) {
@@ -839,7 +829,7 @@ class KernelTracer final : public Tracer {
         V = world(v.frame, wi);
       } else {
         V = cosine_direction(v.X, v.S, random);
-        density = std::max(kernel_.dot(v.X, v.S, V), 0.0) / kPi;
+        density = bounce_density(v, V);
         for (int a = 0; a < 3; ++a) throughput[a] *= v.base[a];
       }
       if (b >= kRouletteFrom) {
@@ -859,13 +849,13 @@ class KernelTracer final : public Tracer {
       const double fog = std::exp(-length / options.light_fog);
       for (double& t : throughput) t *= fog;
       if (s.emits && options.emitter_sampling != EmitterSampling::kLightSamples) {
-        const double weight = emission_weight(v, V, density, length, f, s, options, hints);
+        const double weight = emission_weight(v, V, density, length, f, s, options, buffers);
         stats.emitter_hits += weight > 0.0;
         for (int a = 0; a < 3; ++a) sum[a] += float(throughput[a] * s.emission[a] * weight);
       }
       if (b > options.bounces) break;
       Vertex next = vertex_at(f.hit.X, s, b, options);
-      const Reflected light = illumination(context, next, options, stats, hints, random);
+      const Reflected light = illumination(context, next, options, stats, buffers, random);
       const Rgb albedo = diffuse_albedo(next);
       for (int a = 0; a < 3; ++a)
         sum[a] += float(throughput[a] * (double(albedo[a]) * light.diffuse[a] + light.specular[a]));
@@ -906,10 +896,10 @@ class KernelTracer final : public Tracer {
   // Sum over lights and over the geodesics from the vertex to each of them, each geodesic with its
   // own shadow ray; then the emitters' light, from options.light_samples points sampled on them.
   Reflected illumination(const WalkContext& context, const Vertex& v, const TraceOptions& options,
-                         TraceStats& stats, LightHints& hints, Random& random) const {
+                         TraceStats& stats, LightBuffers& buffers, Random& random) const {
     Reflected sum;
     const Vec4& H = v.X;
-    std::vector<LightPath>& paths = hints.paths;
+    std::vector<LightPath>& paths = buffers.paths;
     for (std::size_t l = 0; l < light_lifts_.size(); ++l) {
       paths.clear();
       stats.light_failures += kernel_.light_paths(H, light_lifts_[l], light_reach_, paths);
@@ -933,7 +923,7 @@ class KernelTracer final : public Tracer {
     }
     if (!emitters_.triangles.empty() && options.emitter_sampling != EmitterSampling::kBounces)
       for (int s = 0; s < options.light_samples; ++s)
-        sample_emitters(context, v, options, stats, hints, random, sum);
+        sample_emitters(context, v, options, stats, buffers, random, sum);
     return sum;
   }
   // Adds one geodesic's light (term: everything but the BSDF and the radiance) to the sums.
@@ -946,9 +936,9 @@ class KernelTracer final : public Tracer {
 
   // A point y of emitter triangle t as the emitters' samples light with it: its point of the
   // geometry and unit normal (of the triangle's winding), the metric's area per chart area of the
-  // triangle there, and in hints its copies (points and normals), one per group element of the
+  // triangle there, and in buffers its copies (points and normals), one per group element of the
   // emitter's copies. False where the triangle has no normal there.
-  bool emitter_point(std::size_t t, const Vec3& y, LightHints& hints, double& area_density) const {
+  bool emitter_point(std::size_t t, const Vec3& y, LightBuffers& buffers, double& area_density) const {
     const std::array<Vec3, 3>& p = emitters_.triangles[t];
     const Vec3 e1 = sub3(p[1], p[0]), e2 = sub3(p[2], p[0]), n = cross3(e1, e2);
     const Vec4 Y = kernel_.chart_point(y);
@@ -957,7 +947,7 @@ class KernelTracer final : public Tracer {
     const Vec4 a = kernel_.chart_tangent(Y, e1), b = kernel_.chart_tangent(Y, e2);
     const double ab = kernel_.dot(Y, a, b);
     area_density = std::sqrt(std::max(kernel_.dot(Y, a, a) * kernel_.dot(Y, b, b) - ab * ab, 0.0)) / norm3(n);
-    std::vector<Vec4>&lifts = hints.lifts, &normals = hints.normals;
+    std::vector<Vec4>&lifts = buffers.lifts, &normals = buffers.normals;
     lifts.clear();
     normals.clear();
     for (const Mat4& M : emitter_copies_[emitters_.group[t]]) {
@@ -993,24 +983,24 @@ class KernelTracer final : public Tracer {
   // Where a bounce leaves the vertex and could meet the same point along the same geodesic, the
   // two estimates are weighed by the power heuristic.
   void sample_emitters(const WalkContext& context, const Vertex& v, const TraceOptions& options,
-                       TraceStats& stats, LightHints& hints, Random& random, Reflected& sum) const {
+                       TraceStats& stats, LightBuffers& buffers, Random& random, Reflected& sum) const {
     const Vec4& H = v.X;
     const std::size_t t = pick_emitter(random.uniform());
     const std::array<Vec3, 3>& p = emitters_.triangles[t];
     const double root = std::sqrt(random.uniform()), u = random.uniform();
     const Vec3 y = add3(p[0], add3(scaled3(root * (1.0 - u), sub3(p[1], p[0])), scaled3(root * u, sub3(p[2], p[0]))));
     double area_density;
-    if (!emitter_point(t, y, hints, area_density)) return;
+    if (!emitter_point(t, y, buffers, area_density)) return;
     const double scale = area_density * emitter_area_sum_.back() / (kPi * options.light_samples);
-    std::vector<LightPath>& paths = hints.paths;
+    std::vector<LightPath>& paths = buffers.paths;
     paths.clear();
-    stats.light_failures += kernel_.light_paths(H, hints.lifts, light_reach_, paths);
+    stats.light_failures += kernel_.light_paths(H, buffers.lifts, light_reach_, paths);
     const Rgb& radiance = emitters_.radiance[t];
     const double mean_radiance = mean_rgb(radiance);
     const bool weighed = v.bounce_follows && options.emitter_sampling == EmitterSampling::kMis;
     for (const LightPath& path : paths) {
       const double emitted =
-          emitted_cosine(t, hints.lifts[path.lift], hints.normals[path.lift], kernel_.arrival(H, path));
+          emitted_cosine(t, buffers.lifts[path.lift], buffers.normals[path.lift], kernel_.arrival(H, path));
       const double weight = path.falloff * std::exp(-path.distance / options.light_fog) * scale;
       ++stats.emitter_paths;
       stats.emitter_energy += weight * std::max(emitted, 0.0) * mean_radiance;
@@ -1030,12 +1020,12 @@ class KernelTracer final : public Tracer {
 
   // The MIS weight of the emission that a bounce from vertex v along V (drawn with `density`) met
   // at the end of a geodesic of `length` (hit f, surface s): the emitters' samples light the same
-  // point along this geodesic where it is one of those they sum (within the reach, or the one the
-  // light search finds), so the two are weighed by the power heuristic; 1 where they do not (an
-  // emitter beyond the reach lights through bounces alone), 0 for a triangle not found among the
-  // emitters' copies (their samples alone count it).
+  // point along this geodesic where it is one of those they sum (within the reach, and found by
+  // the light search: Sol's may miss one near a caustic), so the two are weighed by the power
+  // heuristic; 1 where they do not (an emitter beyond the reach lights through bounces alone), 0
+  // for a triangle not found among the emitters' copies (their samples alone count it).
   double emission_weight(const Vertex& v, const Vec4& V, double density, double length, const Found& f,
-                         const Surface& s, const TraceOptions& options, LightHints& hints) const {
+                         const Surface& s, const TraceOptions& options, LightBuffers& buffers) const {
     if (options.emitter_sampling == EmitterSampling::kBounces) return 1.0;
     const auto match = emitter_of_.find(emitter_key(std::size_t(f.placed - instances_.data()), f.prim));
     if (match == emitter_of_.end()) return 0.0;
@@ -1054,10 +1044,10 @@ class KernelTracer final : public Tracer {
     }
     const Vec3 y = add3(scaled3(w[0] / total, p[0]), add3(scaled3(w[1] / total, p[1]), scaled3(w[2] / total, p[2])));
     double area_density;
-    if (!emitter_point(t, y, hints, area_density)) return 1.0;
-    std::vector<LightPath>& paths = hints.paths;
+    if (!emitter_point(t, y, buffers, area_density)) return 1.0;
+    std::vector<LightPath>& paths = buffers.paths;
     paths.clear();
-    kernel_.light_paths(v.X, hints.lifts, light_reach_, paths);  // a geodesic missed: not among them
+    kernel_.light_paths(v.X, buffers.lifts, light_reach_, paths);  // a geodesic missed: not among them
     // the emitters' samples' geodesic along V of this length, if they have it
     const LightPath* same = nullptr;
     double best = 1.0 - kSameDirection;
@@ -1070,7 +1060,7 @@ class KernelTracer final : public Tracer {
     }
     if (!same || (v.opaque && same->distance > geodesic_loop_)) return 1.0;
     const double emitted =
-        emitted_cosine(t, hints.lifts[same->lift], hints.normals[same->lift], kernel_.arrival(v.X, *same));
+        emitted_cosine(t, buffers.lifts[same->lift], buffers.normals[same->lift], kernel_.arrival(v.X, *same));
     if (!(emitted > 0.0)) return 1.0;
     return power_weight(density, emitter_density(area_density, emitted, *same, options));
   }
