@@ -28,7 +28,7 @@ import trimesh
 from thurston_addon import cli, render, scene as scenes, spaces
 from thurston_addon.geometries import get
 from thurston_addon.scene import PointLight, Scene, SceneObject, default_scene
-from truth import nil_metric, sol_metric
+from truth import CURVED_METRICS as METRIC, christoffel_from
 
 ld = np.longdouble
 PHI = (1 + np.sqrt(ld(5))) / 2
@@ -36,7 +36,6 @@ SOL_PERIOD = 2 * np.log(PHI)  # the monodromy's shift in z
 SOL_NORM = np.sqrt(1 + PHI * PHI)
 SOL_U1 = np.array([1 / SOL_NORM, PHI / SOL_NORM], ld)  # the lattice of the fibre torus
 SOL_U2 = np.array([-PHI / SOL_NORM, 1 / SOL_NORM], ld)
-METRIC = {"Nil": nil_metric, "Sol": sol_metric}
 TOLERANCE = 1e-6  # the fine tracing tolerance (chart units)
 
 
@@ -58,8 +57,7 @@ def christoffel(name, x):
     metric = METRIC[name]
     x = np.asarray(x, float)
     dg = np.array([np.imag(metric(x + 1j * COMPLEX_STEP * e)) / COMPLEX_STEP for e in np.eye(3)])
-    lowered = 0.5 * (np.einsum("ilj->lij", dg) + np.einsum("jli->lij", dg) - dg)
-    return np.einsum("kl,lij->kij", np.linalg.inv(metric(x)), lowered)
+    return christoffel_from(metric(x), dg)
 
 
 def dop853(name, x0, v0, length, scale=(1.0, 1.0, 1.0)):
