@@ -32,7 +32,7 @@ from test_marching import into_domain, report, space_of  # noqa: F401 (space_of:
 from test_sl2 import assert_flow as assert_sl2_flow, body_direction, metric_truth as sl2_metric
 from thurston_addon import render, spaces
 from thurston_addon.scene import Scene, SceneObject
-from truth import AMBIENT, check_flows_against_dop853, h2xr_metric, nil_metric, s2xr_metric, sol_metric, unit_in
+from truth import AMBIENT, chart_metric, check_flows_against_dop853, h2xr_metric, nil_metric, s2xr_metric, sol_metric, unit_in
 
 ld = np.longdouble
 FINAL = render.QUALITY["final"].footprint_fraction
@@ -92,6 +92,32 @@ def end_errors(space, out, X):
     """Metric distance of the traced ends from the model points X (the nearest copy: a point on a
     face has two)."""
     return render._image_distance(space, space.geometry.to_model(out["end"]), X)
+
+
+CHART_METRICS = {"E3": lambda x: chart_metric("E3", x), "S3": lambda x: chart_metric("S3", x),
+                 "H3": lambda x: chart_metric("H3", x), "Nil": nil_metric, "Sol": sol_metric, "H2xR": h2xr_metric,
+                 "S2xR": s2xr_metric, "SL2": sl2_metric}
+
+
+@pytest.mark.parametrize("sid", ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "sl2"])
+def test_the_error_measure_is_the_metric_distance(space_of, sid):
+    """end_errors (render._image_distance: Geometry.chord_distance over the neighbouring copies),
+    which every bound below is checked with, against truth.py's metrics: a point 1e-6 from a
+    point of the domain, and that point moved to a neighbouring copy, are at the length of their
+    chart difference in the metric (at the midpoint), to 1e-5 relative (the copy rounds)."""
+    space = space_of(sid)
+    g = space.geometry
+    rng = np.random.default_rng(83)
+    x = space._interior_points(rng, 40)
+    d = 1e-6 * rng.normal(size=x.shape)
+    metric = CHART_METRICS[g.name]
+    want = np.array([math.sqrt(e @ metric(p + e / 2) @ e) for p, e in zip(x, d)])
+    near = g.normalize_point(g.to_model(x + d))
+    around = space.neighbourhood(1)[1:]  # (the identity first)
+    away = np.array([np.linalg.solve(around[k % len(around)], p) for k, p in enumerate(near)])
+    for Z in (near, away):
+        got = end_errors(space, {"end": x}, Z)
+        np.testing.assert_allclose(got, want, rtol=1e-5)
 
 
 def crossing_rate(space, P, V):
