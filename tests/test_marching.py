@@ -1043,9 +1043,11 @@ def lit_plane(space, **kw):
 def test_lambert_colour_is_base_power_cos_falloff(space_of, sid):
     """Hits on the plane (after crossings too): colour = base * power * cos * falloff, with the
     direction and length of the geodesic to the nearest light copy from connect, the metric
-    normal facing the ray and falloff_along (the Python reference), to 2e-3 (the tracer's
-    forward-difference Jacobian of exp is good to ~1e-4); hits whose connecting geodesic passes
-    through the occluder are black; faces turned away from the light are black."""
+    normal facing the ray and falloff_along (the Python reference), to the float32 colour's
+    precision in Nil (2e-5: its falloff is the closed form's; 1e-7 measured) and 3e-4 in Sol (its
+    falloff from forward differences of the flow, as test_light_curved holds it; 3e-6 measured);
+    hits whose connecting geodesic passes through the occluder are black; faces turned away from
+    the light are black."""
     world = lit_plane(space_of(sid))
     out = world.trace()
     rows, off = world.hits_on_plane(out)
@@ -1063,7 +1065,7 @@ def test_lambert_colour_is_base_power_cos_falloff(space_of, sid):
            [[int(lit.sum()), int(crossed.sum()), int((keep & occluded).sum()), int((keep & (cos <= 0)).sum()),
              rel.max(), float(np.median(rel)), f"{r[lit].min():.2f}-{r[lit].max():.2f}"]])
     assert crossed.sum() >= 10
-    assert np.all(rel <= 2e-3), rel.max()
+    assert np.all(rel <= (2e-5 if sid == "nil" else 3e-4)), rel.max()
     assert np.all(got[dark] == 0.0), got[dark].max()
     assert int(out["light_failures"]) == 0
 
