@@ -44,7 +44,8 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 import thurston_core
-from bench_front import ball_scene
+from bench_front import ball_scene, geodesic_equation
+from timing import least_interleaved
 from thurston_addon import checks, render, spaces
 from thurston_addon.scene import Camera, default_scene
 
@@ -65,14 +66,9 @@ def frame_rays(space, settings):
 
 
 def cpu_per_ray(runs, repeat, n):
-    """Least process CPU µs per ray of each zero-argument run, interleaved repeat times (all
-    threads; descheduling by other loads does not count), and the last results."""
-    best, results = [math.inf] * len(runs), [None] * len(runs)
-    for _ in range(repeat):
-        for i, run in enumerate(runs):
-            t = time.process_time()
-            results[i] = run()
-            best[i] = min(best[i], time.process_time() - t)
+    """Least process CPU µs per ray of each zero-argument run over n rays, interleaved repeat times
+    (timing.least_interleaved), and the last results."""
+    best, results = least_interleaved(runs, repeat)
     return [b / n * 1e6 for b in best], results
 
 
@@ -93,10 +89,7 @@ def closed_form_rows(sid, rng, n=2000, count=20, length=5.0):
     t0 = time.perf_counter()
     xp = np.asarray(g.to_chart(g.geodesic(P, V, t)[0]), float)
     python = (time.perf_counter() - t0) / n
-
-    def rhs(_t, y):
-        return np.concatenate([y[3:], -np.einsum("kij,i,j->k", g.christoffel(y[:3]), y[3:], y[3:])])
-
+    rhs = geodesic_equation(g)
     t0 = time.perf_counter()
     xd = np.array([solve_ivp(rhs, (0.0, length), np.r_[x[i], u[i]], method="DOP853", rtol=1e-10, atol=1e-12).y[:3, -1]
                    for i in range(count)])

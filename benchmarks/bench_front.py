@@ -59,6 +59,7 @@ from scipy.optimize import brentq, minimize_scalar
 
 from thurston_addon import render, spaces
 from thurston_addon.scene import Scene, SceneObject
+from timing import least_interleaved
 
 SPACES = ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "rp3_rp3", "sl2"]
 ROOT = Path(__file__).resolve().parents[1]
@@ -294,6 +295,14 @@ def wavefront(space, reference, P, V, length, h):
     return depth, hit_at, obj
 
 
+def geodesic_equation(g):
+    """x'' = -Gamma(x)(x', x') with the geometry's Christoffel symbols, the state (x, v), for solve_ivp."""
+    def rhs(_t, y):
+        return np.concatenate([y[3:], -np.einsum("kij,i,j->k", g.christoffel(y[:3]), y[3:], y[3:])])
+
+    return rhs
+
+
 def solve_ivp_path(space, P, V, length):
     """Peer (c), the naive accurate way: the geodesic equation with the geometry's Christoffel
     symbols, integrated per ray by scipy's DOP853 at rtol 1e-10 (dense output), as model points."""
@@ -301,11 +310,7 @@ def solve_ivp_path(space, P, V, length):
 
     g = space.geometry
     x0, v0 = np.asarray(g.to_chart(P), float), np.asarray(g.tangent_to_chart(P, V), float)
-
-    def rhs(_t, y):
-        return np.concatenate([y[3:], -np.einsum("kij,i,j->k", g.christoffel(y[:3]), y[3:], y[3:])])
-
-    sol = solve_ivp(rhs, (0.0, length), np.concatenate([x0, v0]), method="DOP853", rtol=1e-10, atol=1e-12,
+    sol = solve_ivp(geodesic_equation(g), (0.0, length), np.concatenate([x0, v0]), method="DOP853", rtol=1e-10, atol=1e-12,
                     dense_output=True)
     return lambda s: g.to_model(np.atleast_2d(sol.sol(np.atleast_1d(s))[:3].T))
 
@@ -335,12 +340,8 @@ def least_seconds(tracer, P, V, length, max_crossings, settings, repeat, count, 
     times in turn (interleaved: a drift of the load falls on each alike) for the least time."""
     k = max(1, count // len(P))
     P, V = np.ascontiguousarray(np.tile(P, (k, 1))), np.ascontiguousarray(np.tile(V, (k, 1)))
-    best = [math.inf] * len(settings)
-    for _ in range(repeat):
-        for i, tolerances in enumerate(settings):
-            t0 = clock()
-            render.trace(tracer, P, V, length, max_crossings, *tolerances, shade=False)
-            best[i] = min(best[i], clock() - t0)
+    runs = [lambda t=tolerances: render.trace(tracer, P, V, length, max_crossings, *t, shade=False) for tolerances in settings]
+    best, _ = least_interleaved(runs, repeat, clock)
     return [b / len(P) for b in best]
 
 

@@ -6,9 +6,18 @@ import time
 
 def best_of(repeat, fn):
     """(least seconds, last result) over repeat calls of fn."""
-    best, out = math.inf, None
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
+    (best,), (out,) = least_interleaved([fn], repeat, time.perf_counter)
     return best, out
+
+
+def least_interleaved(runs, repeat, clock=time.process_time):
+    """([least seconds of each zero-argument run], [its last result]): the runs called in turn,
+    repeat times (interleaved, so that a drift of the machine's load falls on each alike), timed by
+    `clock`: by default process CPU time (all threads; descheduling by other loads does not count)."""
+    best, results = [math.inf] * len(runs), [None] * len(runs)
+    for _ in range(repeat):
+        for i, run in enumerate(runs):
+            t = clock()
+            results[i] = run()
+            best[i] = min(best[i], clock() - t)
+    return best, results

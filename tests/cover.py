@@ -31,17 +31,18 @@ def first_hits(t, x, x_next, chart, centres, outer, inner):
     reduced by piece k's isometry."""
     centres, outer, inner = np.asarray(centres, float), np.asarray(outer, float), np.asarray(inner, float)
     margin = np.min(np.linalg.norm(x[:, None] - centres[None], axis=-1) - outer)
+    start = np.linalg.norm(x[:len(t) - 1, None] - centres[None], axis=-1)  # (pieces, centres)
+    end = np.linalg.norm(x_next[:len(t) - 1, None] - centres[None], axis=-1)
     found = []
     for rho in (outer, inner):
+        entering = (start - rho > 0) & (end - rho <= 0)  # the pieces that enter a sphere
+        pieces = np.flatnonzero(entering.any(axis=1))
         first = math.inf
-        for k in range(len(t) - 1):
-            d0 = np.linalg.norm(x[k] - centres, axis=1) - rho
-            d1 = np.linalg.norm(x_next[k] - centres, axis=1) - rho
-            hit = np.flatnonzero((d0 > 0) & (d1 <= 0))
-            if len(hit):
-                c, r = centres[hit[0]], rho[hit[0]]
-                first = brentq(lambda s: np.linalg.norm(chart(k, s) - c) - r, t[k], t[k + 1], xtol=1e-13)
-                break
+        if len(pieces):
+            k = int(pieces[0])
+            i = int(np.argmax(entering[k]))  # the first sphere that piece enters
+            c, r = centres[i], rho[i]
+            first = brentq(lambda s: np.linalg.norm(chart(k, s) - c) - r, t[k], t[k + 1], xtol=1e-13)
         found.append(first)
     return found[0], found[1], margin
 

@@ -1,7 +1,9 @@
 """What the tests of outputs share: a small real file system to fill or make read-only, the
-folder's listing, and the one error line a failed run prints."""
+folder's listing, the one error line a failed run prints, the words an error message must never
+show, and a signal to a running `thurston`."""
 import contextlib
 import os
+import re
 import signal
 import subprocess
 import time
@@ -10,6 +12,9 @@ from pathlib import Path
 import pytest
 
 PREVIOUS = b"the user's previous file\n"
+# what an error message must never show: Python's and Qhull's own words
+INTERNALS = re.compile(r"object is not|has no attribute|not subscriptable|unhashable|Traceback|IndexError|KeyError|"
+                       r"TypeError|cannot reshape|QH\d|[Qq]hull")
 
 
 def error_line(err: str) -> str:

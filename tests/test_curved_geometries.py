@@ -18,7 +18,7 @@ from thurston_addon.geometries import nil as nil_module
 from thurston_addon.geometries import sol as sol_module
 from thurston_addon.geometries.nil import Nil
 from thurston_addon.geometries.sol import Sol
-from truth import CURVED_METRICS
+from truth import CURVED_METRICS, christoffel_from
 
 NAMES = ["Nil", "Sol"]
 GEOMETRY = {"Nil": Nil(), "Sol": Sol()}
@@ -40,10 +40,7 @@ def metric_derivative(name, x):
 
 
 def christoffel_truth(name, x):
-    """Gamma^k_ij = 1/2 g^kl (d_i g_lj + d_j g_li - d_l g_ij)."""
-    dg = metric_derivative(name, x)
-    lowered = 0.5 * (np.einsum("ilj->lij", dg) + np.einsum("jli->lij", dg) - dg)
-    return np.einsum("kl,lij->kij", np.linalg.inv(CURVED_METRICS[name](x)), lowered)
+    return christoffel_from(CURVED_METRICS[name](x), metric_derivative(name, x))
 
 
 def integrate_geodesic(name, x0, v0, ts, scale=None):

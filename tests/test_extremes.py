@@ -18,6 +18,7 @@ tracer:
 
 Tables of the measured numbers are printed (pytest -s).
 """
+import functools
 import math
 
 import numpy as np
@@ -26,21 +27,17 @@ import trimesh
 
 import thurston_core
 from cover import first_hits
-from test_marching import into_domain, space_of  # noqa: F401 (space_of: the fixture)
-from test_sl2 import body_direction, christoffel_truth as sl2_christoffel, metric_truth as sl2_metric
+from test_curved_geometries import GEOMETRY, christoffel_truth as sol_christoffel
+from test_marching import into_domain, report, space_of  # noqa: F401 (space_of: the fixture)
+from test_sl2 import assert_flow as assert_sl2_flow, body_direction, metric_truth as sl2_metric
 from thurston_addon import render, spaces
 from thurston_addon.scene import Scene, SceneObject
-from truth import AMBIENT, christoffel_from, dop853, h2xr_metric, nil_metric, s2xr_metric, sol_metric
+from truth import AMBIENT, chart_metric, check_flows_against_dop853, h2xr_metric, nil_metric, s2xr_metric, sol_metric, unit_in
 
 ld = np.longdouble
 FINAL = render.QUALITY["final"].footprint_fraction
 LEVELS = (1, 10, 100, 1000)
-
-
-def report(title, header, rows):
-    print(f"\n{title}\n  " + "  ".join(f"{h:>12}" for h in header))
-    for row in rows:
-        print("  " + "  ".join(f"{v:>12.3g}" if isinstance(v, float) else f"{v!s:>12}" for v in row))
+SOL = GEOMETRY["Sol"]
 
 
 def stated_bound(space, depth):
@@ -83,9 +80,11 @@ def reduce(space, Y):
     return X, M
 
 
-def cover_ends(space, P, V, L):
-    """Model points where the cover geodesics from (P, V) end after L, carried into the domain."""
-    Y, _ = space.geometry.geodesic(np.asarray(P, ld), np.asarray(V, ld), np.full(len(P), ld(L)))
+def cover_ends(space, P, V, lengths):
+    """Model points where the cover geodesics from (P, V) end after `lengths` (one, or one per
+    ray), carried into the domain."""
+    lengths = np.full(len(P), ld(1)) * np.asarray(lengths, ld)
+    Y, _ = space.geometry.geodesic(np.asarray(P, ld), np.asarray(V, ld), lengths)
     return np.asarray(reduce(space, Y)[0], float)
 
 
@@ -93,6 +92,32 @@ def end_errors(space, out, X):
     """Metric distance of the traced ends from the model points X (the nearest copy: a point on a
     face has two)."""
     return render._image_distance(space, space.geometry.to_model(out["end"]), X)
+
+
+CHART_METRICS = {"E3": lambda x: chart_metric("E3", x), "S3": lambda x: chart_metric("S3", x),
+                 "H3": lambda x: chart_metric("H3", x), "Nil": nil_metric, "Sol": sol_metric, "H2xR": h2xr_metric,
+                 "S2xR": s2xr_metric, "SL2": sl2_metric}
+
+
+@pytest.mark.parametrize("sid", ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "sl2"])
+def test_the_error_measure_is_the_metric_distance(space_of, sid):
+    """end_errors (render._image_distance: Geometry.chord_distance over the neighbouring copies),
+    which every bound below is checked with, against truth.py's metrics: a point 1e-6 from a
+    point of the domain, and that point moved to a neighbouring copy, are at the length of their
+    chart difference in the metric (at the midpoint), to 1e-5 relative (the copy rounds)."""
+    space = space_of(sid)
+    g = space.geometry
+    rng = np.random.default_rng(83)
+    x = space._interior_points(rng, 40)
+    d = 1e-6 * rng.normal(size=x.shape)
+    metric = CHART_METRICS[g.name]
+    want = np.array([math.sqrt(e @ metric(p + e / 2) @ e) for p, e in zip(x, d)])
+    near = g.normalize_point(g.to_model(x + d))
+    around = space.neighbourhood(1)[1:]  # (the identity first)
+    away = np.array([np.linalg.solve(around[k % len(around)], p) for k, p in enumerate(near)])
+    for Z in (near, away):
+        got = end_errors(space, {"end": x}, Z)
+        np.testing.assert_allclose(got, want, rtol=1e-5)
 
 
 def crossing_rate(space, P, V):
@@ -348,17 +373,11 @@ def test_grazing_hits_stay_on_their_ball_at_a_coarse_tolerance(space_of, sid):
     n_faces = tri.shape[1]
     near = trimesh.triangles.closest_point(tri.reshape(-1, 3, 3), np.repeat(h, n_faces, axis=0)).reshape(len(h), n_faces, 3)
     off_ball = np.min(np.linalg.norm(near - h[:, None], axis=2), axis=1)
-    on_curve = end_errors(space, {"end": h}, cover_ends_at(space, P[hit], V[hit], out["depth"][hit]))
+    on_curve = end_errors(space, {"end": h}, cover_ends(space, P[hit], V[hit], out["depth"][hit]))
     report(f"{sid}: grazing hits at tolerance {tolerance}", ["hits", "max off ball", "max off curve"],
            [[len(hit), float(off_ball.max()), float(on_curve.max())]])
     assert off_ball.max() <= tolerance, off_ball.max()
     assert on_curve.max() <= tolerance, on_curve.max()
-
-
-def cover_ends_at(space, P, V, lengths):
-    """cover_ends with a length per ray."""
-    Y, _ = space.geometry.geodesic(np.asarray(P, ld), np.asarray(V, ld), np.asarray(lengths, ld))
-    return np.asarray(reduce(space, Y)[0], float)
 
 
 # --- 4. no NaN or inf at the extremes -----------------------------------------------------------
@@ -386,9 +405,9 @@ def test_h3_rays_of_length_50(space_of):
 
 
 def test_sol_starts_at_z_20(space_of):
-    """Sol at |z| = 20: the C++ flow from there (in the cover, e^(2z) ~ 2e17 in the metric) matches
-    DOP853 of the geodesic equation; rays started there are brought into the domain by the core
-    itself (~500 face maps: once, the walk's reduction stopped after 64 and reported the distance
+    """Sol at |z| = 20: the C++ and Python flows from there (in the cover, e^(2z) ~ 2e17 in the
+    metric) match DOP853 of the geodesic equation; rays started there are brought into the domain
+    by the core itself (~500 face maps: once, the walk's reduction stopped after 64 and reported the distance
     limit at a point outside the domain) and end inside it, where the cover geodesic ends within
     what the start's float64 reduction loses (about a unit of the last place of x times phi^42,
     ~1e-6) grown by e^L."""
@@ -398,13 +417,10 @@ def test_sol_starts_at_z_20(space_of):
     n = 12
     x = np.c_[rng.uniform(-1, 1, (n, 2)), np.where(np.arange(n) % 2 == 0, 20.0, -20.0)]
     u = rng.normal(size=(n, 3))
-    christoffel = lambda p: christoffel_from(sol_metric(p), sol_metric_derivative(p))
-    for i in range(4):
-        v = u[i] / math.sqrt(u[i] @ sol_metric(x[i]) @ u[i])
-        (x_ref, v_ref) = dop853(christoffel, x[i], v, 1.5)
-        xc, vc = thurston_core.geodesic_flow("Sol", x[i:i + 1].copy(), v[None].copy(), np.array([1.5]))
-        assert np.all(np.abs(xc[0] - x_ref) <= 1e-9 * (1 + np.abs(x_ref))), (xc[0], x_ref)
-        assert np.all(np.abs(vc[0] - v_ref) <= 1e-9 * (1 + np.abs(v_ref))), (vc[0], v_ref)
+    # the C++ and the Python flow (and their speed) against DOP853; tol 5e-10 (relative + absolute
+    # on 1 + |reference|) is within 1e-9 (1 + |reference|)
+    check_flows_against_dop853(SOL, functools.partial(sol_christoffel, "Sol"), sol_metric,
+                               [(x[i], unit_in(sol_metric, x[i], u[i]), 1.5) for i in range(4)], tol=5e-10)
     P = g.to_model(x)
     V = g.normalize_tangent(P, g.tangent_to_model(x, u))
     L = 1.0
@@ -414,13 +430,6 @@ def test_sol_starts_at_z_20(space_of):
     err = end_errors(space, out, cover_ends(space, P, V, L))
     report("sol: rays started at |z| = 20", ["rays", "crossings", "max error"], [[n, int(out["crossings"].max()), float(err.max())]])
     assert err.max() <= 1e-6 * math.exp(L) * 10
-
-
-def sol_metric_derivative(x):
-    """d_l g_ij of e^(2z) dx^2 + e^(-2z) dy^2 + dz^2: only d_z, of the first two."""
-    dg = np.zeros((3, 3, 3))
-    dg[2, 0, 0], dg[2, 1, 1] = 2 * math.exp(2 * x[2]), -2 * math.exp(-2 * x[2])
-    return dg
 
 
 @pytest.mark.parametrize("w", [0.0, -0.0, 1e-300, -1e-300, 5e-324])
@@ -450,9 +459,9 @@ def test_nil_rays_with_vanishing_vertical_component(space_of, w):
 
 def test_sl2_rays_at_a_equal_to_c(space_of):
     """SL2 rays whose body velocity has a = |c| exactly (where the closed form's hyperbolic
-    functions turn trigonometric): the C++ flow matches DOP853; traced rays end finite and inside
-    after ~1000 crossings, and where the cover geodesic ends within the final bound after ~10
-    (past that the flow's chaos leaves float64 nothing to compare, see CHAOTIC)."""
+    functions turn trigonometric): the C++ and Python flows match DOP853; traced rays end finite
+    and inside after ~1000 crossings, and where the cover geodesic ends within the final bound
+    after ~10 (past that the flow's chaos leaves float64 nothing to compare, see CHAOTIC)."""
     space = space_of("sl2")
     g = space.geometry
     rng = np.random.default_rng(78)
@@ -464,11 +473,8 @@ def test_sl2_rays_at_a_equal_to_c(space_of):
     b[np.arange(n), axis] = np.abs(c) * np.where(np.arange(n) % 3, 1.0, -1.0)
     b[:, 2] = c
     u = np.array([body_direction(p, q) for p, q in zip(x, b)])
-    for i in range(3):
-        v = u[i] / math.sqrt(u[i] @ sl2_metric(x[i]) @ u[i])
-        x_ref, v_ref = dop853(sl2_christoffel, x[i], v, 3.0)
-        xc, vc = thurston_core.geodesic_flow("SL2", x[i:i + 1].copy(), v[None].copy(), np.array([3.0]))
-        assert np.all(np.abs(xc[0] - x_ref) <= 1e-9 * (1 + np.abs(x_ref))), (xc[0], x_ref)
+    for i in range(3):  # the C++ and the Python flow against DOP853, within 1e-9 (1 + |reference|)
+        assert_sl2_flow(x[i], unit_in(sl2_metric, x[i], u[i]), 3.0, tol=5e-10)
     P = g.to_model(x)
     V = g.normalize_tangent(P, g.tangent_to_model(x, u))
     rate = crossing_rate(space, P, V)
@@ -712,7 +718,7 @@ def test_s2xr_hits_far_out_in_the_chart_are_refined_in_double(space_of):
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normal /= np.linalg.norm(normal, axis=1)[:, None]
     off_plane = np.min(np.abs(np.einsum("fj,nj->nf", normal, h) - np.sum(normal * tri[:, 0], axis=1)), axis=1)
-    on_curve = end_errors(space, {"end": h}, cover_ends_at(space, P[hit], V[hit], out["depth"][hit]))
+    on_curve = end_errors(space, {"end": h}, cover_ends(space, P[hit], V[hit], out["depth"][hit]))
     report("s2xs1: hits at |x| ~ 400", ["hits", "max off plane / |x|", "max off curve (metric)", "float32 ulp / |x|"],
            [[int(hit.sum()), float((off_plane / np.linalg.norm(h, axis=1)).max()), float(on_curve.max()),
              float(np.spacing(np.float32(400.0)) / 400.0)]])

@@ -20,13 +20,10 @@ from thurston_addon import cli, files, render, spaces
 from thurston_addon.scene import Camera
 from thurston_addon import scene as scenes
 
-from outputs import error_line, fill, listing, stop, tmpfs
+from outputs import INTERNALS, error_line, fill, listing, stop, tmpfs
 
 THURSTON = Path(sys.executable).with_name("thurston")
 FLOAT32_MAX = float(np.finfo(np.float32).max)
-# what a message must never show: Python's and Qhull's own words
-INTERNALS = re.compile(r"object is not|has no attribute|not subscriptable|unhashable|Traceback|IndexError|KeyError|"
-                       r"TypeError|cannot reshape|QH\d|[Qq]hull")
 
 
 def run_cli(argv, capsys):

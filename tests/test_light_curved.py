@@ -26,7 +26,7 @@ from thurston_addon.geometries import sl2
 import test_curved_geometries
 import test_sl2
 from test_light import GLOW, RHO, ball_scene, shade_one
-from truth import nil_metric, sol_metric
+from truth import christoffel_from, nil_metric, sol_metric
 
 # --- the truth --------------------------------------------------------------------------------------
 
@@ -78,14 +78,8 @@ def metric_derivative(name, x):
 
 
 def christoffel(name, x):
-    """Gamma^k_ij = 1/2 g^kl (d_i g_lj + d_j g_li - d_l g_ij), (..., k, i, j); g^-1 by cofactors (the
-    rows of a symmetric g's inverse are the cross products of its other rows over det g)."""
-    g, dg = metric(name, x), metric_derivative(name, x)
-    r0, r1, r2 = g[..., 0, :], g[..., 1, :], g[..., 2, :]
-    inverse = np.stack([np.cross(r1, r2), np.cross(r2, r0), np.cross(r0, r1)], -2)
-    inverse /= np.einsum("...i,...i->...", r0, inverse[..., 0, :])[..., None, None]
-    lowered = 0.5 * (np.einsum("...ilj->...lij", dg) + np.einsum("...jli->...lij", dg) - dg)
-    return np.einsum("...kl,...lij->...kij", inverse, lowered)
+    """Gamma^k_ij (..., k, i, j) of these metrics at chart points x (..., 3)."""
+    return christoffel_from(metric(name, x), metric_derivative(name, x))
 
 
 def test_the_vectorised_truth_is_the_formulas_of_the_other_tests():
@@ -103,18 +97,22 @@ def test_the_vectorised_truth_is_the_formulas_of_the_other_tests():
         np.testing.assert_allclose(metric_derivative("SL2", x), test_sl2.metric_derivative(x), rtol=1e-13, atol=1e-13)
 
 
+def geodesic_equation(name, n):
+    """x'' = -Gamma(x)(x', x') for n geodesics at once, the state (x, v) flattened, for solve_ivp."""
+    def rhs(_s, y):
+        x, v = y.reshape(2, n, 3)
+        return np.concatenate([v, -np.einsum("nkij,ni,nj->nk", christoffel(name, x), v, v)]).ravel()
+
+    return rhs
+
+
 def exp_map(name, h, W, rtol=1e-12):
     """exp_h(W) for chart tangent vectors W (n, 3) at h: x'' = -Gamma(x)(x', x') over s in [0, 1]
     from x'(0) = W (the geodesic at speed |W|), all rows in one DOP853 integration."""
     W = np.atleast_2d(W)
     n = len(W)
-
-    def rhs(_s, y):
-        x, v = y.reshape(2, n, 3)
-        return np.concatenate([v, -np.einsum("nkij,ni,nj->nk", christoffel(name, x), v, v)]).ravel()
-
-    sol = solve_ivp(rhs, (0.0, 1.0), np.concatenate([np.broadcast_to(h, (n, 3)), W]).ravel(), method="DOP853",
-                    rtol=rtol, atol=rtol)
+    sol = solve_ivp(geodesic_equation(name, n), (0.0, 1.0), np.concatenate([np.broadcast_to(h, (n, 3)), W]).ravel(),
+                    method="DOP853", rtol=rtol, atol=rtol)
     assert sol.success
     return sol.y[:, -1].reshape(2, n, 3)[0]
 
@@ -134,20 +132,15 @@ def scan_seeds(name, h, targets, reach, most=None):
     arclength of the geodesic's closest chart approach to the target) where that miss is a local
     minimum over u's 8 nearest directions (the `most` smallest such minima, or all), and the
     target's index of each."""
-    U = fibonacci_sphere(DIRECTIONS)
-    U = U @ np.linalg.inv(np.linalg.cholesky(metric(name, h)).T).T  # unit in the metric at h
+    sphere = fibonacci_sphere(DIRECTIONS)
+    U = sphere @ np.linalg.inv(np.linalg.cholesky(metric(name, h)).T).T  # unit in the metric at h
     n = len(U)
-
-    def rhs(_s, y):
-        x, v = y.reshape(2, n, 3)
-        return np.concatenate([v, -np.einsum("nkij,ni,nj->nk", christoffel(name, x), v, v)]).ravel()
-
     ts = np.linspace(0.0, reach, SAMPLES)
-    sol = solve_ivp(rhs, (0.0, reach), np.concatenate([np.broadcast_to(h, (n, 3)), U]).ravel(), method="DOP853",
-                    rtol=1e-6, atol=1e-6, t_eval=ts)
+    sol = solve_ivp(geodesic_equation(name, n), (0.0, reach), np.concatenate([np.broadcast_to(h, (n, 3)), U]).ravel(),
+                    method="DOP853", rtol=1e-6, atol=1e-6, t_eval=ts)
     assert sol.success
     path = sol.y.reshape(2, n, 3, SAMPLES)[0]
-    _, near = cKDTree(fibonacci_sphere(DIRECTIONS)).query(fibonacci_sphere(DIRECTIONS), k=9)
+    _, near = cKDTree(sphere).query(sphere, k=9)
     rows, seeds = [], []
     for k, T in enumerate(np.atleast_2d(targets)):
         miss = np.linalg.norm(path - T[None, :, None], axis=1)

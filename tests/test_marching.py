@@ -28,7 +28,7 @@ import trimesh
 from thurston_addon import cli, render, scene as scenes, spaces
 from thurston_addon.geometries import get
 from thurston_addon.scene import PointLight, Scene, SceneObject, default_scene
-from truth import nil_metric, sol_metric
+from truth import CURVED_METRICS as METRIC, christoffel_from
 
 ld = np.longdouble
 PHI = (1 + np.sqrt(ld(5))) / 2
@@ -36,7 +36,6 @@ SOL_PERIOD = 2 * np.log(PHI)  # the monodromy's shift in z
 SOL_NORM = np.sqrt(1 + PHI * PHI)
 SOL_U1 = np.array([1 / SOL_NORM, PHI / SOL_NORM], ld)  # the lattice of the fibre torus
 SOL_U2 = np.array([-PHI / SOL_NORM, 1 / SOL_NORM], ld)
-METRIC = {"Nil": nil_metric, "Sol": sol_metric}
 TOLERANCE = 1e-6  # the fine tracing tolerance (chart units)
 
 
@@ -58,8 +57,7 @@ def christoffel(name, x):
     metric = METRIC[name]
     x = np.asarray(x, float)
     dg = np.array([np.imag(metric(x + 1j * COMPLEX_STEP * e)) / COMPLEX_STEP for e in np.eye(3)])
-    lowered = 0.5 * (np.einsum("ilj->lij", dg) + np.einsum("jli->lij", dg) - dg)
-    return np.einsum("kl,lij->kij", np.linalg.inv(metric(x)), lowered)
+    return christoffel_from(metric(x), dg)
 
 
 def dop853(name, x0, v0, length, scale=(1.0, 1.0, 1.0)):
@@ -1045,9 +1043,11 @@ def lit_plane(space, **kw):
 def test_lambert_colour_is_base_power_cos_falloff(space_of, sid):
     """Hits on the plane (after crossings too): colour = base * power * cos * falloff, with the
     direction and length of the geodesic to the nearest light copy from connect, the metric
-    normal facing the ray and falloff_along (the Python reference), to 2e-3 (the tracer's
-    forward-difference Jacobian of exp is good to ~1e-4); hits whose connecting geodesic passes
-    through the occluder are black; faces turned away from the light are black."""
+    normal facing the ray and falloff_along (the Python reference), to the float32 colour's
+    precision in Nil (2e-5: its falloff is the closed form's; 1e-7 measured) and 3e-4 in Sol (its
+    falloff from forward differences of the flow, as test_light_curved holds it; 3e-6 measured);
+    hits whose connecting geodesic passes through the occluder are black; faces turned away from
+    the light are black."""
     world = lit_plane(space_of(sid))
     out = world.trace()
     rows, off = world.hits_on_plane(out)
@@ -1065,7 +1065,7 @@ def test_lambert_colour_is_base_power_cos_falloff(space_of, sid):
            [[int(lit.sum()), int(crossed.sum()), int((keep & occluded).sum()), int((keep & (cos <= 0)).sum()),
              rel.max(), float(np.median(rel)), f"{r[lit].min():.2f}-{r[lit].max():.2f}"]])
     assert crossed.sum() >= 10
-    assert np.all(rel <= 2e-3), rel.max()
+    assert np.all(rel <= (2e-5 if sid == "nil" else 3e-4)), rel.max()
     assert np.all(got[dark] == 0.0), got[dark].max()
     assert int(out["light_failures"]) == 0
 
