@@ -828,7 +828,7 @@ def test_curved_render_states_and_keeps_its_bound(space_cache, sid, quality):
     # the nearest hit's footprint bounds the reference's error in chart units from below
     nearest = np.nanmin(np.where(res.passes["stop"] == 0, res.passes["depth"], np.nan))
     pixel = math.radians(space.camera.fov) / 64
-    assert st["geodesic_error"] <= fraction * pixel * (nearest + render.NEAR_FRACTION * space.extent)
+    assert st["geodesic_error"] <= fraction * render.footprint(space, pixel, nearest)
 
 
 def test_geodesic_error_sees_a_perturbed_pairing(space_cache):
