@@ -24,18 +24,22 @@ MIS row's seconds), noise falling as 1 / sqrt(samples)) and the mean brightness 
 Table 3, the glossy BSDF's cost: the same scene direct-only and path traced with its materials
 Lambert (metallic and specular 0) and glossy, --emitter-samples samples per pixel (noise as in
 table 2).
+With --baseline CORE.so (another build of the core, e.g. from before a change), table 2 is measured
+first with that build, in a child process, then with this one.
 Run: .venv/bin/python benchmarks/bench_gi.py [--size 160x90] [--spaces poincare,torus] [--bounces 4]
-     [--tables 1,2,3] [--emitter-scenes lamp,metal]
+     [--tables 1,2,3] [--emitter-scenes lamp,metal] [--baseline OLD/thurston_core.cpython-311-x86_64-linux-gnu.so]
 """
 import argparse
 import math
+import subprocess
+import sys
 import time
 from dataclasses import replace
 
 import numpy as np
 import trimesh
 
-from thurston_addon import render, scene as scenes, spaces
+from timing import load_core
 
 GI_SAMPLES = (1, 4, 16, 64)
 
@@ -169,7 +173,18 @@ def main():
     ap.add_argument("--reference-samples", type=int, default=256)
     ap.add_argument("--emitter-scenes", default="lamp,metal")
     ap.add_argument("--tables", default="1,2,3")
+    ap.add_argument("--baseline", metavar="CORE.so", help="another build of the core to measure table 2 with")
+    ap.add_argument("--core", help=argparse.SUPPRESS)  # the child's core
     args = ap.parse_args()
+    if args.core:
+        load_core(args.core)
+    global render, scenes, spaces  # imported once --core has chosen the core
+    from thurston_addon import render, scene as scenes, spaces
+    if args.baseline:
+        print("table 2 with the baseline build:", flush=True)
+        child = [a for a in sys.argv[1:] if not a.startswith("--baseline") and a != args.baseline]
+        subprocess.run([sys.executable, __file__, *child, "--tables", "2", "--core", args.baseline], check=True)
+        print("\nthis build:")
     w, h = (int(v) for v in args.size.split("x"))
     tables = args.tables.split(",")
     if "1" in tables:

@@ -13,24 +13,12 @@ Run: .venv/bin/python benchmarks/bench_tracer.py [--size 640x360] [--repeat 3] [
      [--baseline OLD/thurston_core.cpython-311-x86_64-linux-gnu.so --rounds 5]
 """
 import argparse
-import importlib.util
 import json
 import resource
 import subprocess
 import sys
 
-from timing import best_of
-
-
-def load_core(path):
-    """Use the core built at `path` instead of the installed one (before anything imports it)."""
-    spec = importlib.util.spec_from_file_location("thurston_core", path)
-    core = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(core)
-    sys.modules["thurston_core"] = core
-    return core
-
-
+from timing import best_of, load_core
 
 
 def rss_mb():

@@ -1,7 +1,18 @@
 """What the benchmarks share: the least time of repeated runs (the run least disturbed by the
-machine's other work)."""
+machine's other work), and another build of the core in place of the installed one."""
+import importlib.util
 import math
+import sys
 import time
+
+
+def load_core(path):
+    """Use the core built at `path` instead of the installed one (before anything imports it)."""
+    spec = importlib.util.spec_from_file_location("thurston_core", path)
+    core = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(core)
+    sys.modules["thurston_core"] = core
+    return core
 
 
 def best_of(repeat, fn):
