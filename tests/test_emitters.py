@@ -84,7 +84,7 @@ def test_emissive_square_lights_a_plane_of_the_torus_from_every_copy_within_the_
     truth = RHO / math.pi * LE * sum(polygon_irradiance(c, p, n) for c in within)
     own = RHO / math.pi * LE * polygon_irradiance(ranges[40][2], p, n)  # (i, j) = (0, 0)
     print(f"{len(within)} copies within the reach; the square's own copy gives {own / truth:.2f} of the light")
-    out = one_pixel(space, Scene(objects=[floor, lamp]), p + [0, 0, 0.2], [0, 0, -1], reach, 2000, 64)
+    out = one_pixel(space, Scene(objects=[floor, lamp]), p + [0, 0, 0.2], [0, 0, -1], reach, 2000, 16)
     check_mean(out["color"], truth, min(0.01, 1 - own / truth))
     assert out["emitter_paths"] > 0 and out["light_paths"] == 0
 

@@ -547,7 +547,6 @@ class KernelTracer final : public Tracer {
   struct LightBuffers {
     std::vector<LightPath> paths;
     std::vector<Vec4> lifts, normals;
-    std::vector<double> unshadowed;  // the emitter paths' light before their shadow rays
   };
 
   void trace_range(std::size_t begin, std::size_t end, Strided2<double> origins,
@@ -974,51 +973,13 @@ class KernelTracer final : public Tracer {
     return emitters_.one_sided[t] ? towards : std::abs(towards);
   }
 
-  // The light an emitter sample at a point of triangle t brings the vertex along `path` before its
-  // shadow ray, up to the factors all its paths share: the cosines at both ends (cos' from the
-  // emitter copy's front only where it is one-sided), falloff and fog; 0 where none arrives (a
-  // path longer than the geodesic loop from an opaque vertex passes through the vertex again).
-  double unshadowed(const Vertex& v, std::size_t t, const LightPath& path, const TraceOptions& options,
-                    const LightBuffers& buffers) const {
-    if (v.opaque && path.distance > geodesic_loop_) return 0.0;
-    const double cosine = kernel_.dot(v.X, v.S, path.direction);
-    const double emitted =
-        emitted_cosine(t, buffers.lifts[path.lift], buffers.normals[path.lift], kernel_.arrival(v.X, path));
-    if (!(cosine > 0.0) || !(emitted > 0.0)) return 0.0;
-    return cosine * emitted * path.falloff * std::exp(-path.distance / options.light_fog);
-  }
-  // How the emitters' samples choose among the geodesics to their point (buffers.paths): the
-  // strongest unshadowed always (in a room, the emitter's own copy; the walls hide the others),
-  // and one of the others drawn in proportion to its unshadowed light. Two shadow rays per sample
-  // however many copies the reach holds (the Poincare sphere's 240 geodesics cost what two do);
-  // where nothing is shadowed the estimate is their sum exactly.
-  struct PathChoice {
-    std::size_t strongest = 0;
-    double total = 0.0, rest = 0.0;  // all paths' unshadowed light; the others'
-    // the probability that a sample traces path k (of unshadowed light `light`)
-    double share(std::size_t k, double light) const { return k == strongest ? 1.0 : light / rest; }
-  };
-  PathChoice choose_paths(const Vertex& v, std::size_t t, const TraceOptions& options, LightBuffers& buffers) const {
-    PathChoice choice;
-    std::vector<double>& light = buffers.unshadowed;
-    light.clear();
-    for (const LightPath& path : buffers.paths) {
-      light.push_back(unshadowed(v, t, path, options, buffers));
-      choice.total += light.back();
-      if (light.back() > light[choice.strongest]) choice.strongest = light.size() - 1;
-    }
-    if (!light.empty()) choice.rest = choice.total - light[choice.strongest];
-    return choice;
-  }
-
   // One point y sampled on the emitters (a triangle with probability its share of their chart
   // area, y uniform on it in the chart) lights the vertex along the geodesics to its copies as a
   // point light of radiance Le cos' / pi per unit area would: the estimate of
   // (1 / pi) integral Le cos cos' falloff dA is Le cos cos' falloff dA/dA_chart A_chart / pi, over
   // light_samples (cos' at the emitter's copy, towards the vertex: one-sided emitters light only
-  // their front, the others both sides), each geodesic traced with the probability choose_paths
-  // gives it and its light divided by that. The shadow rays meet every triangle, emitters too (so
-  // that a closed emitter's far side is hidden by its near side), and stop just short of the sample.
+  // their front, the others both sides). The shadow rays meet every triangle, emitters too (so that
+  // a closed emitter's far side is hidden by its near side), and stop just short of the sample.
   // Where a bounce leaves the vertex and could meet the same point along the same geodesic, the
   // two estimates are weighed by the power heuristic.
   void sample_emitters(const WalkContext& context, const Vertex& v, const TraceOptions& options,
@@ -1028,55 +989,33 @@ class KernelTracer final : public Tracer {
     const std::array<Vec3, 3>& p = emitters_.triangles[t];
     const double root = std::sqrt(random.uniform()), u = random.uniform();
     const Vec3 y = add3(p[0], add3(scaled3(root * (1.0 - u), sub3(p[1], p[0])), scaled3(root * u, sub3(p[2], p[0]))));
-    const double pick = random.uniform();
     double area_density;
     if (!emitter_point(t, y, buffers, area_density)) return;
     const double scale = area_density * emitter_area_sum_.back() / (kPi * options.light_samples);
     std::vector<LightPath>& paths = buffers.paths;
     paths.clear();
     stats.light_failures += kernel_.light_paths(H, buffers.lifts, light_reach_, paths);
-    const double mean_radiance = mean_rgb(emitters_.radiance[t]);
+    const Rgb& radiance = emitters_.radiance[t];
+    const double mean_radiance = mean_rgb(radiance);
+    const bool weighed = v.bounce_follows && options.emitter_sampling == EmitterSampling::kMis;
     for (const LightPath& path : paths) {
       const double emitted =
           emitted_cosine(t, buffers.lifts[path.lift], buffers.normals[path.lift], kernel_.arrival(H, path));
+      const double weight = path.falloff * std::exp(-path.distance / options.light_fog) * scale;
       ++stats.emitter_paths;
-      stats.emitter_energy += path.falloff * std::exp(-path.distance / options.light_fog) * scale *
-                              std::max(emitted, 0.0) * mean_radiance;
+      stats.emitter_energy += weight * std::max(emitted, 0.0) * mean_radiance;
+      const double cosine = kernel_.dot(H, v.S, path.direction);
+      const double short_of = path.distance * (1.0 - 1e-6) - kSelfSkip * scale_;
+      if (!(cosine > 0.0) || !(emitted > 0.0) || (v.opaque && path.distance > geodesic_loop_))
+        continue;
+      const Stop stop = shadow(context, scene_.get(), H, path.direction, short_of, options.max_crossings);
+      if (stop == kHit) continue;
+      double mis = 1.0;
+      // a bounce meets the point along this geodesic if it is drawn and its walk gets there
+      if (weighed && stop != kCrossingLimit && path.distance <= options.max_distance)
+        mis = power_weight(emitter_density(area_density, emitted, path, options), bounce_density(v, path.direction));
+      reflect(sum, v, path.direction, cosine * emitted * weight * mis, radiance);
     }
-    const PathChoice choice = choose_paths(v, t, options, buffers);
-    if (!(choice.total > 0.0)) return;
-    const std::vector<double>& light = buffers.unshadowed;
-    trace_emitter_path(context, v, t, choice.strongest, 1.0, scale * light[choice.strongest], area_density,
-                       options, buffers, sum);
-    if (!(choice.rest > 0.0)) return;
-    std::size_t k = 0;
-    for (double left = pick * choice.rest; k + 1 < paths.size(); ++k) {
-      if (k == choice.strongest) continue;
-      if ((left -= light[k]) < 0.0) break;
-    }
-    if (k == choice.strongest) --k;  // the draw ran past the last path by rounding: the one before
-    const double share = choice.share(k, light[k]);
-    if (share > 0.0) trace_emitter_path(context, v, t, k, share, scale * light[k] / share, area_density, options, buffers, sum);
-  }
-  // Adds the light of the emitter sample's geodesic buffers.paths[k], drawn with probability share
-  // (term: its light over that, everything but the BSDF and the radiance), where its shadow ray
-  // gets through, weighed against a bounce along it by the power heuristic.
-  void trace_emitter_path(const WalkContext& context, const Vertex& v, std::size_t t, std::size_t k, double share,
-                          double term, double area_density, const TraceOptions& options, LightBuffers& buffers,
-                          Reflected& sum) const {
-    const LightPath& path = buffers.paths[k];
-    const double short_of = path.distance * (1.0 - 1e-6) - kSelfSkip * scale_;
-    const Stop stop = shadow(context, scene_.get(), v.X, path.direction, short_of, options.max_crossings);
-    if (stop == kHit) return;
-    double mis = 1.0;
-    // a bounce meets the point along this geodesic if it is drawn and its walk gets there
-    if (v.bounce_follows && options.emitter_sampling == EmitterSampling::kMis && stop != kCrossingLimit &&
-        path.distance <= options.max_distance) {
-      const double emitted =
-          emitted_cosine(t, buffers.lifts[path.lift], buffers.normals[path.lift], kernel_.arrival(v.X, path));
-      mis = power_weight(share * emitter_density(area_density, emitted, path, options), bounce_density(v, path.direction));
-    }
-    reflect(sum, v, path.direction, term * mis, emitters_.radiance[t]);
   }
 
   // The MIS weight of the emission that a bounce from vertex v along V (drawn with `density`) met
@@ -1119,14 +1058,11 @@ class KernelTracer final : public Tracer {
         same = &path;
       }
     }
-    if (!same) return 1.0;
-    const PathChoice choice = choose_paths(v, t, options, buffers);
-    const std::size_t k = std::size_t(same - paths.data());
-    const double share = choice.share(k, buffers.unshadowed[k]);
-    if (!(share > 0.0)) return 1.0;
+    if (!same || (v.opaque && same->distance > geodesic_loop_)) return 1.0;
     const double emitted =
         emitted_cosine(t, buffers.lifts[same->lift], buffers.normals[same->lift], kernel_.arrival(v.X, *same));
-    return power_weight(density, share * emitter_density(area_density, emitted, *same, options));
+    if (!(emitted > 0.0)) return 1.0;
+    return power_weight(density, emitter_density(area_density, emitted, *same, options));
   }
   // A bounce's geodesic and a light sample's are the same where their directions agree to this
   // (1 - cos) and their lengths to this relative tolerance: far looser than the walk's errors, far
