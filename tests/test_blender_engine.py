@@ -209,6 +209,26 @@ def test_render_blend_on_a_full_disk_keeps_the_previous_frame(tmp_path, suffix):
         assert frame.read_bytes() == PREVIOUS and listing(disk) == ["filler", frame.name]
 
 
+@pytest.mark.parametrize("suffix", ("exr", "png"))
+def test_save_to_on_a_full_disk_keeps_the_previous_file(tmp_path, suffix):
+    """The panel's Save To goes through the command line's checked writer: on a full disk Render
+    View fails with one error naming the file, whose previous bytes stay, and no temporary file is
+    left."""
+    sc = bh.fresh_scene("torus", size=(64, 48))
+    bh.box("B", 0.1, (0, 0.3, 0))
+    bh.camera((0, 0, 0))
+    with tmpfs(tmp_path / "disk", "256k") as disk:
+        out = disk / f"view.{suffix}"
+        out.write_bytes(PREVIOUS)
+        fill(disk)
+        sc.thurston.save_path, sc.thurston.overwrite = str(out), True
+        with pytest.raises(RuntimeError) as info:
+            bpy.ops.thurston.render_view()
+        errors = [ln for ln in str(info.value).splitlines() if ln.startswith("Error:")]
+        assert len(errors) == 1 and errors[0].startswith(f"Error: cannot write {str(out)!r}: No space left on device")
+        assert out.read_bytes() == PREVIOUS and listing(disk) == ["filler", out.name]
+
+
 # --- view layers and instances -------------------------------------------------------------------------------
 def box_in_collection(sc, name, location):
     """A 0.1 box in a new collection of that name, under the scene's collection."""
