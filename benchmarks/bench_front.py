@@ -1,7 +1,8 @@
 """The error/time front of every geometry: the tracer's hits against a reference that shares no code
 with it, at every quality and over a sweep of chord tolerances, side by side in one run (not a
-test: the machines are shared and noisy; every time is the best of --repeat runs); and the chord
-rule of the qualities (each geometry's chord_scale) derived from it.
+test: the machines are shared and noisy; every time of the tracer is the best of --repeat runs, its
+settings interleaved); and the chord rule of the qualities (each geometry's chord_scale) derived
+from it.
 
 For one preset of each of the eight geometries (and RP3 # RP3, S2xR's folded quotient, traced
 through its double cover): a scene of balls (icosphere meshes) inside its
@@ -327,13 +328,6 @@ def floor_seconds(reference, chords_per_ray, chord_length, rng, count=200000):
     return (time.perf_counter() - t0) / count * chords_per_ray
 
 
-def timed(tracer, P, V, length, max_crossings, tolerances, repeat, count):
-    """(out of the rays, seconds per ray): the rays traced, then tiled to `count` rays and traced
-    repeat times for the least time."""
-    out = render.trace(tracer, P, V, length, max_crossings, *tolerances, shade=False)
-    return out, least_seconds(tracer, P, V, length, max_crossings, [tolerances], repeat, count, time.perf_counter)[0]
-
-
 def least_seconds(tracer, P, V, length, max_crossings, settings, repeat, count, clock=time.process_time):
     """Seconds per ray of each of the tolerance settings (process CPU time, all threads: time the
     machine's other loads take is not counted), the rays tiled to `count` rays, traced repeat
@@ -436,9 +430,12 @@ def main():
         settings = [(q, render.Settings(quality=q)) for q in render.QUALITY]
         settings += [(f"tol {t}", render.Settings(tolerance=float(t))) for t in args.tolerances.split(",")]
         ours = []  # (setting, µs per ray, p99 position error)
-        for name, s in settings:
-            tolerances = s.tolerances(space, render.REFERENCE_PIXEL_ANGLE)
-            out, seconds = timed(tracer, P, V, length, 100000, tolerances, args.repeat, args.timing_rays)
+        tolerances_of = [s.tolerances(space, render.REFERENCE_PIXEL_ANGLE) for _, s in settings]
+        # the settings' wall times side by side (interleaved), as the peers' are wall times
+        seconds_of = least_seconds(tracer, P, V, length, 100000, tolerances_of, args.repeat, args.timing_rays,
+                                   time.perf_counter)
+        for (name, _), tolerances, seconds in zip(settings, tolerances_of, seconds_of):
+            out = render.trace(tracer, P, V, length, 100000, *tolerances, shade=False)
             compared, disagree, pos, depth, fp = errors(space, out, firsts, radii)
             sil = silhouettes(reference, out, refs, radii)
             bound = render.QUALITY[name].footprint_fraction if name in render.QUALITY else None

@@ -14,7 +14,8 @@ dielectric specular layer of roughness 0.3; "metal": radius 0.15, every object a
 0.15; --emitter-scenes), path traced at --emitter-samples samples per pixel with the emitters' light
 gathered by multiple importance sampling, by the emitters' samples alone and by the bounces alone
 (the tracer's emitter_sampling), with the distance limit at the light reach, so that the three
-reach the same copies of the emitter. Each twice with other random numbers: the noise is the RMS over
+reach the same copies of the emitter. Each twice with other random numbers (the three modes
+rendered in turn, interleaved, as are table 3's four renders): the noise is the RMS over
 the pixels of their difference over sqrt 2 (the standard error of one render's pixels), leaving out
 the pixels that see the emitter or its copies (their brightness is the emitter's) and their
 neighbours; per row the seconds, that noise, the noise at equal time (noise * sqrt(seconds / the
@@ -98,22 +99,28 @@ def brightness_rms(result, reference):
     return float(np.sqrt(np.mean((a - b) ** 2)))
 
 
-def twice(space, scene, tracer, w, h, samples, bounces, lamp):
-    """(seconds of one render, noise, mean brightness) from two renders with other random numbers,
-    over the pixels whose centre ray and its neighbours' do not meet object `lamp`; every geodesic
-    (camera rays, bounces) within the light reach, so that the emitters' samples and the bounces
-    reach the same copies of the emitter."""
+def twice(space, cases, w, h, samples):
+    """For each case (scene, tracer, bounces, lamp): (seconds of one render, noise, mean brightness)
+    from two renders with other random numbers, over the pixels whose centre ray and its neighbours'
+    do not meet object `lamp`; the cases rendered in turn (interleaved: a drift of the machine's load
+    falls on each alike); every geodesic (camera rays, bounces) within the light reach, so that the
+    emitters' samples and the bounces reach the same copies of the emitter."""
     reach = render.default_light_reach(space)
-    (a, ta), (b, tb) = (timed(space, scene, tracer, w, h, samples, bounces, seed=s, max_distance=reach)
-                        for s in (0, 100000))
-    seen = a.passes["object"] == lamp
-    near = seen.copy()
-    near[1:] |= seen[:-1]
-    near[:-1] |= seen[1:]
-    near[:, 1:] |= near[:, :-1].copy()
-    near[:, :-1] |= near[:, 1:].copy()
-    A, B = a.passes["color"].mean(axis=2)[~near], b.passes["color"].mean(axis=2)[~near]
-    return 0.5 * (ta + tb), float(np.sqrt(np.mean((A - B) ** 2) / 2)), float(np.mean(A + B) / 2)
+    renders = [[] for _ in cases]
+    for seed in (0, 100000):
+        for done, (scene, tracer, bounces, _) in zip(renders, cases):
+            done.append(timed(space, scene, tracer, w, h, samples, bounces, seed=seed, max_distance=reach))
+    found = []
+    for ((a, ta), (b, tb)), (_, _, _, lamp) in zip(renders, cases):
+        seen = a.passes["object"] == lamp
+        near = seen.copy()
+        near[1:] |= seen[:-1]
+        near[:-1] |= seen[1:]
+        near[:, 1:] |= near[:, :-1].copy()
+        near[:, :-1] |= near[:, 1:].copy()
+        A, B = a.passes["color"].mean(axis=2)[~near], b.passes["color"].mean(axis=2)[~near]
+        found.append((0.5 * (ta + tb), float(np.sqrt(np.mean((A - B) ** 2) / 2)), float(np.mean(A + B) / 2)))
+    return found
 
 
 def point_light_table(sid, args, w, h):
@@ -139,8 +146,10 @@ def emitter_table(sid, kind, args, w, h):
     scene = lamp_scene(space, kind)
     tracer = render.make_tracer(space, scene)
     lamp = len(scene.objects) - 1
-    rows = [(mode, *twice(space, scene, Sampling(tracer, mode), w, h, args.emitter_samples, args.bounces, lamp))
-            for mode in ("mis", "light", "bounce")]
+    modes = ("mis", "light", "bounce")
+    found = twice(space, [(scene, Sampling(tracer, mode), args.bounces, lamp) for mode in modes], w, h,
+                  args.emitter_samples)
+    rows = [(mode, *f) for mode, f in zip(modes, found)]
     mis_seconds = rows[0][1]
     for mode, seconds, noise, mean in rows:
         label = {"mis": "MIS", "light": "emitter samples only", "bounce": "bounces only"}[mode]
@@ -150,13 +159,15 @@ def emitter_table(sid, kind, args, w, h):
 
 def glossy_table(sid, args, w, h):
     space = spaces.load(sid)
-    rows = []
+    cases, labels = [], []
     for glossy in (False, True):
         scene = lamp_scene(space, glossy=glossy)
         tracer = render.make_tracer(space, scene)
         for bounces in (0, args.bounces):
-            seconds, noise, mean = twice(space, scene, tracer, w, h, args.emitter_samples, bounces, len(scene.objects) - 1)
-            rows.append(("glossy" if glossy else "Lambert", bounces, seconds, noise))
+            cases.append((scene, tracer, bounces, len(scene.objects) - 1))
+            labels.append(("glossy" if glossy else "Lambert", bounces))
+    found = twice(space, cases, w, h, args.emitter_samples)
+    rows = [(*label, seconds, noise) for label, (seconds, noise, _) in zip(labels, found)]
     for label, bounces, seconds, noise in rows:
         base = next(s for lab, b, s, _ in rows if lab == "Lambert" and b == bounces)
         what = f"{label}, " + (f"{bounces} bounces" if bounces else "direct")

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from timing import best_of  # noqa: E402
+from timing import best_of, use_build  # noqa: E402
 
 FACTORS = {"S3": (0.25, 0.5, 1.0), "E3": (0.5, 1.0, 2.0, 4.0), "H3": (0.5, 1.0, 2.0, 4.0), "H2xR": (0.5, 1.0, 1.5),
            "S2xR": (0.5, 1.0, 2.0), "Nil": (0.5, 1.0, 1.5), "Sol": (0.5, 1.0, 1.5), "SL2": (0.5, 1.0, 1.5)}
@@ -45,12 +45,6 @@ def baseline_view(sid, size, repeat, build):
                "--build", build]
     result = json.loads(subprocess.run(command, capture_output=True, text=True, check=True).stdout)
     return result["seconds"], result["copies"]
-
-
-def use_build(build):
-    """Import thurston_addon and thurston_core from build, not from this (editable) checkout."""
-    sys.meta_path[:] = [f for f in sys.meta_path if "Redirecting" not in type(f).__name__]  # the editable install
-    sys.path.insert(0, build)
 
 
 def copy_search(space, reach):

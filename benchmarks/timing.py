@@ -1,5 +1,5 @@
 """What the benchmarks share: the least time of repeated runs (the run least disturbed by the
-machine's other work), and another build of the core in place of the installed one."""
+machine's other work), and another build of the core or the add-on in place of the installed one."""
 import importlib.util
 import math
 import sys
@@ -13,6 +13,13 @@ def load_core(path):
     spec.loader.exec_module(core)
     sys.modules["thurston_core"] = core
     return core
+
+
+def use_build(build):
+    """Import thurston_addon (and thurston_core, if it holds one) from the folder `build`, not from
+    this (editable) checkout; before anything imports them."""
+    sys.meta_path[:] = [f for f in sys.meta_path if "Redirecting" not in type(f).__name__]  # the editable install
+    sys.path.insert(0, build)
 
 
 def best_of(repeat, fn):

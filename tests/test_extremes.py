@@ -429,7 +429,7 @@ def test_sol_starts_at_z_20(space_of):
     assert space.domain.contains(g.to_model(out["end"]), tol=1e-9).all()
     err = end_errors(space, out, cover_ends(space, P, V, L))
     report("sol: rays started at |z| = 20", ["rays", "crossings", "max error"], [[n, int(out["crossings"].max()), float(err.max())]])
-    assert err.max() <= 1e-6 * math.exp(L) * 10
+    assert err.max() <= 1e-6 * math.exp(L), err.max()  # 9.3e-7 measured
 
 
 @pytest.mark.parametrize("w", [0.0, -0.0, 1e-300, -1e-300, 5e-324])
@@ -695,8 +695,8 @@ def test_far_from_the_origin_hits_are_refined_in_double(tmp_path):
 
 def test_s2xr_hits_far_out_in_the_chart_are_refined_in_double(space_of):
     """S2xS1's chart reaches |x| = e^(2 pi) ~ 535, where float32 holds 3e-5: a ball (metric radius
-    0.1) at |x| ~ 400 hit by rays from near it lies on the plane of the triangle hit to 1e-12
-    relative (refined in double) and on the cover geodesic at the hit's depth within the
+    0.1) at |x| ~ 400 hit by rays from near it lies on a triangle of the mesh (and a face's plane)
+    to 1e-12 relative (refined in double) and on the cover geodesic at the hit's depth within the
     tolerance asked for (metric; the flow is S2xR's closed form)."""
     space = space_of("s2xs1")
     g = space.geometry
@@ -718,9 +718,13 @@ def test_s2xr_hits_far_out_in_the_chart_are_refined_in_double(space_of):
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normal /= np.linalg.norm(normal, axis=1)[:, None]
     off_plane = np.min(np.abs(np.einsum("fj,nj->nf", normal, h) - np.sum(normal * tri[:, 0], axis=1)), axis=1)
+    # on a triangle, not merely on some face's plane (6e-16 relative measured)
+    near = trimesh.triangles.closest_point(np.tile(tri, (len(h), 1, 1)), np.repeat(h, len(tri), axis=0))
+    off_mesh = np.min(np.linalg.norm(near.reshape(len(h), len(tri), 3) - h[:, None], axis=2), axis=1)
     on_curve = end_errors(space, {"end": h}, cover_ends(space, P[hit], V[hit], out["depth"][hit]))
     report("s2xs1: hits at |x| ~ 400", ["hits", "max off plane / |x|", "max off curve (metric)", "float32 ulp / |x|"],
            [[int(hit.sum()), float((off_plane / np.linalg.norm(h, axis=1)).max()), float(on_curve.max()),
              float(np.spacing(np.float32(400.0)) / 400.0)]])
     assert np.all(off_plane <= 1e-12 * np.linalg.norm(h, axis=1))
+    assert np.all(off_mesh <= 1e-12 * np.linalg.norm(h, axis=1)), (off_mesh / np.linalg.norm(h, axis=1)).max()
     assert on_curve.max() <= tolerance

@@ -263,12 +263,15 @@ def test_every_connecting_geodesic_and_its_falloff(case):
     truth = [w for found in geodesics_to(name, h, targets, reach) for w in found]
     assert len(truth) == len(lengths) == count
     g = metric(name, h)
+    matched = []
     for w in truth:
         r = math.sqrt(w @ g @ w)
         k = int(np.argmin(np.abs(lengths - r)))
         assert lengths[k] == pytest.approx(r, rel=1e-9)
         np.testing.assert_allclose(directions[k], w / r, atol=1e-8)
         assert falloffs[k] == pytest.approx(falloff(name, h, w), rel=3e-4 if name == "Sol" else 1e-7)
+        matched.append(k)
+    assert sorted(matched) == list(range(count))  # each traced geodesic is one of the truth's, none twice
 
 
 # --- the lit colour: every copy of the light along every geodesic -------------------------------------
