@@ -624,3 +624,10 @@ def test_camera_directions_of_any_size(forward, up, words):
     direction = np.array(forward) / np.abs(forward).max()
     assert np.allclose(f, [*direction / np.linalg.norm(direction), 0.0], atol=1e-15)
     assert np.allclose([np.dot(f, r), np.dot(f, u), np.dot(r, u)], 0.0, atol=1e-15)
+    # closed form: up's part across forward (Gram-Schmidt), right = forward x up, all unit
+    f_true = direction / np.linalg.norm(direction)
+    up_scaled = np.array(up) / np.abs(up).max()
+    u_true = up_scaled - np.dot(up_scaled, f_true) * f_true
+    u_true /= np.linalg.norm(u_true)
+    for got, want in ((f, f_true), (r, np.cross(f_true, u_true)), (u, u_true)):
+        np.testing.assert_allclose(got, [*want, 0.0], rtol=0, atol=1e-15)
