@@ -844,8 +844,7 @@ def test_point_light_brightness_matches_cycles(tmp_path):
     sc.thurston.light_reach = 0.5
     rho, watts, r = 0.8, 10.0, 0.3
     plane = bh.box("Plane", (0.4, 0.001, 0.4), (0, r, 0), color=(rho, rho, rho))
-    plane.active_material.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = 1.0
-    plane.active_material.node_tree.nodes["Principled BSDF"].inputs["Specular IOR Level"].default_value = 0.0
+    bh.lambert(plane.active_material)
     light = bh.point_light((0, 0, 0), energy=watts)
     light.data.shadow_soft_size = 0.0
     bh.camera(location=(0, -0.1, 0))

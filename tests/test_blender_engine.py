@@ -4,8 +4,8 @@ camera's lens shift, sensor fit and clip distances (against Cycles rendering the
 universal cover), Blender's own panels."""
 import math
 import subprocess
-from dataclasses import replace
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np

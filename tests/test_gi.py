@@ -32,9 +32,12 @@ LE = 1.0
 SPACES = ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "sl2"]
 
 
-def random_rays(space, centre, n, seed):
+def random_rays(space, centre, n, seed, down=False):
+    """n rays from centre in random directions (down: only downwards, towards mis_scene's slabs)."""
     g = space.geometry
     d = np.random.default_rng(seed).normal(size=(n, 3))
+    if down:
+        d[:, 2] = -np.abs(d[:, 2]) - 0.8
     d /= np.linalg.norm(d, axis=1)[:, None]
     o = np.repeat(np.asarray(centre, float)[None], n, axis=0)
     P = g.to_model(o)
@@ -204,17 +207,6 @@ def mis_scene(space):
     return Scene(objects=[matte, shiny, lamp], lights=[])
 
 
-def downward_rays(space, n, seed):
-    """n random directions from the camera point, downwards (towards the slabs)."""
-    g = space.geometry
-    d = np.random.default_rng(seed).normal(size=(n, 3))
-    d[:, 2] = -np.abs(d[:, 2]) - 0.8
-    d /= np.linalg.norm(d, axis=1)[:, None]
-    o = np.repeat(np.asarray(space.camera.position, float)[None], n, axis=0)
-    P = g.to_model(o)
-    return np.ascontiguousarray(P), np.ascontiguousarray(g.normalize_tangent(P, g.tangent_to_model(o, d)))
-
-
 def by_sampling(space, tracer, P, D, length, modes=("mis", "light", "bounce")):
     """{mode: (mean, standard error)} of the pixels' brightness with one bounce."""
     out = {}
@@ -235,7 +227,7 @@ def test_mis_has_the_mean_of_its_parts_and_less_noise(space_id):
     reach = 2.5 * space.inradius
     tracer = render.make_tracer(space, mis_scene(space), threads=2, light_reach=reach)
     assert tracer.num_unmatched_emitters == 0
-    P, D = downward_rays(space, 20000, seed=7)
+    P, D = random_rays(space, space.camera.position, 20000, seed=7, down=True)
     est = by_sampling(space, tracer, P, D, reach)
     print(space_id, {mode: (round(m, 4), round(e, 4)) for mode, (m, e) in est.items()})
     (m, e) = est["mis"]
@@ -251,7 +243,7 @@ def test_emitters_beyond_the_light_reach_light_through_bounces(space_id):
     light, as much as without the samples."""
     space = spaces.load(space_id)
     tracer = render.make_tracer(space, mis_scene(space), threads=2, light_reach=0.1 * space.inradius)
-    P, D = downward_rays(space, 20000, seed=8)
+    P, D = random_rays(space, space.camera.position, 20000, seed=8, down=True)
     est = by_sampling(space, tracer, P, D, 2.5 * space.inradius)
     print(space_id, est)
     assert est["light"][0] < 0.02 * est["mis"][0]

@@ -2,7 +2,6 @@
 on a worker thread, the newest kept, a new request cancelling the frame in progress; then samples
 added up to the count, their running mean the F12 render's."""
 import threading
-
 from dataclasses import replace
 
 import numpy as np

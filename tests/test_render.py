@@ -829,6 +829,9 @@ def test_curved_render_states_and_keeps_its_bound(space_cache, sid, quality):
     nearest = np.nanmin(np.where(res.passes["stop"] == 0, res.passes["depth"], np.nan))
     pixel = math.radians(space.camera.fov) / 64
     assert st["geodesic_error"] <= fraction * render.footprint(space, pixel, nearest)
+    # that footprint in closed form (the domain's chart extent is Nil's and Sol's metric one)
+    assert render.footprint(space, pixel, nearest) == pytest.approx(pixel * (nearest + render.NEAR_FRACTION * space.extent),
+                                                                    rel=1e-12)
 
 
 def test_geodesic_error_sees_a_perturbed_pairing(space_cache):
