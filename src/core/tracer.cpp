@@ -868,8 +868,8 @@ class KernelTracer final : public Tracer {
   // A unit direction at X about the unit normal S with density cos / pi over its hemisphere, in
   // the metric's orthonormal frame at X (frame_at).
   Vec4 cosine_direction(const Vec4& X, const Vec4& S, Random& random) const {
-    const double u = random.uniform(), phi = 2.0 * kPi * random.uniform(), r = std::sqrt(u);
-    return world(frame_at(X, S), {r * std::cos(phi), r * std::sin(phi), std::sqrt(1.0 - u)});
+    const double u1 = random.uniform(), u2 = random.uniform();
+    return world(frame_at(X, S), cosine_hemisphere(u1, u2));
   }
 
   // The unit shading normal at the hit: the metric normal of the chart plane through the hit
