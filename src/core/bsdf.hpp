@@ -67,6 +67,13 @@ struct Ggx {
   static Vec3 reflect(const Vec3& wo, const Vec3& h) { return sub3(scaled3(2.0 * dot3(wo, h), h), wo); }
 };
 
+// A direction of the local frame (z the normal) with density cos / pi over the upper hemisphere,
+// from two uniform numbers.
+inline Vec3 cosine_hemisphere(double u1, double u2) {
+  const double r = std::sqrt(u1), phi = 2.0 * kPi * u2;
+  return {r * std::cos(phi), r * std::sin(phi), std::sqrt(1.0 - u1)};
+}
+
 // The Fresnel reflectance of unpolarised light meeting a dielectric of relative index eta > 1 at
 // cos_i to its normal (from outside).
 inline double dielectric_fresnel(double cos_i, double eta) {
@@ -197,8 +204,7 @@ struct Bsdf {
   // A direction from three uniform numbers: the lobe by u0, then the direction by (u1, u2).
   Vec3 sample(double u0, double u1, double u2) const {
     if (u0 < specular_share) return Ggx::reflect(wo, material->ggx.visible_normal(wo, u1, u2));
-    const double r = std::sqrt(u1), phi = 2.0 * kPi * u2;
-    return {r * std::cos(phi), r * std::sin(phi), std::sqrt(1.0 - u1)};
+    return cosine_hemisphere(u1, u2);
   }
 };
 

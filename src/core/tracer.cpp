@@ -692,14 +692,13 @@ class KernelTracer final : public Tracer {
 
   // A hit's surface as shading sees it: the unit geometric and shading normals, both facing the
   // ray, the metric cosine of incidence (of the winding normal), the material and its base colour
-  // and emission there (none from the back of a one-sided emitter), whether it emits, the object,
-  // the ray's tangent there and the hit's barycentric weights on its triangle.
+  // and emission there (none from the back of a one-sided emitter), the object, the ray's tangent
+  // there and the hit's barycentric weights on its triangle.
   struct Surface {
     Vec4 N, S, V;
     double incidence;
     const Material* material;
     Rgb base, emission;
-    bool emits;
     std::int32_t object;
     Vec3 weights;
   };
@@ -719,7 +718,6 @@ class KernelTracer final : public Tracer {
     s.object = f.placed->object + triangle_object_[f.prim];
     surfaces_.look_up(f.prim, s.weights, s.base, s.emission);
     s.material = &surfaces_.materials[surfaces_.triangle_material[f.prim]];
-    s.emits = s.material->emits();
     if (s.material->one_sided && !front) s.emission = {0.0f, 0.0f, 0.0f};
     return s;
   }
@@ -771,7 +769,7 @@ class KernelTracer final : public Tracer {
     std::optional<Bsdf> bsdf;
   };
   Vertex vertex_at(const Vec4& X, const Surface& s, int depth, const TraceOptions& options) const {
-    Vertex v{X, s.N, s.S, !s.emits, depth < options.bounces, s.base, {}, std::nullopt};
+    Vertex v{X, s.N, s.S, !s.material->emits(), depth < options.bounces, s.base, {}, std::nullopt};
     const Principled& scattering = s.material->scattering;
     if (scattering.glossy()) {
       v.frame = frame_at(X, s.S);
@@ -848,7 +846,7 @@ class KernelTracer final : public Tracer {
       const double length = f.end.distance + f.hit.s;
       const double fog = std::exp(-length / options.light_fog);
       for (double& t : throughput) t *= fog;
-      if (s.emits && options.emitter_sampling != EmitterSampling::kLightSamples) {
+      if (s.material->emits() && options.emitter_sampling != EmitterSampling::kLightSamples) {
         const double weight = emission_weight(v, V, density, length, f, s, options, buffers);
         stats.emitter_hits += weight > 0.0;
         for (int a = 0; a < 3; ++a) sum[a] += float(throughput[a] * s.emission[a] * weight);
@@ -868,8 +866,8 @@ class KernelTracer final : public Tracer {
   // A unit direction at X about the unit normal S with density cos / pi over its hemisphere, in
   // the metric's orthonormal frame at X (frame_at).
   Vec4 cosine_direction(const Vec4& X, const Vec4& S, Random& random) const {
-    const double u = random.uniform(), phi = 2.0 * kPi * random.uniform(), r = std::sqrt(u);
-    return world(frame_at(X, S), {r * std::cos(phi), r * std::sin(phi), std::sqrt(1.0 - u)});
+    const double u1 = random.uniform(), u2 = random.uniform();
+    return world(frame_at(X, S), cosine_hemisphere(u1, u2));
   }
 
   // The unit shading normal at the hit: the metric normal of the chart plane through the hit
