@@ -428,7 +428,7 @@ def _read_mtl(path: Path) -> dict[str, Material]:
         parts = raw.split("#", 1)[0].split()
         if len(parts) >= 2 and parts[0] == "newmtl":
             current = specs.setdefault(parts[1], {})
-        elif current is not None and parts[0] in ("Kd", "Ke", "Ks"):
+        elif current is not None and parts and parts[0] in ("Kd", "Ke", "Ks"):  # (parts: not a blank line)
             try:
                 values = [float(p) for p in parts[1:]]
             except ValueError:

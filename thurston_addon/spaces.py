@@ -645,8 +645,9 @@ class DirichletSpace(Space):
         for name, M in given:
             self._check_moves_centre(M, f"generator {name!r}", generator=True)
         self._steps = [M for _, M in given]
-        shortened = self._shortened(self._steps)
-        for generators in (self._steps, shortened):
+        shortened, moved = self._shortened(self._steps)
+        # (the shortened ones too where shortening changed them: else theirs is the polyhedron just tried)
+        for generators in (self._steps, shortened) if moved else (self._steps,):
             distinct = {g.element_key(N): N for M in generators + [np.linalg.inv(M) for M in generators]
                         for N in [g.reorthonormalize(M)]}
             try:
@@ -665,10 +666,8 @@ class DirichletSpace(Space):
             # the enumeration steps by the generators, not by the faces of a polyhedron that failed
             self.__dict__.pop("domain", None)
             radius = min(radius, full)
-            elements = self.elements_within(radius)[1:]
-            for M in elements:
-                self._check_moves_centre(M, "an element of the group")
-            self._bisector_domain(elements)
+            # (each element passed _check_moves_centre as the enumeration found it)
+            self._bisector_domain(self.elements_within(radius)[1:])
             try:
                 self._check_pairings()
             except SpaceError:
@@ -680,14 +679,15 @@ class DirichletSpace(Space):
             self._elements, self._radius = [np.eye(4)], 0.0  # enumerate again with face steps
             return self.domain
 
-    def _shortened(self, generators: list[np.ndarray]) -> list[np.ndarray]:
-        """Generators of the same group that move O less: each replaced by its product with powers
-        of another (on either side, the power doubled while the product keeps shortening: Nielsen
-        moves, which keep the group) while that shortens it, and those that become the identity
-        dropped. A skewed lattice basis becomes a reduced one, whose bisectors bound the domain and
-        whose ball about O holds few elements."""
+    def _shortened(self, generators: list[np.ndarray]) -> tuple[list[np.ndarray], bool]:
+        """(generators of the same group that move O less, whether any changed): each replaced by
+        its product with powers of another (on either side, the power doubled while the product
+        keeps shortening: Nielsen moves, which keep the group) while that shortens it, and those
+        that become the identity dropped. A skewed lattice basis becomes a reduced one, whose
+        bisectors bound the domain and whose ball about O holds few elements."""
         g = self.geometry
         gens = [g.reorthonormalize(M) for M in generators]
+        moved = False
         for _ in range(_SHORTENING_ROUNDS):
             changed = False
             for i, j in itertools.permutations(range(len(gens)), 2):
@@ -697,9 +697,11 @@ class DirichletSpace(Space):
                     shorter = self._shortened_by(gens[i], s, left)
                     if shorter is not gens[i]:
                         gens[i], changed = shorter, True
+            moved |= changed
             if not changed:
                 break
-        return [M for M in gens if not _is_identity(M)]
+        kept = [M for M in gens if not _is_identity(M)]
+        return kept, moved or len(kept) < len(gens)
 
     def _shortened_by(self, M, s, left: bool):
         """M times powers of s (s^k M where left, else M s^k) while that moves O less, the power
