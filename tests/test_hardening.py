@@ -273,6 +273,16 @@ def test_an_mtl_grey_is_one_number(tmp_path):
     np.testing.assert_array_equal(obj.materials[0].color, [0.25, 0.25, 0.25])
 
 
+def test_blank_and_comment_lines_inside_an_mtl_material(tmp_path):
+    """Blank lines and comments between a material's statements (as exporters write them) are
+    skipped: the colours after them still belong to the material."""
+    (tmp_path / "m.mtl").write_text("newmtl a\n\n# base\nKd 0.5 0.25 0.125\n   \nKe 0 0 2\n")
+    (tmp_path / "m.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n")
+    (obj,) = scenes.load_mesh_file(tmp_path / "m.obj")
+    np.testing.assert_array_equal(obj.materials[0].color, [0.5, 0.25, 0.125])
+    np.testing.assert_array_equal(obj.materials[0].emission, [0, 0, 2])
+
+
 def test_the_cli_names_the_file_of_a_float32_overflow(tmp_path, capsys):
     path = tmp_path / "bright.toml"
     path.write_text("[[light]]\nposition = [0, 0, 0.3]\npower = 1e300\n")
