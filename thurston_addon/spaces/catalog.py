@@ -7,6 +7,7 @@ import tomllib
 from pathlib import Path
 
 from ..files import check_keys, read_text
+from ..geometries import faces
 from .coordinate import CoordinateSpace
 from .dirichlet import DirichletSpace
 from .shells import FoldedShellSpace, ShellSpace
@@ -44,7 +45,7 @@ def from_data(data: dict, source: str) -> Space:
     given = isinstance(gens, list) and any(isinstance(g, dict) and "face" in g for g in gens)
     if not given:
         return DirichletSpace(data, source)
-    if read_geometry(data, source).chart_plane_faces:
+    if not isinstance(read_geometry(data, source).face_shape, faces.Spheres):
         return CoordinateSpace(data, source)
     folded = any(isinstance(g, dict) and "antipodal" in g for g in gens)
     return (FoldedShellSpace if folded else ShellSpace)(data, source)

@@ -84,13 +84,6 @@ class CoordinateSpace(Space):
         g0 = self.geometry.metric(np.zeros(3))
         return float(np.sqrt(np.min(np.einsum("fi,ij,fj->f", feet, g0, feet))))
 
-    @cached_property
-    def plane_vertices(self) -> np.ndarray:
-        """The domain's vertices in the plane chart, where its faces are planes."""
-        g = self.geometry
-        Y = g.plane_coordinates(g.to_model(self.domain.vertices))
-        return Y[:, :3] / Y[:, 3:]
-
     def outline(self, inset: float) -> list[list[tuple[np.ndarray, np.ndarray]]]:
         """Each face's frame, its edges moved `inset` into the face, by face class: a face and its
         partner share a colour (as in the paper's Nil and Sol figures), so where the pairing twists
@@ -110,45 +103,8 @@ class CoordinateSpace(Space):
                 # the point of the face at distance `inset` from both sides: ring[i] + x a + y b
                 G = np.array([[a @ a, a @ b], [a @ b, b @ b]])
                 corners.append(ring[i] + np.linalg.solve(G, [inset, inset]) @ np.array([a, b]))
-            groups[c] += [piece for i in range(k) for piece in self._chart_segments(corners[i], corners[(i + 1) % k])]
+            groups[c] += [piece for i in range(k) for piece in self.geometry.face_shape.chart_segments(corners[i], corners[(i + 1) % k])]
         return groups
-
-    PIECES = 16  # chart chords per plane-chart segment where the faces are curved in the chart
-
-    def _chart_segments(self, a, b):
-        """The plane-chart segment a b in the chart: itself, or chart chords of its image (curved
-        where the plane chart is not the chart)."""
-        g = self.geometry
-        if g.plane_chart_is_chart:
-            return [(a, b)]
-        x = g.from_plane_chart(a + np.linspace(0, 1, self.PIECES + 1)[:, None] * (b - a))
-        return list(zip(x[:-1], x[1:]))
-
-    def guide_mesh(self) -> tuple[np.ndarray, list, list]:
-        """The domain's faces and edges; where the plane chart is not the chart, each face's fan of
-        triangles from its centre subdivided in the plane chart, and each edge in PIECES, carried
-        to the chart."""
-        if self.geometry.plane_chart_is_chart:
-            return super().guide_mesh()
-        import trimesh
-
-        V = self.plane_vertices
-        points, triangles, pairs, count = [], [], [], 0
-        for face in self.domain.faces:
-            ring = V[face.vertices]
-            k = len(ring)
-            y, t = np.vstack([ring, ring.mean(axis=0)]), np.array([[i, (i + 1) % k, k] for i in range(k)])
-            for _ in range(4):
-                y, t = trimesh.remesh.subdivide(y, t)
-            points.append(y)
-            triangles += (t + count).tolist()
-            count += len(y)
-        steps = np.linspace(0, 1, self.PIECES + 1)[:, None]
-        for a, b, _, _ in self.domain.edges:
-            points.append(V[a] + steps * (V[b] - V[a]))
-            pairs += [(count + i, count + i + 1) for i in range(self.PIECES)]
-            count += self.PIECES + 1
-        return self.geometry.from_plane_chart(np.vstack(points)), pairs, triangles
 
     @cached_property
     def volume(self) -> float:

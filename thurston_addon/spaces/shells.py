@@ -7,7 +7,6 @@ from functools import cached_property
 
 import numpy as np
 
-from .. import geometries
 from .coordinate import CoordinateSpace
 from .domains import Domain, Face, Fold
 from .space import read_geometry
@@ -17,10 +16,10 @@ from .values import SpaceError, vector
 def _sphere_face(c, where, geometry) -> tuple[float, bool]:
     """(w0, whether the shell lies inside it) of a shell's face covector (0, 0, c, d): the sphere
     c log|x| + d = 0, the domain on the side <= 0."""
-    if c[0] != 0 or c[1] != 0 or c[2] == 0:
-        raise SpaceError(f"{where}: the face {c.tolist()} is not a sphere |x| = const "
-                         f"({geometry.name} faces are [0, 0, c, d]: the sphere c log|x| + d = 0)")
-    return -c[3] / c[2], bool(c[2] > 0)
+    try:
+        return geometry.face_shape.sphere(c)
+    except ValueError as exc:
+        raise SpaceError(f"{where}: {exc}") from None
 
 
 class ShellSpace(CoordinateSpace):
@@ -150,8 +149,9 @@ class FoldedShellSpace(ShellSpace):
             raise SpaceError(f"{source}: the two reflections' faces do not bound a shell (the inner sphere's face is "
                              "[0, 0, -1, log R_in], the outer's [0, 0, 1, -log R_out], R_in < R_out)")
         self.folded_radii = (math.exp(a), math.exp(b))
-        self.fold = Fold(points=lambda x: geometries.s2xr.antipodal_reflection(x, self.folded_radii[0]),
-                         vectors=lambda x, v: geometries.s2xr.antipodal_reflection_tangent(x, v, self.folded_radii[0]),
+        shape = g.face_shape
+        self.fold = Fold(points=lambda x: shape.reflection(x, self.folded_radii[0]),
+                         vectors=lambda x, v: shape.reflection_tangent(x, v, self.folded_radii[0]),
                          mirrored=lambda x: np.sum(np.asarray(x) ** 2, axis=-1) < self.folded_radii[0] ** 2)
         period = 2 * (b - a)
         cover = dict(data, generator=[{
@@ -170,11 +170,11 @@ class FoldedShellSpace(ShellSpace):
         rng = np.random.default_rng(20261202)
         u = rng.normal(size=(32, 3))
         x = u / np.linalg.norm(u, axis=1)[:, None] * np.exp(rng.uniform(*np.log(self.radii), 32))[:, None]
-        reflections = [lambda p, r=r: geometries.s2xr.antipodal_reflection(p, r) for r in self.radii]
+        reflections = [lambda p, r=r: g.face_shape.reflection(p, r) for r in self.radii]
         for r in self.radii:  # each pulls the metric back onto itself
             p, e = x[:4], np.eye(3)
-            J = np.stack([geometries.s2xr.antipodal_reflection_tangent(p, np.broadcast_to(v, p.shape), r) for v in e], -1)
-            image = geometries.s2xr.antipodal_reflection(p, r)
+            J = np.stack([g.face_shape.reflection_tangent(p, np.broadcast_to(v, p.shape), r) for v in e], -1)
+            image = g.face_shape.reflection(p, r)
             pulled = np.einsum("nki,nkl,nlj->nij", J, g.metric(image), J)
             want = g.metric(p)
             if not np.allclose(pulled, want, rtol=0, atol=1e-9 * np.abs(want).max()):

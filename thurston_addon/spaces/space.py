@@ -154,11 +154,18 @@ class Space:
         """Chart segments that draw the domain, grouped by class (the default scene's tubes)."""
         raise NotImplementedError
 
+    @cached_property
+    def plane_vertices(self) -> np.ndarray:
+        """The domain's vertices in the plane chart, where its faces are planes."""
+        g = self.geometry
+        Y = g.plane_coordinates(g.to_model(self.domain.vertices))
+        return Y[:, :3] / Y[:, 3:]
+
     def guide_mesh(self) -> tuple[np.ndarray, list, list]:
         """The domain as a mesh to model inside (Blender's domain guide): chart vertices, edges
-        (vertex pairs) and faces (vertex rings)."""
-        d = self.domain
-        return d.vertices, [(a, b) for a, b, _, _ in d.edges], [f.vertices for f in d.faces]
+        (vertex pairs) and faces (vertex rings, or triangles where the faces are curved in the
+        chart), as the geometry's face shape draws them."""
+        return self.geometry.face_shape.guide_mesh(self.domain, self.plane_vertices)
 
     @cached_property
     def face_classes(self) -> list[int]:
