@@ -97,7 +97,7 @@ def random_points(rng, n, radius=1.5):
 # --- attributes, metric, Christoffel symbols -------------------------------------------------------
 
 def test_attributes(name, geom):
-    assert geom.name == name and geom.kernel == name.lower() and geom.projective is False
+    assert geom.name == name and geom.kernel == name and geom.projective is False
 
 
 def test_metric_derivative_helper_matches_finite_differences(name, rng):

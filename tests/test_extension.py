@@ -224,7 +224,7 @@ def test_zip_layout(extension_zip):
         assert any(w.startswith(f"wheels/{dep}-") for w in listed), dep
     assert not any(w.startswith("wheels/numpy-") for w in listed)  # Blender's own numpy
     # the add-on package's contents are the root; nothing from dev builds
-    assert "__init__.py" in names and "spaces.py" in names and "presets/poincare.toml" in names
+    assert "__init__.py" in names and "spaces/__init__.py" in names and "presets/poincare.toml" in names
     assert not any("__pycache__" in n or n.endswith((".pyc", ".so")) for n in names)
     assert not any(n.startswith("thurston_addon/") for n in names)
 

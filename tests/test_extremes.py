@@ -554,15 +554,12 @@ def boundary_targets(space, rng, n):
         radii = np.asarray(space.radii)[rng.integers(1 if space.fold else 0, 2, size=n)]
         d = rng.normal(size=(n, 3))
         return radii[:, None] * d / np.linalg.norm(d, axis=1)[:, None]
-    V = space.domain.vertices
-    if not g.plane_chart_is_chart:
-        Y = np.asarray(g.plane_coordinates(g.to_model(V)), float)
-        V = Y[:, :3] / Y[:, 3:]
+    V = space.plane_vertices
     E = np.array([e[:2] for e in space.domain.edges])[rng.integers(len(space.domain.edges), size=n)]
     s = rng.random(n)
     s[: n // 5] = rng.integers(0, 2, size=n // 5)
     y = s[:, None] * V[E[:, 0]] + (1 - s[:, None]) * V[E[:, 1]]
-    return y if g.plane_chart_is_chart else np.asarray(g.from_plane_chart(y), float)
+    return np.asarray(g.from_plane_chart(y), float)
 
 
 def rays_through(space, rng, targets, s):

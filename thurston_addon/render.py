@@ -529,8 +529,9 @@ def light_tiles(space: Space, reach: float) -> np.ndarray:
 def geodesic_loop(space: Space) -> float:
     """The length after which every geodesic returns to its start: pi in S3 where -1 is in the group
     (the Poincare sphere), as X and -X are one point; inf elsewhere."""
-    if space.geometry.name == "S3" and any(np.allclose(M, -np.eye(4)) for M in space.elements_within(math.pi + 1e-6)):
-        return math.pi
+    loop = space.geometry.antipode_distance
+    if math.isfinite(loop) and any(np.allclose(M, -np.eye(4)) for M in space.elements_within(loop + 1e-6)):
+        return loop
     return math.inf
 
 
@@ -624,7 +625,7 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
             of_lift += [i] * len(copies)
         radiance.append(np.asarray(light.color, float) * light.power)
     return dict(
-        geometry=g.name, face_covectors=np.ascontiguousarray(space.domain.covectors()),
+        geometry=g.kernel, face_covectors=np.ascontiguousarray(space.domain.covectors()),
         face_maps=np.ascontiguousarray(np.array([f.pairing for f in space.domain.faces])),
         vertices=np.ascontiguousarray(V, np.float64), triangles=np.ascontiguousarray(T),
         triangle_object=np.ascontiguousarray(O), object_color=colors, object_emission=emission,

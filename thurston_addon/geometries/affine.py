@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from .base import Geometry, _floats
+from .shared import SharedGeometry, floats
 
 # Fixed points at which is_isometry compares pulled-back metrics (x and z both vary: Nil's metric
 # depends on x, Sol's on z).
@@ -30,13 +30,13 @@ def apply(M, X):
 
 def homogeneous(x, last):
     """Append the homogeneous coordinate `last` (1 for points, 0 for tangent vectors)."""
-    x = _floats(x)
+    x = floats(x)
     return np.concatenate([x, np.full(x.shape[:-1] + (1,), last, dtype=x.dtype)], axis=-1)
 
 
 def affine_matrix(linear, offset):
     """4x4 affine matrices from 3x3 blocks (..., 3, 3) and translation columns (..., 3)."""
-    linear, offset = _floats(linear), _floats(offset)
+    linear, offset = floats(linear), floats(offset)
     shape = np.broadcast_shapes(linear.shape[:-2], offset.shape[:-1])
     M = np.zeros(shape + (4, 4), dtype=np.result_type(linear, offset))
     M[..., :3, :3] = linear
@@ -45,12 +45,11 @@ def affine_matrix(linear, offset):
     return M
 
 
-class AffineGeometry(Geometry):
-    """Base class for Nil and Sol: subclasses set `name`, `kernel` and implement `metric`,
+class AffineGeometry(SharedGeometry):
+    """Base class for Nil, Sol and S2xR: subclasses set `name` and implement `metric`,
     `christoffel`, `from_origin`, `to_origin`, `flow_from_origin`, `reorthonormalize`."""
 
     name: str
-    kernel: str  # the C++ kernel's registry name
     projective = False
     affine_isometries = True
     diameter = math.inf  # R^3: unbounded
@@ -63,14 +62,6 @@ class AffineGeometry(Geometry):
     # central-difference step for the Jacobian of the exponential map (tangent space at the origin,
     # where the metric is the identity): balances truncation (h^2) against rounding (eps / h)
     jacobian_step = 1e-5
-
-    def metric(self, x):
-        """Chart metric g_ij at chart points x: (..., 3, 3)."""
-        raise NotImplementedError
-
-    def christoffel(self, x):
-        """Christoffel symbols at chart points x: (..., 3, 3, 3), [k, i, j] = Gamma^k_ij."""
-        raise NotImplementedError
 
     def from_origin(self, x):
         """Isometries (..., 4, 4) taking the origin to the chart points x."""
@@ -85,13 +76,9 @@ class AffineGeometry(Geometry):
         origin with unit velocity v (..., 3); v, t have the same leading shape."""
         raise NotImplementedError
 
-    def reorthonormalize(self, M):
-        """The exact isometry of the geometry's family nearest the almost-isometry M."""
-        raise NotImplementedError
-
     # --- charts -------------------------------------------------------------------------------
     def to_chart(self, X):
-        X = _floats(X)
+        X = floats(X)
         return X[..., :3] / X[..., 3:4]
 
     def to_model(self, x):
@@ -103,21 +90,21 @@ class AffineGeometry(Geometry):
 
     def tangent_to_model(self, x, u):
         """Model tangent vector of the chart vector u at chart point x (the chart is the model)."""
-        x, u = np.broadcast_arrays(_floats(x), _floats(u))
+        x, u = np.broadcast_arrays(floats(x), floats(u))
         return homogeneous(u, 0.0)
 
     def tangent_to_chart(self, X, V):
         """Chart velocity of a model tangent vector V at X (differential of to_chart)."""
-        X, V = _floats(X), _floats(V)
+        X, V = floats(X), floats(V)
         return (V[..., :3] - X[..., :3] * (V[..., 3:4] / X[..., 3:4])) / X[..., 3:4]
 
     def normalize_point(self, X):
-        X = _floats(X)
+        X = floats(X)
         return X / X[..., 3:4]
 
     def normalize_tangent(self, X, V):
         """V with V[..., 3] = 0, scaled to unit length in the metric at X."""
-        X, V = np.broadcast_arrays(_floats(X), _floats(V))
+        X, V = np.broadcast_arrays(floats(X), floats(V))
         V = V.copy()
         V[..., 3] = 0.0
         return V / np.sqrt(self.dot(X, V, V))[..., None]
@@ -126,7 +113,7 @@ class AffineGeometry(Geometry):
     def dot(self, X, A, B):
         """g_X(A, B) for model tangent vectors A, B at model points X."""
         g = self.metric(self.to_chart(X))
-        return np.einsum("...i,...ij,...j->...", _floats(A)[..., :3], g, _floats(B)[..., :3])
+        return np.einsum("...i,...ij,...j->...", floats(A)[..., :3], g, floats(B)[..., :3])
 
     def volume_density(self, x):
         """sqrt(det g) of the chart metric (1 for Nil and Sol; computed, not assumed)."""
@@ -140,7 +127,7 @@ class AffineGeometry(Geometry):
 
     def _geodesic(self, P, V, t, flow):
         """Move P to the origin, flow there with `flow`, move back (errors do not grow with |P|)."""
-        P, V, t = _floats(P), _floats(V), _floats(t)
+        P, V, t = floats(P), floats(V), floats(t)
         p = self.to_chart(P)
         shape = np.broadcast_shapes(p.shape[:-1], V.shape[:-1], t.shape)
         v0 = apply(self.to_origin(p), V)[..., :3]
@@ -152,7 +139,7 @@ class AffineGeometry(Geometry):
     def exp_from_origin(self, w):
         """exp_O(w) in chart coordinates for tangent vectors w (..., 3) at the origin (an
         orthonormal frame there); exp_O(0) = 0."""
-        w = _floats(w)
+        w = floats(w)
         r = np.linalg.norm(w, axis=-1)
         safe = np.where(r > 0, r, 1.0)
         x, _ = self.flow_from_origin(w / safe[..., None], r)
@@ -161,7 +148,7 @@ class AffineGeometry(Geometry):
     def exp_jacobian(self, w):
         """d exp_O at w (..., 3, 3), [i, j] = d x_i / d w_j, by central differences (one flow
         call for all six evaluations)."""
-        w = _floats(w)
+        w = floats(w)
         h = self.jacobian_step
         steps = h * np.eye(3, dtype=w.dtype).reshape((3,) + (1,) * (w.ndim - 1) + (3,))
         x = self.exp_from_origin(np.concatenate([w + steps, w - steps]))
@@ -174,7 +161,7 @@ class AffineGeometry(Geometry):
         (Newton for the targets k/8 of the way, each from the previous solution). ok is False
         where neither converged (V, r are NaN there). When A = B, r = 0 and V is the unit vector
         along the frame's first axis (any direction reaches B)."""
-        A, B = _floats(A), _floats(B)
+        A, B = floats(A), floats(B)
         shape = np.broadcast_shapes(A.shape[:-1], B.shape[:-1])
         a = np.broadcast_to(self.to_chart(A), shape + (3,)).reshape(-1, 3)
         target = self.to_chart(apply(self.to_origin(a), np.broadcast_to(B, shape + (4,)).reshape(-1, 4)))
@@ -237,7 +224,7 @@ class AffineGeometry(Geometry):
         J = r^2 |det d exp_P(r V)| in orthonormal frames at both ends (the area density of the
         geodesic sphere per unit solid angle; the same seen from either end). Both metrics have
         det g = 1, so chart determinants are frame determinants. Tends to 1 / r^2 as r -> 0."""
-        P, V, r = _floats(P), _floats(V), _floats(r)
+        P, V, r = floats(P), floats(V), floats(r)
         p = self.to_chart(P)
         v0 = apply(self.to_origin(p), V)[..., :3]
         shape = np.broadcast_shapes(v0.shape[:-1], r.shape)

@@ -1,105 +1,219 @@
-"""What every geometry shares: the interface and the pieces written once for all of them.
+"""The geometry contract: what every geometry provides, and nothing else.
 
-A geometry (ProjectiveGeometry for E3, S3, H3; AffineGeometry for Nil, Sol) works on points and
-tangent vectors as homogeneous 4-vectors ("model" coordinates) with chart point x = X[:3] / X[3],
-and on isometries as 4x4 matrices acting linearly on them. It offers: `name`, `projective`
-(geodesics and bisectors straight in the chart: Dirichlet domains), `affine_isometries` (the
-isometries act on chart points as the affine maps M themselves: E3, Nil, Sol), `diameter`,
-`copy_rings`, `reference_depth`, `light_reach_circumradii`, `chord_scale`; charts (`to_chart`,
-`to_model`, `in_chart`, `tangent_to_model`, `tangent_to_chart`, `normalize_point`,
-`normalize_tangent`); the metric (`metric`, `christoffel`, `volume_density`, `dot`); geodesics
-(`geodesic`, `chart_geodesic`); isometries (`is_isometry`, `reorthonormalize`, `element_key`,
-`transform_points`, `pull_back_plane`); distances (`distance`, `chord_distance`; the bounds that
-render.cover_copies' walk to a light's copies uses: `distance_bound`, `farthest_distance`,
-`domain_distance`) and light (`connect`, `falloff_along`); `plane_coordinates`, the homogeneous
-vectors a domain's face covectors pair with. The C++ core has a kernel of the same name for each.
+A geometry works on points and tangent vectors as homogeneous 4-vectors ("model" coordinates) with a
+chart of R^3 (mostly x = X[:3] / X[3]), and on isometries as 4x4 matrices acting linearly on model
+vectors, so that words in a group's generators are matrix products. Everything broadcasts over
+leading axes. The members are grouped: chart, metric, geodesics, isometries, distance bounds,
+light, faces; `name` is what a space file's `geometry` field says, `kernel` the C++ core's kernel
+that traces it (src/core: the core picks its kernel by this name). Geometries with closed forms
+also offer `distance` and `connect` (the shortest geodesic between two points), which Dirichlet
+domains and the tests' references use; SL2's light paths are the core's alone.
+
+Implementations: shared.SharedGeometry writes the members most geometries share once;
+projective.ProjectiveGeometry (E3, S3, H3) and affine.AffineGeometry (Nil, Sol, S2xR) the families';
+H2xR and SL2 their own. Adding a geometry: a subclass that implements every abstract member, the
+registry (geometries/__init__.py), a kernel of the core (or an existing one, by `kernel`), a preset;
+tests/test_contract.py then checks it with the others.
 """
 from __future__ import annotations
 
-import numpy as np
+import abc
 
 
-def _floats(a):
-    """As a float array, keeping extended precision (np.longdouble) where the input has it."""
-    a = np.asarray(a)
-    return a.astype(np.result_type(a.dtype, np.float64), copy=False)
+class Geometry(abc.ABC):
+    """The contract. Data members are abstract properties: a subclass satisfies them with class
+    attributes or properties."""
 
+    @property
+    @abc.abstractmethod
+    def name(self) -> str:
+        """The geometry's name in space files ("E3", "Nil", ...)."""
 
-class Geometry:
-    # Gauss-Legendre points per axis of a coordinate domain's volume integral (spaces.py)
-    volume_order = 16
-    # Whether a coordinate domain's faces are chart planes (a convex chart polyhedron); S2xR's are
-    # the spheres |x| = const (spaces.ShellSpace)
-    chart_plane_faces = True
-    # Whether the face planes' coordinates (plane_coordinates, as y = Y[:3] / Y[3]) are the chart's
-    # own; SL2's are (Klein(w), phi) over its Poincare chart, so its faces are curved in the chart
-    plane_chart_is_chart = True
-    # Whether an isometry M maps chart points affinely, as M on (x, 1): copies of an instanced mesh
-    # are then instances themselves (render.py)
-    affine_isometries = False
-    # The default light reach in circumradii of the domain (render.default_light_reach): more where
-    # the copies within a reach grow slowly
-    light_reach_circumradii = 1.0
-    # The chord tolerance of a quality in units of its error bound (render.Settings.tolerances):
-    # 1, where the chords' bound K h^2 / 8 keeps silhouettes within the bound; up to 4 where the
-    # error/time front shows every quality within half its bound at it and the time it saves
-    # (benchmarks/bench_front.py, docs/front.md "The chord rule"; E3, S3 and H3 have exact chords)
-    chord_scale = 1.0
+    @property
+    @abc.abstractmethod
+    def kernel(self) -> str:
+        """The name of the C++ core's kernel that traces this geometry (thurston_core's registry)."""
 
-    def chart_geodesic(self, x, u, t):
-        """Chart position and chart velocity at arclength t from chart point x, chart direction u
-        (u is normalised in the metric at x)."""
-        X = self.to_model(x)
-        V = self.normalize_tangent(X, self.tangent_to_model(x, u))
-        Xt, Vt = self.geodesic(X, V, t)
-        return self.to_chart(Xt), self.tangent_to_chart(Xt, Vt)
+    # --- chart ----------------------------------------------------------------------------------
+    @abc.abstractmethod
+    def to_chart(self, X):
+        """Chart points (..., 3) of model points X (..., 4)."""
 
-    def distance_bound(self, A, B):
-        """An upper bound of the distance between model points A and B (the length of some curve
-        between them): the distance itself where it has a closed form."""
-        return self.distance(A, B)
+    @abc.abstractmethod
+    def to_model(self, x):
+        """Model points (..., 4), normalised, of chart points x (..., 3)."""
 
-    def farthest_distance(self, X, domain):
-        """An upper bound of the largest distance from the model point X to the points of a
-        coordinate domain: the largest to its vertices, which is that where distance functions are
-        convex and the domain is the convex hull of its vertices (H2xR)."""
-        return float(np.max(self.distance(X, self.to_model(domain.vertices))))
+    @abc.abstractmethod
+    def in_chart(self, x):
+        """Whether chart points are points of the geometry (H3: inside the unit ball)."""
 
-    def chord_distance(self, A, B):
-        """The distance of nearby points to first order: the metric length at A of B - A."""
-        d = _floats(B) - _floats(A)
-        return np.sqrt(np.maximum(self.dot(A, d, d), 0))
+    @abc.abstractmethod
+    def tangent_to_model(self, x, u):
+        """Model tangent vectors of chart vectors u at chart points x (the differential of to_model)."""
 
-    def transform_points(self, M, x):
-        """Apply isometries (matrices acting linearly on model vectors) to chart points."""
-        return self.to_chart(np.einsum("...ij,...j->...i", _floats(M), self.to_model(x)))
+    @abc.abstractmethod
+    def tangent_to_chart(self, X, V):
+        """Chart vectors of model tangent vectors V at model points X (the differential of to_chart)."""
 
-    def plane_coordinates(self, X):
-        """The homogeneous vectors of model points X that face covectors pair with: the model
-        vectors themselves where the chart is their projective image (E3, S3, H3, Nil, Sol)."""
-        return _floats(X)
+    @abc.abstractmethod
+    def normalize_point(self, X):
+        """Model vectors put back on the model (removes rounding; keeps extended precision)."""
 
-    def from_plane_chart(self, y):
-        """Chart points of plane-chart points y = Y[:3] / Y[3] (Y = plane_coordinates(X))."""
-        return _floats(y)
+    @abc.abstractmethod
+    def normalize_tangent(self, X, V):
+        """V made tangent at X and of unit length in the metric."""
 
-    def plane_chart_density(self, y):
-        """The volume density in the plane chart."""
-        return self.volume_density(y)
-
-    def mesh_to_chart(self, Y):
-        """Chart points of a small connected mesh's model vertices (SL2: on one branch of phi)."""
-        return self.to_chart(Y)
-
+    @abc.abstractmethod
     def charted(self, Y):
         """Whether model vectors are points of the chart (S3: its hemisphere X[3] > 0)."""
-        Y = _floats(Y)
-        return Y[..., 3] > 1e-9 * np.linalg.norm(Y, axis=-1)
 
-    def generator_problem(self, M):
+    @abc.abstractmethod
+    def mesh_to_chart(self, Y):
+        """Chart points of a small connected mesh's model vertices (SL2: on one branch of phi)."""
+
+    # --- metric ---------------------------------------------------------------------------------
+    @abc.abstractmethod
+    def metric(self, x):
+        """The chart metric g_ij at chart points x: (..., 3, 3)."""
+
+    @abc.abstractmethod
+    def christoffel(self, x):
+        """Christoffel symbols of the chart metric at chart points x: (..., 3, 3, 3), [k, i, j] = Gamma^k_ij."""
+
+    @abc.abstractmethod
+    def volume_density(self, x):
+        """sqrt(det g) of the chart metric at chart points x."""
+
+    @abc.abstractmethod
+    def dot(self, X, A, B):
+        """The metric at model points X on model tangent vectors A, B."""
+
+    # --- geodesics ------------------------------------------------------------------------------
+    @property
+    @abc.abstractmethod
+    def projective(self) -> bool:
+        """Whether geodesics are chart lines and bisectors chart planes (E3, S3, H3): the rays are
+        exact and spaces may be Dirichlet domains, which use ProjectiveGeometry's bisector,
+        dihedral_angle, plane_distances, plane_distance and cone_radial_integral."""
+
+    @property
+    @abc.abstractmethod
+    def antipode_distance(self) -> float:
+        """The arclength after which every geodesic from X reaches the model vector -X (S3: pi);
+        inf where none does. A group holding -I then closes every geodesic at that length."""
+
+    @property
+    @abc.abstractmethod
+    def reference_depth(self) -> float:
+        """How deep `geodesic` in the universal cover is a reference (inf: at any depth)."""
+
+    @property
+    @abc.abstractmethod
+    def chord_scale(self) -> float:
+        """The chord tolerance of a quality in units of its error bound (render.Settings.tolerances):
+        1 where the chords' bound K h^2 / 8 keeps silhouettes within the bound; up to 4 where the
+        error/time front shows every quality within half its bound at it (docs/front.md)."""
+
+    @abc.abstractmethod
+    def geodesic(self, P, V, t):
+        """Model position and unit velocity at arclength t along the geodesic from the model point P
+        with unit tangent V (extended precision is kept where the input has it)."""
+
+    @abc.abstractmethod
+    def chart_geodesic(self, x, u, t):
+        """Chart position and chart velocity at arclength t from chart point x, chart direction u."""
+
+    @abc.abstractmethod
+    def chord_distance(self, A, B):
+        """The distance of nearby model points to first order."""
+
+    # --- isometries -----------------------------------------------------------------------------
+    @property
+    @abc.abstractmethod
+    def affine_isometries(self) -> bool:
+        """Whether every isometry M maps chart points affinely, as M on (x, 1) (E3, Nil, Sol, S2xR):
+        copies of an instanced mesh are then instances themselves."""
+
+    @property
+    @abc.abstractmethod
+    def copy_rings(self) -> int:
+        """Rings of neighbouring domains searched for the parts of large objects."""
+
+    @abc.abstractmethod
+    def is_isometry(self, M, tol=1e-9) -> bool:
+        """Whether the 4x4 matrix M is an isometry of the model."""
+
+    @abc.abstractmethod
+    def reorthonormalize(self, M):
+        """The exact isometry nearest the almost-isometry M (removes accumulated rounding)."""
+
+    @abc.abstractmethod
+    def element_key(self, M) -> tuple:
+        """A hashable key that tells group elements apart (to rounding)."""
+
+    @abc.abstractmethod
+    def transform_points(self, M, x):
+        """Isometries M applied to chart points x."""
+
+    @abc.abstractmethod
+    def generator_problem(self, M) -> str | None:
         """Why a space file may not use the isometry M as a generator (None: it may)."""
-        return None
 
+    # --- distance bounds ------------------------------------------------------------------------
+    @property
+    @abc.abstractmethod
+    def diameter(self) -> float:
+        """The largest distance between two points (S3: pi; inf where unbounded)."""
+
+    @property
+    @abc.abstractmethod
+    def light_reach_circumradii(self) -> float:
+        """The default light reach in circumradii of the domain (render.default_light_reach)."""
+
+    @abc.abstractmethod
+    def distance_bound(self, A, B):
+        """An upper bound of the distance between model points A and B."""
+
+    @abc.abstractmethod
+    def farthest_distance(self, X, domain) -> float:
+        """An upper bound of the largest distance from the model point X to a domain's points."""
+
+    @abc.abstractmethod
+    def domain_distance(self, X, domain):
+        """A lower bound of the distances from model points X (..., 4) to a domain."""
+
+    # --- light ----------------------------------------------------------------------------------
+    @abc.abstractmethod
+    def falloff_along(self, P, V, r):
+        """The falloff of a point light at P seen at distance r along the geodesic (P, V):
+        1 / (r^2 |det d exp_P(r V)|) in orthonormal frames."""
+
+    # --- faces ----------------------------------------------------------------------------------
+    @property
+    @abc.abstractmethod
+    def face_shape(self):
+        """The shape of a domain's faces in the chart (a faces.FaceShape): chart planes, spheres,
+        planes of another chart."""
+
+    @property
+    @abc.abstractmethod
+    def volume_order(self) -> int:
+        """Gauss-Legendre points per axis of a coordinate domain's volume integral."""
+
+    @abc.abstractmethod
+    def plane_coordinates(self, X):
+        """The homogeneous vectors Y (..., 4) of model points X that face covectors c pair with:
+        a face is c . Y = 0, the domain on the side <= 0; y = Y[:3] / Y[3] is the plane chart."""
+
+    @abc.abstractmethod
+    def from_plane_chart(self, y):
+        """Chart points of plane-chart points y."""
+
+    @abc.abstractmethod
+    def plane_chart_density(self, y):
+        """The volume density in the plane chart."""
+
+    @abc.abstractmethod
     def pull_back_plane(self, c, M):
-        """The covector of the plane that the isometry M maps onto the plane c."""
-        return np.asarray(c, float) @ np.asarray(M, float)
+        """The covector of the face that the isometry M maps onto the face c (ValueError where M
+        maps it onto no face)."""

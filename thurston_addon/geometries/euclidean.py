@@ -1,7 +1,7 @@
 """E3: Euclidean space, X = (x, 1); isometries are affine maps."""
 import numpy as np
 
-from .base import _floats
+from .shared import floats
 from .projective import ProjectiveGeometry
 
 
@@ -13,7 +13,7 @@ class Euclidean(ProjectiveGeometry):
     form = np.array([1.0, 1.0, 1.0, 0.0])
 
     def cos_sin(self, t):
-        t = _floats(t)
+        t = floats(t)
         return np.ones_like(t), t
 
     def distance(self, A, B):

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from .base import Geometry, _floats
+from .shared import SharedGeometry, floats
 from .hyperbolic import Hyperbolic
 
 DISK = [0, 1, 3]  # the model slots of the hyperboloid
@@ -28,7 +28,7 @@ _H2 = Hyperbolic()  # H^2 is H3's plane X[2] = 0
 
 def _disk(X):
     """The H3 model vector of the H^2 part (slot 2 set to 0)."""
-    D = np.array(_floats(X), copy=True)
+    D = np.array(floats(X), copy=True)
     D[..., LINE] = 0.0
     return D
 
@@ -40,7 +40,7 @@ def _with_line(D, value):
 
 def _in_plane(x):
     """Chart points (..., 3) moved to z = 0, where H3's Klein formulas are H^2's."""
-    x = np.array(_floats(x), copy=True)
+    x = np.array(floats(x), copy=True)
     x[..., 2] = 0.0
     return x
 
@@ -50,7 +50,7 @@ def polygon_distance(Y, covectors, ends):
     Klein disk {k : c . (k, 1) <= 0} (covectors c, rows), whose sides run between the Klein points
     ends[i] (each (2+, 2): a side's vertices): 0 inside, else to the nearest side, to its line
     where the foot of the perpendicular lies on the side, else to the nearer end."""
-    Y = _floats(Y)
+    Y = floats(Y)
     inside = np.all(Y @ np.asarray(covectors, float).T <= 0, axis=-1)
     J = np.array([1.0, 1.0, -1.0])  # the Lorentz form on (X1, X2, X0)
     to_side = np.inf
@@ -67,9 +67,8 @@ def polygon_distance(Y, covectors, ends):
     return np.where(inside, 0.0, to_side)
 
 
-class H2xR(Geometry):
+class H2xR(SharedGeometry):
     name = "H2xR"
-    kernel = "h2xr"
     projective = False
     diameter = math.inf
     copy_rings = 1  # hyperbolic rings of copies grow too fast for more
@@ -83,11 +82,11 @@ class H2xR(Geometry):
 
     # --- charts -------------------------------------------------------------------------------
     def to_chart(self, X):
-        X = _floats(X)
+        X = floats(X)
         return np.concatenate([X[..., :2] / X[..., 3:4], np.log(X[..., LINE:LINE + 1])], axis=-1)
 
     def to_model(self, x):
-        x = _floats(x)
+        x = floats(x)
         return _with_line(_H2.to_model(_in_plane(x)), np.exp(x[..., 2]))
 
     def in_chart(self, x):
@@ -96,21 +95,21 @@ class H2xR(Geometry):
         return np.all(np.isfinite(x), axis=-1) & (np.sum(x[..., :2] ** 2, axis=-1) < 1.0)
 
     def tangent_to_model(self, x, u):
-        x, u = np.broadcast_arrays(_floats(x), _floats(u))
+        x, u = np.broadcast_arrays(floats(x), floats(u))
         return _with_line(_H2.tangent_to_model(_in_plane(x), _in_plane(u)), np.exp(x[..., 2]) * u[..., 2])
 
     def tangent_to_chart(self, X, V):
-        X, V = _floats(X), _floats(V)
+        X, V = floats(X), floats(V)
         disk = (V[..., :2] - X[..., :2] * (V[..., 3:4] / X[..., 3:4])) / X[..., 3:4]
         return np.concatenate([disk, V[..., LINE:LINE + 1] / X[..., LINE:LINE + 1]], axis=-1)
 
     def normalize_point(self, X):
-        X = _floats(X)
+        X = floats(X)
         return _with_line(_H2.normalize_point(_disk(X)), X[..., LINE])
 
     def normalize_tangent(self, X, V):
         """V projected onto the tangent space at X, scaled to unit length in the metric."""
-        X, V = np.broadcast_arrays(_floats(X), _floats(V))
+        X, V = np.broadcast_arrays(floats(X), floats(V))
         D, W = _disk(X), _disk(V)
         W = _with_line(W + _H2.inner(D, W)[..., None] * D, V[..., LINE])
         return W / np.sqrt(self.dot(X, W, W))[..., None]
@@ -122,7 +121,7 @@ class H2xR(Geometry):
     # --- metric ---------------------------------------------------------------------------------
     def dot(self, X, A, B):
         """The Lorentz form on the hyperboloid slots plus dz^2 = (dE / E)^2."""
-        X, A, B = _floats(X), _floats(A), _floats(B)
+        X, A, B = floats(X), floats(A), floats(B)
         return _H2.inner(_disk(A), _disk(B)) + A[..., LINE] * B[..., LINE] / X[..., LINE] ** 2
 
     def metric(self, x):
@@ -149,7 +148,7 @@ class H2xR(Geometry):
         """Position and unit velocity at arclength t from P with unit tangent V: on the hyperboloid
         cosh(a t) p + sinh(a t) / a . v (a the horizontal speed, the form stable as a -> 0),
         E = E0 e^{b t} (b the vertical speed)."""
-        P, V, t = _floats(P), _floats(V), _floats(t)
+        P, V, t = floats(P), floats(V), floats(t)
         D, W = _disk(P), _disk(V)
         a = np.sqrt(np.maximum(_H2.inner(W, W), 0.0))
         at = a * t
@@ -172,14 +171,14 @@ class H2xR(Geometry):
 
     def distance(self, A, B):
         d, _ = self._horizontal(A, B)
-        dz = np.log(_floats(B)[..., LINE] / _floats(A)[..., LINE])
+        dz = np.log(floats(B)[..., LINE] / floats(A)[..., LINE])
         return np.hypot(d, dz)
 
     def connect(self, A, B):
         """(V, r, ok): the unit tangent at A and length of the geodesic to B in closed form: the H^2
         geodesic of the disk parts and the straight z part (the shortest, and the only one in the
         cover). Where A = B, r = 0 and V is the chart x direction."""
-        A, B = np.broadcast_arrays(_floats(A), _floats(B))
+        A, B = np.broadcast_arrays(floats(A), floats(B))
         d, W = self._horizontal(A, B)
         dz = np.log(B[..., LINE] / A[..., LINE])
         r = np.hypot(d, dz)
@@ -193,7 +192,7 @@ class H2xR(Geometry):
         (x, y, z, 1); positive on the side c . x > 0): a vertical plane a x + b y + d = 0 is a
         geodesic of the disk times R, at H^2 distance asinh((a X1 + b X2 + d X0) / sqrt(a^2 + b^2 - d^2));
         a horizontal one c z + d = 0 at distance (c z + d) / |c|."""
-        X, C = _floats(X), np.asarray(C, float)
+        X, C = floats(X), np.asarray(C, float)
         vertical = C[:, 2] == 0
         if not np.all(vertical | ((C[:, 0] == 0) & (C[:, 1] == 0))):
             raise ValueError("H2xR face planes are vertical (a x + b y + d = 0) or horizontal (c z + d = 0)")
@@ -211,12 +210,12 @@ class H2xR(Geometry):
         vertical = C[:, 2] == 0
         beyond_lids = np.maximum(np.max(np.where(vertical, -np.inf, d), axis=-1), 0.0)
         ends = [domain.vertices[f.vertices, :2] for f, v in zip(domain.faces, vertical) if v]
-        return np.hypot(polygon_distance(_floats(X)[..., DISK], C[vertical][:, DISK], ends), beyond_lids)
+        return np.hypot(polygon_distance(floats(X)[..., DISK], C[vertical][:, DISK], ends), beyond_lids)
 
     def falloff_along(self, P, V, r):
         """1 / (r^2 |det d exp_P(r V)|): the exponential map is H^2's times the identity, whose
         determinant at horizontal length a r is sinh(a r) / (a r) (a the horizontal speed)."""
-        r = _floats(r)
+        r = floats(r)
         W = _disk(V)
         ar = np.sqrt(np.maximum(_H2.inner(W, W), 0.0)) * r
         stretch = np.where(ar > 0, np.sinh(ar) / np.where(ar > 0, ar, 1.0), 1.0)

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from .affine import AffineGeometry, affine_matrix
-from .base import _floats
+from .shared import floats
 
 # |theta| below which F(theta) = (theta - sin theta) / theta^2 is summed as a series: the direct
 # formula loses digits to cancellation up to theta ~ 1, and 9 terms reach 1e-17 there.
@@ -54,34 +54,33 @@ def _box_corners(domain):
 def _seen_from(a, q):
     """(rho, h): the horizontal distance and the symmetric height of q seen from a (a^-1 q in the
     symmetric model), chart points broadcasting: h = q_z - a_z - (q_y - a_y)(q_x + a_x) / 2."""
-    a, q = _floats(a), _floats(q)
+    a, q = floats(a), floats(q)
     rho = np.hypot(q[..., 0] - a[..., 0], q[..., 1] - a[..., 1])
     return rho, q[..., 2] - a[..., 2] - 0.5 * (q[..., 1] - a[..., 1]) * (q[..., 0] + a[..., 0])
 
 
 def multiply(p, q):
     """Group product p . q of chart points (..., 3)."""
-    p, q = np.broadcast_arrays(_floats(p), _floats(q))
+    p, q = np.broadcast_arrays(floats(p), floats(q))
     return np.stack([p[..., 0] + q[..., 0], p[..., 1] + q[..., 1],
                      p[..., 2] + q[..., 2] + p[..., 0] * q[..., 1]], axis=-1)
 
 
 def inverse(p):
     """Group inverse of chart points: (-x, -y, -z + x y)."""
-    p = _floats(p)
+    p = floats(p)
     return np.stack([-p[..., 0], -p[..., 1], -p[..., 2] + p[..., 0] * p[..., 1]], axis=-1)
 
 
 class Nil(AffineGeometry):
     name = "Nil"
-    kernel = "nil"
     # the circumradius bound (farthest_distance: 1.33 for the unit cube, whose corners lie 0.94 from
     # its centre), as the copies within R grow like R^4; below 2 pi each copy is reached along one
     # geodesic, the shortest (nil.hpp's connections)
     light_reach_circumradii = 1.0
 
     def metric(self, x):
-        x = _floats(x)
+        x = floats(x)
         a = x[..., 0]
         one, zero = np.ones_like(a), np.zeros_like(a)
         return np.stack([np.stack([one, zero, zero], -1),
@@ -89,7 +88,7 @@ class Nil(AffineGeometry):
                          np.stack([zero, -a, one], -1)], -2)
 
     def christoffel(self, x):
-        x = _floats(x)
+        x = floats(x)
         a = x[..., 0]
         G = np.zeros(x.shape[:-1] + (3, 3, 3), dtype=x.dtype)
         G[..., 0, 1, 1] = -a
@@ -131,7 +130,7 @@ class Nil(AffineGeometry):
     # --- isometries -------------------------------------------------------------------------------
     def left_multiplication(self, p):
         """Matrices (..., 4, 4) of q -> p . q: (x, y, z) -> (x + a, y + b, z + c + a y)."""
-        p = _floats(p)
+        p = floats(p)
         linear = np.broadcast_to(np.eye(3, dtype=p.dtype), p.shape[:-1] + (3, 3)).copy()
         linear[..., 2, 1] = p[..., 0]
         return affine_matrix(linear, p)
@@ -160,7 +159,7 @@ class Nil(AffineGeometry):
             z = w t + (c^2 t^2 / 2) [F(theta) + S(theta/2)^2 sin(theta + 2a) / 2],
         which has no division by w (the paper's form cancels catastrophically for small w t).
         c cos a, c sin a enter directly, so no angle is computed."""
-        v, t = _floats(v), _floats(t)
+        v, t = floats(v), floats(t)
         vx, vy, w = v[..., 0], v[..., 1], v[..., 2]
         theta = w * t
         cos, sin = np.cos(theta), np.sin(theta)

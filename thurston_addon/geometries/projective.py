@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from .base import Geometry, _floats
+from .shared import SharedGeometry, floats
 
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
 
@@ -21,7 +21,7 @@ def _dot(a, b):
     return np.einsum("...i,...i->...", a, b)
 
 
-class ProjectiveGeometry(Geometry):
+class ProjectiveGeometry(SharedGeometry):
     """Base class: subclasses set `name`, `curvature` and the form `form` (diagonal of the
     ambient bilinear form restricted as the metric sees it)."""
 
@@ -35,6 +35,11 @@ class ProjectiveGeometry(Geometry):
     @property
     def diameter(self) -> float:
         """The largest distance between two points (S3: pi; E3, H3: unbounded)."""
+        return math.pi if self.curvature > 0 else math.inf
+
+    @property
+    def antipode_distance(self) -> float:
+        """S3: every geodesic from X reaches -X at pi; E3, H3 have no antipodes (-X is no point of H3's sheet)."""
         return math.pi if self.curvature > 0 else math.inf
 
     def cos_sin(self, t):
@@ -118,14 +123,14 @@ class ProjectiveGeometry(Geometry):
 
     # --- staying on the model ----------------------------------------------------------------
     def normalize_point(self, X):
-        X = _floats(X)
+        X = floats(X)
         if self.curvature == 0:
             return X / X[..., 3:4]
         return X / np.sqrt(self.curvature * self.inner(X, X))[..., None]
 
     def normalize_tangent(self, X, V):
         """Project V onto the tangent space at X and scale it to unit length in the metric."""
-        V = _floats(V)
+        V = floats(V)
         if self.curvature == 0:
             V = V.copy()
             V[..., 3] = 0.0
@@ -137,14 +142,14 @@ class ProjectiveGeometry(Geometry):
     def geodesic(self, P, V, t):
         """Position and unit velocity at arclength t along the geodesic from P with unit tangent V
         (extended precision is kept where the input has it)."""
-        P, V, t = _floats(P), _floats(V), _floats(t)[..., None]
+        P, V, t = floats(P), floats(V), floats(t)[..., None]
         c, s = self.cos_sin(t)
         return c * P + s * V, -self.curvature * s * P + c * V
 
     def chord_distance(self, A, B):
         """The distance of nearby model points to first order, from the model chord: 2 sin(r/2),
         2 sinh(r/2) or r (S3, H3, E3). Keeps extended precision."""
-        d = _floats(B) - _floats(A)
+        d = floats(B) - floats(A)
         square = np.sum(d[..., :3] ** 2, axis=-1)
         if self.curvature != 0:
             square = np.maximum(square + self.curvature * d[..., 3] ** 2, 0)
@@ -283,6 +288,11 @@ class ProjectiveGeometry(Geometry):
         if k > 0:
             return 0.5 * (np.arctan(R) - R / (1 + R * R))
         return 0.5 * (R / (1 - R * R) - np.arctanh(R))
+
+    def domain_distance(self, X, domain):
+        """Distances from model points X to a convex domain, bounded below by the largest signed
+        distance to its face planes (0 inside)."""
+        return np.maximum(np.max(self.plane_distances(X, domain.covectors()), axis=-1), 0.0)
 
     def plane_distance(self, c):
         """Geodesic distance from the origin to the plane c . X = 0."""

@@ -8,7 +8,7 @@ diag(e^c R, 1), words are matrix products and chart-affine. The inversions x -> 
 reflections w -> -w) are isometries too, but no 4-dimensional model makes them linear together with
 the dilations: the line's isometry group R x| Z2 is not abelian, and commuting with O(3) (acting
 irreducibly on three slots) leaves it one slot (it needs two, as (e^w, e^-w)). The antipodal ones
-(antipodal_reflection) are applied to chart points directly, for the folded shells of spaces.py.
+(antipodal_reflection) are applied to chart points directly, for the folded shells (faces.Spheres).
 Faces are spheres |x| = e^w0: `plane_coordinates` gives (0, 0, w, 1), in which they are the planes
 w = w0, and w is linear in arclength along every geodesic.
 Geodesics (log-spirals in a plane through the origin), connecting geodesics and the falloff are
@@ -17,24 +17,26 @@ closed forms of the product.
 from __future__ import annotations
 
 import math
+from functools import cached_property
 
 import numpy as np
 
+from . import faces
 from .affine import AffineGeometry, homogeneous
-from .base import _floats
+from .shared import floats
 
 
 def antipodal_reflection(x, radius):
     """x -> -R^2 x / |x|^2: u -> -u, w -> 2 log R - w, an isometry that preserves orientation (the
     antipodal map and the inversion each reverse it) and fixes no point (the sphere |x| = R goes to
     itself antipodally)."""
-    x = _floats(x)
+    x = floats(x)
     return -radius**2 * x / np.sum(x * x, axis=-1)[..., None]
 
 
 def antipodal_reflection_tangent(x, v, radius):
     """Its differential at x: -R^2 (v - 2 x (x . v) / |x|^2) / |x|^2, conformal (normals stay normal)."""
-    x, v = _floats(x), _floats(v)
+    x, v = floats(x), floats(v)
     r2 = np.sum(x * x, axis=-1)[..., None]
     return -radius**2 * (v - 2 * x * np.sum(x * v, axis=-1)[..., None] / r2) / r2
 
@@ -46,11 +48,14 @@ def _sin_over(a, t):
 
 class S2xR(AffineGeometry):
     name = "S2xR"
-    kernel = "s2xr"
     copy_rings = 1  # a shell's neighbours are its two dilated copies
     light_reach_circumradii = 2.0  # the copies within R grow like R, their geodesics like R^2
     chord_scale = 4.0  # its chords stray far less than K h^2 / 8 (docs/front.md, "The chord rule")
-    chart_plane_faces = False  # faces are spheres |x| = const
+
+    @cached_property
+    def face_shape(self):
+        """Faces are spheres |x| = const, glued to themselves by the antipodal reflections."""
+        return faces.Spheres(self, antipodal_reflection, antipodal_reflection_tangent)
 
     # --- charts -------------------------------------------------------------------------------
     def in_chart(self, x):
@@ -67,13 +72,13 @@ class S2xR(AffineGeometry):
 
     # --- metric ---------------------------------------------------------------------------------
     def metric(self, x):
-        x = _floats(x)
+        x = floats(x)
         return np.eye(3) / np.sum(x * x, axis=-1)[..., None, None]
 
     def christoffel(self, x):
         """[..., k, i, j] = Gamma^k_ij of the conformal metric e^{2 phi} delta, phi = -log|x|:
         delta_ki d_j phi + delta_kj d_i phi - delta_ij d_k phi, with d phi = -x / |x|^2."""
-        x = _floats(x)
+        x = floats(x)
         d = -x / np.sum(x * x, axis=-1)[..., None]
         I = np.eye(3)
         return (np.einsum("ki,...j->...kij", I, d) + np.einsum("kj,...i->...kij", I, d)
@@ -81,14 +86,14 @@ class S2xR(AffineGeometry):
 
     def volume_density(self, x):
         """sqrt(det g) = |x|^-3."""
-        return np.sum(_floats(x) ** 2, axis=-1) ** -1.5
+        return np.sum(floats(x) ** 2, axis=-1) ** -1.5
 
     # --- geodesics --------------------------------------------------------------------------------
     def geodesic(self, P, V, t):
         """Position and unit velocity at arclength t from P with unit tangent V: with b = <v, x> /
         |x|^2 (the speed of w) and p = v - b x (|p| = a |x|, a the speed on the sphere),
         x(t) = e^{b t} (cos(a t) x + sin(a t) / a . p), a log-spiral in the plane of x and v."""
-        P, V, t = _floats(P), _floats(V), _floats(t)
+        P, V, t = floats(P), floats(V), floats(t)
         x, v = self.to_chart(P), V[..., :3]
         r2 = np.sum(x * x, axis=-1)
         b = np.sum(v * x, axis=-1) / r2
@@ -105,7 +110,7 @@ class S2xR(AffineGeometry):
     def _split(self, A, B):
         """(theta, dw, e, radius): the sphere angle between the points' directions, the difference
         of w, the unit chart vector at A towards B's direction orthogonal to A (0 where none), |a|."""
-        a, c = np.broadcast_arrays(self.to_chart(_floats(A)), self.to_chart(_floats(B)))
+        a, c = np.broadcast_arrays(self.to_chart(floats(A)), self.to_chart(floats(B)))
         ra, rc = np.linalg.norm(a, axis=-1), np.linalg.norm(c, axis=-1)
         ua, uc = a / ra[..., None], c / rc[..., None]
         cos = np.sum(ua * uc, axis=-1)
@@ -124,7 +129,7 @@ class S2xR(AffineGeometry):
         form: the great-circle arc of the directions (angle theta <= pi) and the straight w part.
         Where A = B, r = 0 and V is the chart x direction; antipodal directions take any arc."""
         theta, dw, e, ra = self._split(A, B)
-        a = self.to_chart(_floats(A))
+        a = self.to_chart(floats(A))
         r = np.hypot(theta, dw)
         u = a / ra[..., None]
         towards = dw[..., None] * u + theta[..., None] * e  # times |a| / r: unit in the metric
@@ -146,7 +151,7 @@ class S2xR(AffineGeometry):
     def falloff_along(self, P, V, r):
         """1 / (r^2 |det d exp_P(r V)|): the exponential map is the sphere's times the identity,
         whose determinant at sphere length a r is sin(a r) / (a r) (a the speed on the sphere)."""
-        P, V, r = _floats(P), _floats(V), _floats(r)
+        P, V, r = floats(P), floats(V), floats(r)
         x, v = self.to_chart(P), V[..., :3]
         r2 = np.sum(x * x, axis=-1)
         b = np.sum(v * x, axis=-1) / r2

@@ -29,10 +29,12 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import math
+from functools import cached_property
 
 import numpy as np
 
-from .base import Geometry, _floats
+from . import faces
+from .shared import SharedGeometry, floats
 from .h2xr import polygon_distance
 from .hyperbolic import Hyperbolic
 
@@ -45,7 +47,7 @@ class Element(NamedTuple):
 
 
 def _w(x):
-    x = _floats(x)
+    x = floats(x)
     return x[..., 0] + 1j * x[..., 1]
 
 
@@ -71,7 +73,7 @@ def inverse(g):
 
 def fibre_translation(s):
     """T_s: (w, phi) -> (w, phi + s)."""
-    s = _floats(s)
+    s = floats(s)
     return Element(np.ones_like(s) + 0j, np.zeros_like(s) + 0j, s)
 
 
@@ -79,7 +81,7 @@ def act(g, x):
     """g applied to chart points x (..., 3)."""
     w = _w(x)
     image = (g.alpha * w + g.beta) / (np.conj(g.beta) * w + np.conj(g.alpha))
-    return _chart(image, _floats(x)[..., 2] + g.phi - 2 * np.angle(1 + _zeta(g) * w))
+    return _chart(image, floats(x)[..., 2] + g.phi - 2 * np.angle(1 + _zeta(g) * w))
 
 
 def act_tangent(g, x, u):
@@ -88,14 +90,14 @@ def act_tangent(g, x, u):
     w, dw = _w(x), _w(u)
     zeta = _zeta(g)
     image = dw / (np.conj(g.beta) * w + np.conj(g.alpha)) ** 2
-    return _chart(image, _floats(u)[..., 2] - 2 * np.imag(zeta * dw / (1 + zeta * w)))
+    return _chart(image, floats(u)[..., 2] - 2 * np.imag(zeta * dw / (1 + zeta * w)))
 
 
 def from_origin(x):
     """The element taking the origin to chart points x: (1, w) / sqrt(1 - |w|^2), phi_g = phi."""
     w = _w(x)
     n = np.sqrt(1 - np.abs(w) ** 2)
-    return Element(1 / n + 0j, w / n, _floats(x)[..., 2].copy())
+    return Element(1 / n + 0j, w / n, floats(x)[..., 2].copy())
 
 
 def point(g):
@@ -115,7 +117,7 @@ def flow_from_origin(b, t):
     S = (t/2) sinh(sqrt q) / sqrt q (entire in q: one formula whether a is above, at or below |c|):
         alpha = e^{ict} (C - i c S), beta = S a e^{i(a0 - ct)}, phi = 2 Arg(alpha) unwrapped,
     b(t) = (a e^{i(a0 - 2ct)}, c)."""
-    b, t = _floats(b), _floats(t)
+    b, t = floats(b), floats(t)
     shape = np.broadcast_shapes(b.shape[:-1], t.shape)
     b, t = np.broadcast_to(b, shape + (3,)), np.broadcast_to(t, shape)
     horizontal, c = b[..., 0] + 1j * b[..., 1], b[..., 2]
@@ -143,19 +145,19 @@ def flow(g, b, t):
 
 def body_to_chart(b):
     """Chart vectors at the origin of body vectors (orthonormal there: g(0) = diag(4, 4, 1))."""
-    b = _floats(b)
+    b = floats(b)
     return np.stack([b[..., 0] / 2, b[..., 1] / 2, b[..., 2]], -1)
 
 
 def chart_to_body(u):
-    u = _floats(u)
+    u = floats(u)
     return np.stack([2 * u[..., 0], 2 * u[..., 1], u[..., 2]], -1)
 
 
 # --- the model SU(1,1) in R^4 -------------------------------------------------------------------------
 def _pair(X):
     """(alpha, beta) of model vectors (..., 4)."""
-    X = _floats(X)
+    X = floats(X)
     return X[..., 0] + 1j * X[..., 1], X[..., 2] + 1j * X[..., 3]
 
 
@@ -183,7 +185,7 @@ def _body(X, V):
 def _from_body(X, b):
     """The model tangent at X of body velocity b: X xi."""
     alpha, beta = _pair(X)
-    b = _floats(b)
+    b = floats(b)
     horizontal, c = 0.5 * (b[..., 0] + 1j * b[..., 1]), 0.5j * b[..., 2]
     return _model(alpha * c + beta * np.conj(horizontal), alpha * horizontal - beta * c)
 
@@ -246,7 +248,7 @@ def _disk_distance(w, v):
     return 2 * np.arctanh(np.minimum(np.abs((v - w) / (1 - np.conj(w) * v)), 1 - 1e-16))
 
 
-class SL2(Geometry):
+class SL2(SharedGeometry):
     name = "SL2"
     projective = False
     diameter = math.inf
@@ -254,7 +256,6 @@ class SL2(Geometry):
     # the pi a point may lie from its light's fibre copies; the copies within R grow like e^R, each
     # reached along one geodesic below 2 pi (sl2.hpp's connections)
     light_reach_circumradii = 1.5
-    plane_chart_is_chart = False  # face planes are planes of (Klein(w), phi)
     copy_rings = 1  # hyperbolic rings of copies grow too fast for more
     chord_scale = 4.0  # its chords stray far less than K h^2 / 8 (docs/front.md, "The chord rule")
     # far in the cover the model's SU(1,1) entries grow like e^(t/2), half H3's rate (cosh of half
@@ -263,6 +264,11 @@ class SL2(Geometry):
     # the volume density in (Klein(w), phi) peaks at the octagon's vertices, as H2xR's
     volume_order = 32
 
+    @cached_property
+    def face_shape(self):
+        """Face planes are planes of (Klein(w), phi): curved in the Poincare chart."""
+        return faces.PlanesOfChart(self)
+
     # --- charts -------------------------------------------------------------------------------
     def in_chart(self, x):
         """Finite points over the open unit disk."""
@@ -270,7 +276,7 @@ class SL2(Geometry):
         return np.all(np.isfinite(x), axis=-1) & (np.sum(x[..., :2] ** 2, axis=-1) < 1.0)
 
     def to_model(self, x):
-        w, phi = _w(x), _floats(x)[..., 2]
+        w, phi = _w(x), floats(x)[..., 2]
         half = np.exp(0.5j * phi) / np.sqrt(1 - np.abs(w) ** 2)
         return _model(half, w * np.conj(half))
 
@@ -279,7 +285,7 @@ class SL2(Geometry):
         return _chart(beta / np.conj(alpha), 2 * np.angle(alpha))
 
     def tangent_to_model(self, x, u):
-        x, u = np.broadcast_arrays(_floats(x), _floats(u))
+        x, u = np.broadcast_arrays(floats(x), floats(u))
         w, dw, dphi = _w(x), _w(u), u[..., 2]
         alpha, beta = _pair(self.to_model(x))
         radial = np.real(np.conj(w) * dw) / (1 - np.abs(w) ** 2)  # d(-log sqrt(1 - |w|^2))
@@ -293,12 +299,12 @@ class SL2(Geometry):
         return _chart(db / a - beta * np.conj(da) / a**2, 2 * np.imag(da / alpha))
 
     def normalize_point(self, X):
-        X = _floats(X)
+        X = floats(X)
         return X / np.sqrt(_quadric(X))[..., None]
 
     def normalize_tangent(self, X, V):
         """V made tangent at X (the trace of X^-1 V removed) and of unit length."""
-        X, V = np.broadcast_arrays(_floats(X), _floats(V))
+        X, V = np.broadcast_arrays(floats(X), floats(V))
         alpha, beta = _pair(X)
         va, vb = _pair(V)
         trace = np.real(np.conj(alpha) * va - beta * np.conj(vb)) / _quadric(X)
@@ -324,7 +330,7 @@ class SL2(Geometry):
         return np.stack([k.real, k.imag, x[..., 2], np.ones_like(k.real)], -1)
 
     def from_plane_chart(self, y):
-        y = _floats(y)
+        y = floats(y)
         return _chart(_poincare(y[..., 0] + 1j * y[..., 1]), y[..., 2])
 
     def plane_chart_density(self, y):
@@ -336,7 +342,7 @@ class SL2(Geometry):
     # --- metric ---------------------------------------------------------------------------------
     def metric(self, x):
         """lam^2 on the disk plus the square of the connection form dphi + lam (x dy - y dx)."""
-        x = _floats(x)
+        x = floats(x)
         lam = 2 / (1 - x[..., 0] ** 2 - x[..., 1] ** 2)
         form = np.stack([-lam * x[..., 1], lam * x[..., 0], np.ones_like(lam)], -1)
         disk = np.zeros(x.shape[:-1] + (3, 3), dtype=x.dtype)
@@ -345,7 +351,7 @@ class SL2(Geometry):
 
     def christoffel(self, x):
         """[..., k, i, j] = Gamma^k_ij, with q = 1 - |w|^2 (derived symbolically from the metric)."""
-        x = _floats(x)
+        x = floats(x)
         X, Y = x[..., 0], x[..., 1]
         q = 1 - X * X - Y * Y
         G = np.zeros(x.shape[:-1] + (3, 3, 3), dtype=x.dtype)
@@ -380,7 +386,7 @@ class SL2(Geometry):
     def geodesic(self, P, V, t):
         """Model position and unit velocity at arclength t from P with unit tangent V: P h(t) for the
         geodesic h from the origin with P's body velocity (the closed form of flow_from_origin)."""
-        P, V, t = _floats(P), _floats(V), _floats(t)
+        P, V, t = floats(P), floats(V), floats(t)
         h, b = flow_from_origin(_body(P, V), t)
         X = _times(P, h)
         return X, _from_body(X, b)
@@ -394,7 +400,7 @@ class SL2(Geometry):
         """1 / (r^2 |det d exp_P(r V)|) in orthonormal frames at both ends, by central differences of
         the closed form from the origin in the body frame (left invariance: at P as at the origin);
         sqrt det g at the end turns the chart's volume into the orthonormal frame's."""
-        P, V, r = _floats(P), _floats(V), _floats(r)
+        P, V, r = floats(P), floats(V), floats(r)
         b = _body(P, V)
         step = 1e-6
 

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.special import ellipeinc, ellipj, ellipkinc
 
 from .affine import AffineGeometry, affine_matrix
-from .base import _floats
+from .shared import floats
 
 # Taylor series method: the series of z(t), z'(t), e^{+-2z(t)} to this order at each step; the step
 # is where the last two terms fall below the rounding level (Jorba & Zou's rule), capped so that
@@ -35,7 +35,7 @@ ELLIPTIC_MIN_MODULUS_GAP = 1e-4  # on sqrt(1 - 4 (p_x p_y)^2)
 def taylor_flow(v, t):
     """Position and velocity (..., 3) at arclength t (...) from the origin with unit velocity v
     (..., 3), each ray stepped on its own (t may be negative)."""
-    v, t = _floats(v), _floats(t)
+    v, t = floats(v), floats(t)
     dtype = np.result_type(v, t)
     shape = t.shape
     px, py = v[..., 0].astype(dtype).ravel(), v[..., 1].astype(dtype).ravel()
@@ -132,14 +132,14 @@ def drift(L, Z):
     """How far x can get from 0 along a curve of length L from the origin to height Z: |x'| <= e^{-z}
     and z >= max(-s, Z - (L - s)) at arclength s, so |x| <= int_0^L min(e^s, e^{L - s - Z}) ds
     (y likewise with -Z, as |y'| <= e^z). Increasing in L."""
-    L, Z = np.broadcast_arrays(_floats(L), _floats(Z))
+    L, Z = np.broadcast_arrays(floats(L), floats(Z))
     middle = np.clip(0.5 * (L - Z), 0.0, L)
     return np.expm1(middle) + np.exp(-Z) * np.expm1(L - middle)
 
 
 def _shortest_for_drift(a, Z, longest=200.0, steps=60):
     """The least L with drift(L, Z) >= a (bisection, elementwise; L <= longest)."""
-    a, Z = np.broadcast_arrays(_floats(a), _floats(Z))
+    a, Z = np.broadcast_arrays(floats(a), floats(Z))
     lo, hi = np.zeros(a.shape), np.full(a.shape, longest)
     for _ in range(steps):
         mid = 0.5 * (lo + hi)
@@ -150,7 +150,6 @@ def _shortest_for_drift(a, Z, longest=200.0, steps=60):
 
 class Sol(AffineGeometry):
     name = "Sol"
-    kernel = "sol"
     # 3/4 of the circumradius bound (farthest_distance, 1.33 for the preset's prism): 1.0, about the
     # distance from the centre to the prism's corners (0.97), as the copies within R grow like e^R
     # and each is shot at (sol.hpp's connections); below pi sqrt 2 each copy is reached along one
@@ -158,7 +157,7 @@ class Sol(AffineGeometry):
     light_reach_circumradii = 0.75
 
     def metric(self, x):
-        x = _floats(x)
+        x = floats(x)
         z = x[..., 2]
         G = np.zeros(x.shape[:-1] + (3, 3), dtype=x.dtype)
         G[..., 0, 0] = np.exp(2 * z)
@@ -167,7 +166,7 @@ class Sol(AffineGeometry):
         return G
 
     def christoffel(self, x):
-        x = _floats(x)
+        x = floats(x)
         z = x[..., 2]
         G = np.zeros(x.shape[:-1] + (3, 3, 3), dtype=x.dtype)
         G[..., 0, 0, 2] = G[..., 0, 2, 0] = 1.0
@@ -179,7 +178,7 @@ class Sol(AffineGeometry):
     # --- isometries -------------------------------------------------------------------------------
     def translation(self, a, b, c):
         """Matrices of (x, y, z) -> (e^{-c} x + a, e^{c} y + b, z + c) (broadcasting)."""
-        a, b, c = np.broadcast_arrays(_floats(a), _floats(b), _floats(c))
+        a, b, c = np.broadcast_arrays(floats(a), floats(b), floats(c))
         linear = np.zeros(c.shape + (3, 3), dtype=c.dtype)
         linear[..., 0, 0] = np.exp(-c)
         linear[..., 1, 1] = np.exp(c)
@@ -195,11 +194,11 @@ class Sol(AffineGeometry):
         return affine_matrix(np.diag([float(x_sign), float(y_sign), 1.0]), np.zeros(3))
 
     def from_origin(self, x):
-        x = _floats(x)
+        x = floats(x)
         return self.translation(x[..., 0], x[..., 1], x[..., 2])
 
     def to_origin(self, x):
-        x = _floats(x)
+        x = floats(x)
         return self.translation(-np.exp(x[..., 2]) * x[..., 0], -np.exp(-x[..., 2]) * x[..., 1], -x[..., 2])
 
     def reorthonormalize(self, M):
