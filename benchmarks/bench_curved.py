@@ -24,7 +24,7 @@ import math
 import os
 import time
 
-from thurston_addon import render, scene as scenes, spaces
+from thurston_addon import render, scenes, spaces
 
 
 

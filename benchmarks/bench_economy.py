@@ -47,7 +47,7 @@ import thurston_core
 from bench_front import ball_scene, geodesic_equation
 from timing import least_interleaved
 from thurston_addon import checks, render, spaces
-from thurston_addon.scene import Camera, default_scene
+from thurston_addon.scenes import Camera, default_scene
 
 SPACES = ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "sl2"]
 ROOT = Path(__file__).resolve().parents[1]

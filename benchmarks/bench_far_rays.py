@@ -42,7 +42,7 @@ def measure(sid, n, repeat):
     import numpy as np
 
     from thurston_addon import render, spaces
-    from thurston_addon.scene import default_scene
+    from thurston_addon.scenes import default_scene
 
     space = spaces.load(sid)
     g = space.geometry

@@ -59,7 +59,7 @@ from embreex.mesh_construction import TriangleMesh
 from scipy.optimize import brentq, minimize_scalar
 
 from thurston_addon import render, spaces
-from thurston_addon.scene import Scene, SceneObject
+from thurston_addon.scenes import Scene, SceneObject
 from timing import least_interleaved
 
 SPACES = ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "rp3_rp3", "sl2"]

@@ -190,7 +190,7 @@ def main():
     if args.core:
         load_core(args.core)
     global render, scenes, spaces  # imported once --core has chosen the core
-    from thurston_addon import render, scene as scenes, spaces
+    from thurston_addon import render, scenes, spaces
     if args.baseline:
         print("table 2 with the baseline build:", flush=True)
         child = [a for a in sys.argv[1:] if not a.startswith("--baseline") and a != args.baseline]

@@ -12,7 +12,7 @@ import thurston_core
 import trimesh
 
 from thurston_addon import render, spaces
-from thurston_addon.scene import Camera, PointLight, Scene, SceneObject
+from thurston_addon.scenes import Camera, PointLight, Scene, SceneObject
 
 
 def balls(n: int, subdivisions: int) -> SceneObject:

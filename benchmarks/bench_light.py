@@ -27,7 +27,7 @@ FACTORS = {"S3": (0.25, 0.5, 1.0), "E3": (0.5, 1.0, 2.0, 4.0), "H3": (0.5, 1.0, 
 def view(sid, size, repeat, reach_factor=None):
     """(least seconds, stats) of the default view; reach_factor None: the build's own default."""
     from thurston_addon import render, spaces
-    from thurston_addon.scene import default_scene
+    from thurston_addon.scenes import default_scene
 
     space = spaces.load(sid)
     scene = default_scene(space)
@@ -52,7 +52,7 @@ def copy_search(space, reach):
     tile walk (cached per reach afterwards), the coordinate domains (H2xR, S2xR, Nil, Sol, SL2) the
     walk over copies (cached per light and reach)."""
     from thurston_addon import render
-    from thurston_addon.scene import default_scene
+    from thurston_addon.scenes import default_scene
 
     if space.group_order is not None:
         return

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from thurston_addon import render, scene as scenes, spaces
+from thurston_addon import render, scenes, spaces
 
 
 def main():

@@ -37,7 +37,7 @@ def make_tracer(space, scene, threads):
 
 
 def frame(sid, size):
-    from thurston_addon import render, scene as scenes, spaces
+    from thurston_addon import render, scenes, spaces
 
     space = spaces.load(sid)
     scene = scenes.default_scene(space)

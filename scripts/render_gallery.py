@@ -10,7 +10,7 @@ import argparse
 from pathlib import Path
 
 from thurston_addon import images, render, spaces
-from thurston_addon.scene import default_scene
+from thurston_addon.scenes import default_scene
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 

@@ -75,7 +75,7 @@ def assert_no_leak_at_the_prism_edges(space, half_height, ball_radius, seed, n=1
     import trimesh
 
     from thurston_addon import render
-    from thurston_addon.scene import Scene, SceneObject
+    from thurston_addon.scenes import Scene, SceneObject
 
     G = space.geometry
     rng = np.random.default_rng(seed)

@@ -419,7 +419,7 @@ def test_viewport_job_adds_the_panels_samples_with_its_bounces():
     from types import SimpleNamespace
 
     from mathutils import Matrix
-    from thurston_addon import export, progressive, render, scene as scenes
+    from thurston_addon import export, progressive, render, scenes
 
     sc = scene_with_boxes()
     sc.thurston.quality, sc.thurston.samples, sc.thurston.bounces = "standard", 3, 1

@@ -14,7 +14,7 @@ import pytest
 import trimesh
 
 from thurston_addon import cli, render, spaces
-from thurston_addon.scene import default_scene
+from thurston_addon.scenes import default_scene
 
 from outputs import error_line
 

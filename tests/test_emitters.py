@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from thurston_addon import render, spaces
-from thurston_addon.scene import PointLight, Scene, SceneObject, flat_light
+from thurston_addon.scenes import PointLight, Scene, SceneObject, flat_light
 
 RHO, LE = 0.5, 2.0
 
@@ -198,7 +198,7 @@ def test_spot_cone_and_blend_against_the_closed_form():
     ('type = "area"\nsize = [0.1, 0]', "positive size"),
 ])
 def test_bad_lights_in_a_scene_file_are_one_clear_error(tmp_path, spec, message):
-    from thurston_addon.scene import SceneError, load_scene_file
+    from thurston_addon.scenes import SceneError, load_scene_file
 
     path = tmp_path / "scene.toml"
     path.write_text(f"[[light]]\nposition = [0, 0, 0.2]\n{spec}\n")
@@ -207,7 +207,7 @@ def test_bad_lights_in_a_scene_file_are_one_clear_error(tmp_path, spec, message)
 
 
 def test_an_area_light_in_a_scene_file_is_a_one_sided_emitter_facing_its_direction(tmp_path):
-    from thurston_addon.scene import load_scene_file
+    from thurston_addon.scenes import load_scene_file
 
     path = tmp_path / "scene.toml"
     path.write_text('[[light]]\ntype = "area"\nposition = [0.1, 0, 0.2]\ndirection = [0, 0, -2]\n'

@@ -118,7 +118,7 @@ if report["operator"]:
 else:  # the Blender layer's operators are not there yet: the package's own API
     import importlib
     spaces = importlib.import_module(NAME + ".spaces")
-    scenes = importlib.import_module(NAME + ".scene")
+    scenes = importlib.import_module(NAME + ".scenes")
     render = importlib.import_module(NAME + ".render")
     images = importlib.import_module(NAME + ".images")
     space = spaces.load("torus")

@@ -31,7 +31,7 @@ from test_curved_geometries import GEOMETRY, christoffel_truth as sol_christoffe
 from test_marching import into_domain, report, space_of  # noqa: F401 (space_of: the fixture)
 from test_sl2 import assert_flow as assert_sl2_flow, body_direction, metric_truth as sl2_metric
 from thurston_addon import render, spaces
-from thurston_addon.scene import Scene, SceneObject
+from thurston_addon.scenes import Scene, SceneObject
 from truth import AMBIENT, chart_metric, check_flows_against_dop853, h2xr_metric, nil_metric, s2xr_metric, sol_metric, unit_in
 
 ld = np.longdouble

@@ -17,7 +17,7 @@ import pytest
 import trimesh
 
 from thurston_addon import cli, render, spaces
-from thurston_addon import scene as scenes
+from thurston_addon import scenes
 
 from outputs import INTERNALS
 

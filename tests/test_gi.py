@@ -25,7 +25,7 @@ import pytest
 import trimesh
 
 from thurston_addon import cli, render, spaces
-from thurston_addon.scene import Camera, Material, PointLight, Scene, SceneObject, default_scene
+from thurston_addon.scenes import Camera, Material, PointLight, Scene, SceneObject, default_scene
 
 LE = 1.0
 # one preset of each geometry

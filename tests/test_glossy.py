@@ -21,7 +21,7 @@ import trimesh
 from scipy.special import roots_legendre
 
 from thurston_addon import render, spaces
-from thurston_addon.scene import Material, Scene, SceneError, SceneObject, load_mesh_file, load_scene_file
+from thurston_addon.scenes import Material, Scene, SceneError, SceneObject, load_mesh_file, load_scene_file
 
 LE = 1.0
 

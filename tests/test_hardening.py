@@ -16,9 +16,8 @@ import numpy as np
 import pytest
 import thurston_core
 
-from thurston_addon import cli, files, render, spaces
-from thurston_addon.scene import Camera
-from thurston_addon import scene as scenes
+from thurston_addon import cli, files, render, scenes, spaces
+from thurston_addon.scenes import Camera, scene_file
 
 from outputs import INTERNALS, error_line, fill, listing, stop, tmpfs
 
@@ -106,7 +105,7 @@ def test_subdivisions_are_bounded(tmp_path, value):
 def test_a_scene_files_primitives_are_bounded_together(tmp_path, monkeypatch):
     """Many primitives in a small file: their triangles together are bounded (the limit lowered
     here to two spheres of 1280 triangles, so that the test builds three, not 52 of 327680)."""
-    monkeypatch.setattr(scenes, "MAX_PRIMITIVE_TRIANGLES", 2 * 1280)
+    monkeypatch.setattr(scene_file, "MAX_PRIMITIVE_TRIANGLES", 2 * 1280)
     path = tmp_path / "many.toml"
     path.write_text('[[object]]\nprimitive = "sphere"\n' * 3)
     with pytest.raises(scenes.SceneError, match=r"many\.toml: object 2: the file's primitives have more than 2560 "

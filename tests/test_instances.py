@@ -7,8 +7,8 @@ import pytest
 import trimesh
 
 import thurston_core as _core
-from thurston_addon import render, scene as scenes, spaces
-from thurston_addon.scene import Camera, PointLight, Scene, SceneError, SceneObject
+from thurston_addon import render, scenes, spaces
+from thurston_addon.scenes import Camera, PointLight, Scene, SceneError, SceneObject
 
 RADIUS = 0.01
 BALL = trimesh.creation.icosphere(subdivisions=2, radius=RADIUS)

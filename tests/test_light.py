@@ -13,7 +13,7 @@ import pytest
 import trimesh
 
 from thurston_addon import render, spaces
-from thurston_addon.scene import PointLight, Scene, SceneObject, default_scene
+from thurston_addon.scenes import PointLight, Scene, SceneObject, default_scene
 
 RHO, GLOW = 0.5, 1e-3  # the ball's base colour and its faint emission (which makes it cast no shadow)
 

@@ -25,9 +25,9 @@ from scipy.integrate import solve_ivp
 
 import thurston_core
 import trimesh
-from thurston_addon import cli, render, scene as scenes, spaces
+from thurston_addon import cli, render, scenes, spaces
 from thurston_addon.geometries import get
-from thurston_addon.scene import PointLight, Scene, SceneObject, default_scene
+from thurston_addon.scenes import PointLight, Scene, SceneObject, default_scene
 from truth import CURVED_METRICS as METRIC, christoffel_from
 
 ld = np.longdouble

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from thurston_addon import progressive, render, spaces
-from thurston_addon.scene import Camera, default_scene
+from thurston_addon.scenes import Camera, default_scene
 
 
 def space_camera(space):

@@ -14,7 +14,7 @@ import pytest
 import trimesh
 
 from thurston_addon import render, spaces
-from thurston_addon.scene import Camera, PointLight, Scene, SceneObject, default_scene
+from thurston_addon.scenes import Camera, PointLight, Scene, SceneObject, default_scene
 
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
 REPO = Path(__file__).resolve().parents[1]
@@ -675,7 +675,7 @@ def test_bytes_per_pixel_estimate_covers_the_measured_peak():
     # the peak (VmHWM) is reset first: a child starts with its parent's high-water mark
     code = textwrap.dedent("""
         import gc
-        from thurston_addon import render, spaces, scene as scenes
+        from thurston_addon import render, spaces, scenes
         def status(key):
             for line in open("/proc/self/status"):
                 if line.startswith(key):

@@ -14,7 +14,7 @@ import trimesh
 
 from thurston_addon import render, spaces
 from thurston_addon.geometries import get
-from thurston_addon.scene import Scene, SceneObject
+from thurston_addon.scenes import Scene, SceneObject
 from cover import check_depths, first_hits
 from truth import check_flows_against_dop853, christoffel_from, s2xr_metric, unit_in
 
@@ -237,7 +237,7 @@ def test_the_default_scene_is_shown_whole():
     brought home by their vertices, and nothing of the scene is dropped or cut."""
     import warnings
 
-    from thurston_addon.scene import default_scene
+    from thurston_addon.scenes import default_scene
 
     space = spaces.load("s2xs1")
     with warnings.catch_warnings():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from thurston_addon import render, spaces
-from thurston_addon.scene import Material, Scene, SceneError, SceneObject, load_scene_file
+from thurston_addon.scenes import Material, Scene, SceneError, SceneObject, load_scene_file
 
 FLOAT32 = np.finfo(np.float32)
 

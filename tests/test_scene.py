@@ -9,7 +9,7 @@ import trimesh
 from trimesh.visual.material import PBRMaterial
 
 from thurston_addon import render, spaces
-from thurston_addon.scene import (Camera, Scene, SceneError, default_scene, load_mesh_file, load_scene_file,
+from thurston_addon.scenes import (Camera, Scene, SceneError, default_scene, load_mesh_file, load_scene_file,
                                   load_scenes, primitive)
 
 

@@ -13,7 +13,7 @@ import trimesh
 
 from thurston_addon import render, spaces
 from thurston_addon.geometries import sl2
-from thurston_addon.scene import PointLight, Scene, SceneObject
+from thurston_addon.scenes import PointLight, Scene, SceneObject
 from cover import assert_no_leak_at_the_prism_edges, check_depths, first_hits
 from truth import check_flows_against_dop853, christoffel_from, unit_in
 

@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from thurston_addon import render, spaces
-from thurston_addon.scene import Material, Scene, SceneError, SceneObject, PointLight, clean, load_mesh_file
+from thurston_addon.scenes import Material, Scene, SceneError, SceneObject, PointLight, clean, load_mesh_file
 
 
 @pytest.fixture(scope="module")

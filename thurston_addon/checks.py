@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scene import Camera, Scene
+from .scenes import Camera, Scene
 from .spaces import Space
 
 CAMERA_OUTSIDE = "camera_outside"

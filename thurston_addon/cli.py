@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import checks, files, images, render, scene as scenes, spaces
+from . import checks, files, images, render, scenes, spaces
 
 
 class CommandError(Exception):

@@ -12,7 +12,7 @@ import numpy as np
 
 from . import checks
 from .files import physical_memory
-from .scene import Camera, Scene, SceneError
+from .scenes import Camera, Scene, SceneError
 from .spaces import Space, SpaceError
 
 

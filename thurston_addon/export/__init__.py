@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from .. import checks, properties, render, scene as scenes, spaces
+from .. import checks, properties, render, scenes, spaces
 from . import surfaces
 
 GUIDE_TAG = "thurston_guide"

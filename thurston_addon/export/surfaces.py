@@ -8,7 +8,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from .. import scene as scenes
+from .. import scenes
 from ..images import srgb_to_linear
 
 
