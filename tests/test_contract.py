@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from thurston_addon import geometries, render, spaces
-from thurston_addon import scene as scenes
+from thurston_addon import scenes
 from thurston_addon.geometries.euclidean import Euclidean
 from truth import christoffel_from, dop853
 
