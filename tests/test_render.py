@@ -14,6 +14,7 @@ import pytest
 import trimesh
 
 from thurston_addon import render, spaces
+from thurston_addon.scene import SceneError
 from thurston_addon.scene import Camera, PointLight, Scene, SceneObject, default_scene
 
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
@@ -570,18 +571,18 @@ def test_camera_several_cells_away(space_cache):
 def test_negative_light_power_is_rejected(space_cache):
     space = space_cache("torus")
     for power in (-5.0, float("nan")):
-        with pytest.raises(render.SceneError, match=r"light at \[0\.0, 0\.0, 0\.0\]: power must be a number >= 0"):
+        with pytest.raises(SceneError, match=r"light at \[0\.0, 0\.0, 0\.0\]: power must be a number >= 0"):
             PointLight(np.zeros(3), np.ones(3), power)
         light = PointLight(np.zeros(3), np.ones(3), 1.0)
         light.power = power  # changed after it was made: the compiler checks again
-        with pytest.raises(render.SceneError, match="light 0: power"):
+        with pytest.raises(SceneError, match="light 0: power"):
             render.compile_scene(space, Scene(lights=[light]))
 
 
 # --- antialiasing: stratified samples, centre-ray passes ---------------------------------------------
 @pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 7, 9, 16, 64])
 def test_sample_offsets_cover_each_stratum_once_and_average_to_the_centre(n):
-    o = np.array(render._sample_offsets(n))
+    o = np.array(render.sample_offsets(n))
     assert o.shape == (n, 2)
     assert np.all((o >= 0) & (o < 1))
     np.testing.assert_allclose(o.mean(axis=0), [0.5, 0.5], rtol=0, atol=1e-15)

@@ -5,13 +5,13 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from dataclasses import dataclass
 
 import bpy
 import numpy as np
 
 from .. import checks, properties, render, scene as scenes, spaces
 from . import surfaces
+from ..passes import BLENDER_PASSES, BlenderPass
 
 GUIDE_TAG = "thurston_guide"
 _space_cache: dict = {}
@@ -300,27 +300,6 @@ def combined(passes: dict) -> np.ndarray:
     return np.concatenate([np.nan_to_num(passes["color"]), passes["alpha"][..., None]], axis=-1).astype(np.float32)
 
 
-@dataclass(frozen=True)
-class BlenderPass:
-    """A render pass the engine fills besides Combined."""
-    name: str  # Blender's pass name
-    chan_id: str  # Blender's channel letters; their number is the channel count
-    type: str  # VALUE or VECTOR
-    flag: str  # the view layer property that enables it
-    addon_flag: bool  # the flag is on view_layer.thurston (the add-on's), not on the view layer
-    source: str  # the render pass it comes from (render.PASSES); render-blend enables it from the settings
-
-
-# Every pass the engine can fill, in one place: the engine registers and fills them, the View Layer
-# panel shows their switches, render-blend turns them on from the settings' passes.
-BLENDER_PASSES = (
-    BlenderPass("Depth", "Z", "VALUE", "use_pass_z", False, "depth"),
-    BlenderPass("Geodesic Distance", "X", "VALUE", "use_pass_geodesic_distance", True, "depth"),
-    BlenderPass("Normal", "XYZ", "VECTOR", "use_pass_normal", False, "normal"),
-    BlenderPass("Position", "XYZ", "VECTOR", "use_pass_position", False, "position"),
-    BlenderPass("IndexOB", "X", "VALUE", "use_pass_object_index", False, "object"),
-    BlenderPass("Crossings", "X", "VALUE", "use_pass_crossings", True, "crossings"),
-)
 NO_HIT_DEPTH = 1e10  # what Blender's depth passes hold where nothing is hit
 
 
@@ -350,7 +329,8 @@ def pass_values(job: RenderJob) -> dict[str, np.ndarray]:
         "IndexOB": pass_index[passes["object"]],
         "Crossings": passes["crossings"],
     }
-    return {name: np.asarray(a, np.float32).reshape(*a.shape[:2], -1) for name, a in values.items()}
+    return {p.name: np.asarray(values[p.name], np.float32).reshape(*values[p.name].shape[:2], -1)
+            for p in BLENDER_PASSES}
 
 
 def store_stats(settings, job: RenderJob):
