@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from thurston_addon import render, spaces
+from thurston_addon import passes, render, spaces
 from thurston_addon.scene import SceneError
 from thurston_addon.scene import Camera, PointLight, Scene, SceneObject, default_scene
 
@@ -430,6 +430,8 @@ def test_render_sizes_passes_and_quality(space_cache):
         res = render.render(space, scene, render.Settings(width=w, height=h, projection=projection, quality="draft"))
         p = res.passes
         assert set(p) == set(render.PASSES) | {"alpha"}
+        # each pass fills the EXR channels the pass table gives it
+        assert all(p[n].reshape(h, w, -1).shape[2] == len(passes.CHANNELS[n]) for n in render.PASSES)
         assert p["color"].shape == (h, w, 3) and p["color"].dtype == np.float32
         np.testing.assert_array_equal(p["alpha"], 1.0)  # opaque unless Settings.transparent
         assert p["depth"].shape == (h, w) and p["depth"].dtype == np.float64
@@ -663,7 +665,8 @@ def test_camera_frame_once_per_render(space_cache, monkeypatch):
         calls.append(1)
         return frame(*a, **k)
 
-    monkeypatch.setattr(render, "camera_frame", counting)
+    for module in (render.camera, render.loop):  # the loop's calls and camera_rays' own
+        monkeypatch.setattr(module, "camera_frame", counting)
     render.render(space, Scene(), render.Settings(width=4, height=3, samples=16))
     assert len(calls) == 1
 
@@ -727,7 +730,7 @@ def test_memory_error_during_render_is_a_render_error(space_cache, monkeypatch):
     def no_memory(*a, **k):
         raise MemoryError
 
-    monkeypatch.setattr(render, "camera_rays", no_memory)
+    monkeypatch.setattr(render.loop, "camera_rays", no_memory)
     with pytest.raises(render.RenderError, match="out of memory rendering 8x4"):
         render.render(space_cache("torus"), Scene(), render.Settings(width=8, height=4, quality="draft"))
 

@@ -39,6 +39,7 @@ class Pass:
     channels: tuple[str, ...]  # EXR channel names (Blender-like layer.channel names)
     shading: ShadingMode | None = None
     blender: tuple[BlenderPass, ...] = ()
+    length: bool = False  # a length in chart units (Blender: in world units, times the scale)
 
 
 def _lambert(out, hit, space):
@@ -81,11 +82,11 @@ PASS_TABLE = (
     Pass("depth", ("Z",), ShadingMode("depth", 3, _depth), (
         BlenderPass("Depth", "Z", "VALUE", "use_pass_z", False),
         BlenderPass("Geodesic Distance", "X", "VALUE", "use_pass_geodesic_distance", True,
-                    "The length of the geodesic from the camera to the hit (Blender units)"))),
+                    "The length of the geodesic from the camera to the hit (Blender units)")), length=True),
     Pass("normal", ("Normal.X", "Normal.Y", "Normal.Z"), ShadingMode("normal", 1, _normal), (
         BlenderPass("Normal", "XYZ", "VECTOR", "use_pass_normal", False),)),
     Pass("position", ("Position.X", "Position.Y", "Position.Z"), ShadingMode("position", 2, _position), (
-        BlenderPass("Position", "XYZ", "VECTOR", "use_pass_position", False),)),
+        BlenderPass("Position", "XYZ", "VECTOR", "use_pass_position", False),), length=True),
     Pass("object", ("IndexOB",), ShadingMode("object", 5, _object), (
         BlenderPass("IndexOB", "X", "VALUE", "use_pass_object_index", False),)),
     Pass("crossings", ("Crossings",), ShadingMode("crossings", 4, _crossings), (
@@ -101,6 +102,7 @@ SHADING = tuple(SHADING_MODES)
 # Every Blender pass the engine can fill: the engine registers and fills them, the View Layer panel
 # shows their switches, render-blend turns them on from the settings' passes.
 BLENDER_PASSES = tuple(replace(b, source=p.name) for p in PASS_TABLE for b in p.blender)
+LENGTHS = tuple(p.name for p in PASS_TABLE if p.length)
 STOP_REASONS = ("hit", "distance", "crossings", "cancelled")  # the stop pass's values, by index
 
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import checks, properties, render, scene as scenes, spaces
 from . import surfaces
-from ..passes import BLENDER_PASSES, BlenderPass
+from ..passes import BLENDER_PASSES, LENGTHS, BlenderPass
 
 GUIDE_TAG = "thurston_guide"
 _space_cache: dict = {}
@@ -288,10 +288,10 @@ class RenderJob:
 
 
 def blender_passes(result: render.Result, scale: float) -> dict:
-    """Passes in Blender's units: depth and position in world units (chart units x scale)."""
+    """Passes in Blender's units: the lengths (depth, position) in world units (chart units x scale)."""
     passes = dict(result.passes)
-    passes["depth"] = passes["depth"] * scale
-    passes["position"] = passes["position"] * scale
+    for name in LENGTHS:
+        passes[name] = passes[name] * scale
     return passes
 
 
