@@ -45,7 +45,7 @@ def load_space(settings) -> spaces.Space:
     return _space_cache[key]
 
 
-def render_settings(settings, width: int, height: int, projection: str = "perspective", region=None,
+def render_settings(settings, width: int, height: int, projection: str = render.Settings.projection, region=None,
                     transparent=False) -> render.Settings:
     return render.Settings(
         width=width, height=height, projection=projection, quality=settings.quality, shading=settings.shading,
@@ -243,7 +243,7 @@ class RenderJob:
     data is read there), traced by run() on any thread. `notes` gathers everything the user should
     hear about: what was skipped or cut, and the checks before and after the render."""
 
-    def __init__(self, bscene, depsgraph, width=None, height=None, projection="perspective", camera_object=None,
+    def __init__(self, bscene, depsgraph, width=None, height=None, projection=render.Settings.projection, camera_object=None,
                  region=None):
         settings = bscene.thurston
         self.notes: list[checks.Note] = []
