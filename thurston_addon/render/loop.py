@@ -7,15 +7,15 @@ import time
 
 import numpy as np
 
-from ..scene import Camera, Scene
 from ..passes import STOP_REASONS, colorize
+from ..scene import Camera, Scene
 from ..spaces import Space
 from .camera import camera_frame, camera_rays, clip_range, view_directions
 from .compilation import own_hits
 from .lights import light_reach_for
 from .projections import PROJECTIONS
 from .settings import Cancelled, RenderError, Settings, memory_needed
-from .statistics import (Result, _error_sample, accuracy_bound, geodesic_error, light_stats, pixel_noise,
+from .statistics import (Result, accuracy_bound, error_sample, geodesic_error, light_stats, pixel_noise,
                          retrace_error)
 from .tracer import make_tracer, trace
 
@@ -142,7 +142,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         shaded_points += int(np.sum(out["stop"] == 0)) if shaded else 0
         if jitter == CENTRE:
             first, first_start, first_limits = out, start, limits
-            sample = _error_sample(out, space.geometry)
+            sample = error_sample(out, space.geometry)
             probe = (origins[sample], directions[sample])
         del origins, directions
         if colour:

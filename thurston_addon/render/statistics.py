@@ -100,7 +100,7 @@ def accuracy_bound(space: Space, settings: Settings, tolerances) -> str:
 ERROR_SAMPLES = 1000  # hit pixels checked for the measured errors
 
 
-def _error_sample(out, geometry, n=ERROR_SAMPLES):
+def error_sample(out, geometry, n=ERROR_SAMPLES):
     """Indices of up to n hit rays within the geometry's reference depth, drawn at random (fixed
     seed)."""
     ok = (out["stop"] == 0) & (out["depth"] <= geometry.reference_depth)
