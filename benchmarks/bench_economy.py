@@ -47,6 +47,7 @@ import thurston_core
 from bench_front import ball_scene, geodesic_equation
 from timing import least_interleaved
 from thurston_addon import checks, render, spaces
+from thurston_addon.render import compilation
 from thurston_addon.scenes import Camera, default_scene
 
 SPACES = ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "sl2"]
@@ -150,7 +151,7 @@ def footprint_row(sid, scene_name, space, scene, tracer, size, repeat):
 def every_neighbour_copy():
     """compile_scene with every object's whole copy under every neighbour of the domain (the
     charted ones: S3's gnomonic chart holds one hemisphere) instead of the copies that reach it."""
-    kept = render._object_copies
+    kept = compilation._object_copies
 
     def every(space, obj, C):
         g = space.geometry
@@ -160,11 +161,11 @@ def every_neighbour_copy():
         copies = [(X @ M.T, whole, M @ home) for M in space.neighbourhood(1) if g.charted(X @ M.T).all()]
         return copies, np.ones(len(X), bool)
 
-    render._object_copies = every
+    compilation._object_copies = every
     try:
         yield
     finally:
-        render._object_copies = kept
+        compilation._object_copies = kept
 
 
 def copies_row(sid, scene_name, space, scene, rays, tolerances, repeat):

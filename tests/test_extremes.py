@@ -31,6 +31,7 @@ from test_curved_geometries import GEOMETRY, christoffel_truth as sol_christoffe
 from test_marching import into_domain, report, space_of  # noqa: F401 (space_of: the fixture)
 from test_sl2 import assert_flow as assert_sl2_flow, body_direction, metric_truth as sl2_metric
 from thurston_addon import render, spaces
+from thurston_addon.render.statistics import _image_distance
 from thurston_addon.scenes import Scene, SceneObject
 from truth import AMBIENT, chart_metric, check_flows_against_dop853, h2xr_metric, nil_metric, s2xr_metric, sol_metric, unit_in
 
@@ -91,7 +92,7 @@ def cover_ends(space, P, V, lengths):
 def end_errors(space, out, X):
     """Metric distance of the traced ends from the model points X (the nearest copy: a point on a
     face has two)."""
-    return render._image_distance(space, space.geometry.to_model(out["end"]), X)
+    return _image_distance(space, space.geometry.to_model(out["end"]), X)
 
 
 CHART_METRICS = {"E3": lambda x: chart_metric("E3", x), "S3": lambda x: chart_metric("S3", x),
@@ -101,7 +102,7 @@ CHART_METRICS = {"E3": lambda x: chart_metric("E3", x), "S3": lambda x: chart_me
 
 @pytest.mark.parametrize("sid", ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "sl2"])
 def test_the_error_measure_is_the_metric_distance(space_of, sid):
-    """end_errors (render._image_distance: Geometry.chord_distance over the neighbouring copies),
+    """end_errors (render.statistics._image_distance: Geometry.chord_distance over the neighbouring copies),
     which every bound below is checked with, against truth.py's metrics: a point 1e-6 from a
     point of the domain, and that point moved to a neighbouring copy, are at the length of their
     chart difference in the metric (at the midpoint), to 1e-5 relative (the copy rounds)."""

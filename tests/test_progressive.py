@@ -144,7 +144,7 @@ def test_one_sample_is_sample_k_of_the_render():
     camera = Camera((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), 70.0)
     settings = render.Settings(width=40, height=30, seed=7)
     for n, first in ((5, 7), (4, 8)):  # 5 samples: one at the centre; 4: a centre pass first
-        for k, jitter in enumerate(render._sample_offsets(n)):
+        for k, jitter in enumerate(render.sample_offsets(n)):
             moved, one = progressive.one_sample(camera, settings, k, n)
             np.testing.assert_allclose(render.view_directions(moved, one), render.view_directions(camera, settings, jitter),
                                        atol=1e-14)

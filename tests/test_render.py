@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from thurston_addon import render, spaces
-from thurston_addon.scenes import Camera, PointLight, Scene, SceneObject, default_scene
+from thurston_addon import passes, render, spaces
+from thurston_addon.scenes import Camera, PointLight, Scene, SceneError, SceneObject, default_scene
 
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
 REPO = Path(__file__).resolve().parents[1]
@@ -429,6 +429,8 @@ def test_render_sizes_passes_and_quality(space_cache):
         res = render.render(space, scene, render.Settings(width=w, height=h, projection=projection, quality="draft"))
         p = res.passes
         assert set(p) == set(render.PASSES) | {"alpha"}
+        # each pass fills the EXR channels the pass table gives it
+        assert all(p[n].reshape(h, w, -1).shape[2] == len(passes.CHANNELS[n]) for n in render.PASSES)
         assert p["color"].shape == (h, w, 3) and p["color"].dtype == np.float32
         np.testing.assert_array_equal(p["alpha"], 1.0)  # opaque unless Settings.transparent
         assert p["depth"].shape == (h, w) and p["depth"].dtype == np.float64
@@ -570,18 +572,18 @@ def test_camera_several_cells_away(space_cache):
 def test_negative_light_power_is_rejected(space_cache):
     space = space_cache("torus")
     for power in (-5.0, float("nan")):
-        with pytest.raises(render.SceneError, match=r"light at \[0\.0, 0\.0, 0\.0\]: power must be a number >= 0"):
+        with pytest.raises(SceneError, match=r"light at \[0\.0, 0\.0, 0\.0\]: power must be a number >= 0"):
             PointLight(np.zeros(3), np.ones(3), power)
         light = PointLight(np.zeros(3), np.ones(3), 1.0)
         light.power = power  # changed after it was made: the compiler checks again
-        with pytest.raises(render.SceneError, match="light 0: power"):
+        with pytest.raises(SceneError, match="light 0: power"):
             render.compile_scene(space, Scene(lights=[light]))
 
 
 # --- antialiasing: stratified samples, centre-ray passes ---------------------------------------------
 @pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 7, 9, 16, 64])
 def test_sample_offsets_cover_each_stratum_once_and_average_to_the_centre(n):
-    o = np.array(render._sample_offsets(n))
+    o = np.array(render.sample_offsets(n))
     assert o.shape == (n, 2)
     assert np.all((o >= 0) & (o < 1))
     np.testing.assert_allclose(o.mean(axis=0), [0.5, 0.5], rtol=0, atol=1e-15)
@@ -662,7 +664,8 @@ def test_camera_frame_once_per_render(space_cache, monkeypatch):
         calls.append(1)
         return frame(*a, **k)
 
-    monkeypatch.setattr(render, "camera_frame", counting)
+    for module in (render.camera, render.loop):  # the loop's calls and camera_rays' own
+        monkeypatch.setattr(module, "camera_frame", counting)
     render.render(space, Scene(), render.Settings(width=4, height=3, samples=16))
     assert len(calls) == 1
 
@@ -726,7 +729,7 @@ def test_memory_error_during_render_is_a_render_error(space_cache, monkeypatch):
     def no_memory(*a, **k):
         raise MemoryError
 
-    monkeypatch.setattr(render, "camera_rays", no_memory)
+    monkeypatch.setattr(render.loop, "camera_rays", no_memory)
     with pytest.raises(render.RenderError, match="out of memory rendering 8x4"):
         render.render(space_cache("torus"), Scene(), render.Settings(width=8, height=4, quality="draft"))
 

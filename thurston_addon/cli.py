@@ -223,7 +223,7 @@ def build_parser():
     r.add_argument("--camera-up", type=_triple, metavar="X,Y,Z")
     r.add_argument("--fov", type=float, help="horizontal field of view in degrees")
     r.add_argument("--size", type=_size, default=(640, 360), metavar="WxH")
-    r.add_argument("--projection", choices=("perspective", "equirect"), default="perspective")
+    r.add_argument("--projection", choices=tuple(render.PROJECTIONS), default=render.Settings.projection)
     r.add_argument("--passes", type=_passes, help=f"EXR passes, comma separated (default all: {','.join(render.PASSES)})")
     r.add_argument("--samples", type=int, help="samples per pixel (overrides --quality)")
     r.add_argument("--shading", choices=render.SHADING, default="lambert")

@@ -10,17 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .files import OutputError, check_memory, replacing
-
-# EXR channel names per pass (Blender-like layer.channel names)
-CHANNELS = {
-    "color": ("R", "G", "B"),
-    "depth": ("Z",),
-    "normal": ("Normal.X", "Normal.Y", "Normal.Z"),
-    "position": ("Position.X", "Position.Y", "Position.Z"),
-    "object": ("IndexOB",),
-    "crossings": ("Crossings",),
-    "stop": ("Stop",),
-}
+from .passes import CHANNELS
 
 
 def linear_to_srgb(c):

@@ -34,7 +34,7 @@ def one_sample(camera, settings, k: int, n: int):
     from `camera`: render's sub-pixel position of sample k as a lens shift (the same rays up to
     rounding) and its random numbers (render numbers its passes from settings.seed, first the
     unshaded centre pass where no sample lies at the centre)."""
-    offsets = render._sample_offsets(n)
+    offsets = render.sample_offsets(n)
     x, y = offsets[k]
     W = settings.width
     shifted = replace(camera, shift=(camera.shift[0] + (x - 0.5) / W, camera.shift[1] - (y - 0.5) / W))

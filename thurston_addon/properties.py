@@ -2,6 +2,7 @@
 import bpy
 
 from . import render, spaces
+from .passes import BLENDER_PASSES
 
 DEFAULT_SPACE = "poincare"
 PRESET_SUBDIR = "thurston"  # the settings presets' folder under Blender's presets
@@ -132,10 +133,8 @@ class ThurstonSettings(bpy.types.PropertyGroup):
 
 class ThurstonViewLayerSettings(bpy.types.PropertyGroup):
     """The add-on's own passes of a view layer (Blender's own, such as Depth, are on the view layer)."""
-    use_pass_geodesic_distance: bpy.props.BoolProperty(
-        name="Geodesic Distance", description="The length of the geodesic from the camera to the hit (Blender units)")
-    use_pass_crossings: bpy.props.BoolProperty(
-        name="Crossings", description="How many times the ray crossed a face of the domain before the hit")
+    __annotations__ = {p.flag: bpy.props.BoolProperty(name=p.name, description=p.description)
+                       for p in BLENDER_PASSES if p.addon_flag}
 
 
 CLASSES = (ThurstonNote, ThurstonStats, ThurstonSettings, ThurstonViewLayerSettings)

@@ -5,13 +5,13 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from dataclasses import dataclass
 
 import bpy
 import numpy as np
 
 from .. import checks, properties, render, scenes, spaces
 from . import surfaces
+from ..passes import BLENDER_PASSES, LENGTHS, BlenderPass
 
 GUIDE_TAG = "thurston_guide"
 _space_cache: dict = {}
@@ -45,7 +45,7 @@ def load_space(settings) -> spaces.Space:
     return _space_cache[key]
 
 
-def render_settings(settings, width: int, height: int, projection: str = "perspective", region=None,
+def render_settings(settings, width: int, height: int, projection: str = render.Settings.projection, region=None,
                     transparent=False) -> render.Settings:
     return render.Settings(
         width=width, height=height, projection=projection, quality=settings.quality, shading=settings.shading,
@@ -243,7 +243,7 @@ class RenderJob:
     data is read there), traced by run() on any thread. `notes` gathers everything the user should
     hear about: what was skipped or cut, and the checks before and after the render."""
 
-    def __init__(self, bscene, depsgraph, width=None, height=None, projection="perspective", camera_object=None,
+    def __init__(self, bscene, depsgraph, width=None, height=None, projection=render.Settings.projection, camera_object=None,
                  region=None):
         settings = bscene.thurston
         self.notes: list[checks.Note] = []
@@ -288,10 +288,10 @@ class RenderJob:
 
 
 def blender_passes(result: render.Result, scale: float) -> dict:
-    """Passes in Blender's units: depth and position in world units (chart units x scale)."""
+    """Passes in Blender's units: the lengths (depth, position) in world units (chart units x scale)."""
     passes = dict(result.passes)
-    passes["depth"] = passes["depth"] * scale
-    passes["position"] = passes["position"] * scale
+    for name in LENGTHS:
+        passes[name] = passes[name] * scale
     return passes
 
 
@@ -300,27 +300,6 @@ def combined(passes: dict) -> np.ndarray:
     return np.concatenate([np.nan_to_num(passes["color"]), passes["alpha"][..., None]], axis=-1).astype(np.float32)
 
 
-@dataclass(frozen=True)
-class BlenderPass:
-    """A render pass the engine fills besides Combined."""
-    name: str  # Blender's pass name
-    chan_id: str  # Blender's channel letters; their number is the channel count
-    type: str  # VALUE or VECTOR
-    flag: str  # the view layer property that enables it
-    addon_flag: bool  # the flag is on view_layer.thurston (the add-on's), not on the view layer
-    source: str  # the render pass it comes from (render.PASSES); render-blend enables it from the settings
-
-
-# Every pass the engine can fill, in one place: the engine registers and fills them, the View Layer
-# panel shows their switches, render-blend turns them on from the settings' passes.
-BLENDER_PASSES = (
-    BlenderPass("Depth", "Z", "VALUE", "use_pass_z", False, "depth"),
-    BlenderPass("Geodesic Distance", "X", "VALUE", "use_pass_geodesic_distance", True, "depth"),
-    BlenderPass("Normal", "XYZ", "VECTOR", "use_pass_normal", False, "normal"),
-    BlenderPass("Position", "XYZ", "VECTOR", "use_pass_position", False, "position"),
-    BlenderPass("IndexOB", "X", "VALUE", "use_pass_object_index", False, "object"),
-    BlenderPass("Crossings", "X", "VALUE", "use_pass_crossings", True, "crossings"),
-)
 NO_HIT_DEPTH = 1e10  # what Blender's depth passes hold where nothing is hit
 
 
@@ -350,7 +329,8 @@ def pass_values(job: RenderJob) -> dict[str, np.ndarray]:
         "IndexOB": pass_index[passes["object"]],
         "Crossings": passes["crossings"],
     }
-    return {name: np.asarray(a, np.float32).reshape(*a.shape[:2], -1) for name, a in values.items()}
+    return {p.name: np.asarray(values[p.name], np.float32).reshape(*values[p.name].shape[:2], -1)
+            for p in BLENDER_PASSES}
 
 
 def store_stats(settings, job: RenderJob):

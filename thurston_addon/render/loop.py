@@ -1,0 +1,202 @@
+"""The render loop: the sub-pixel samples, each traced and colourised, summed into the passes,
+with the render's statistics."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..passes import STOP_REASONS, colorize
+from ..scenes import Camera, Scene
+from ..spaces import Space
+from .camera import camera_frame, camera_rays, clip_range, view_directions
+from .compilation import own_hits
+from .lights import light_reach_for
+from .projections import PROJECTIONS
+from .settings import Cancelled, RenderError, Settings, memory_needed
+from .statistics import (Result, accuracy_bound, error_sample, geodesic_error, light_stats, pixel_noise,
+                         retrace_error)
+from .tracer import make_tracer, trace
+
+
+def _miss_beyond(out: dict, limit):
+    """Hits farther than each ray's limit (its clip end) become misses at the distance limit."""
+    beyond = out["depth"] > limit
+    if not beyond.any():
+        return
+    out["depth"][beyond] = np.inf
+    out["stop"][beyond] = STOP_REASONS.index("distance")
+    out["object"][beyond] = -1
+    out["color"][beyond] = 0
+    for name in ("normal", "position", "error"):
+        out[name][beyond] = np.nan
+
+
+CENTRE = (0.5, 0.5)
+
+
+def sample_offsets(n):
+    """n sub-pixel positions (x, y in [0, 1)) for the colour, stratified and jittered, the jitter
+    antithetic: every sample is paired with its mirror image through the pixel centre, so the mean
+    position is exactly the centre and no part of the pixel counts twice.
+    n = k * k (the quality levels 1, 4, 16): one sample in each of the k x k sub-squares.
+    Other n: n-rooks (a Latin square): one sample in each of n columns and in each of n rows of
+    width 1/n, the rows a random permutation of the columns that commutes with the mirror.
+    A stratum that is its own mirror image (odd k, odd n) has its sample at the centre."""
+    rng = np.random.default_rng(12345)
+    k = math.isqrt(n)
+    if k * k == n:
+        m = k
+        strata = [(a, b) for a in range(k) for b in range(k)]
+    else:  # n-rooks: column i, row sigma(i), sigma(n - 1 - i) = n - 1 - sigma(i)
+        m = n
+        half = n // 2
+        pi = rng.permutation(half)
+        flip = rng.random(half) < 0.5
+        sigma = np.empty(n, int)
+        for i in range(half):
+            sigma[i] = n - 1 - pi[i] if flip[i] else pi[i]
+            sigma[n - 1 - i] = n - 1 - sigma[i]
+        if n % 2:
+            sigma[half] = half
+        strata = [(i, int(sigma[i])) for i in range(n)]
+    index = {s: i for i, s in enumerate(strata)}
+    offsets = [None] * n
+    for i, (a, b) in enumerate(strata):
+        mirror = index[(m - 1 - a, m - 1 - b)]
+        if mirror == i:
+            offsets[i] = CENTRE
+        elif mirror > i:
+            ja, jb = rng.random(2)
+            offsets[i] = ((a + ja) / m, (b + jb) / m)
+            offsets[mirror] = ((m - 1 - a + 1 - ja) / m, (m - 1 - b + 1 - jb) / m)
+    return offsets
+
+
+def render(space: Space, scene: Scene, settings: Settings, camera: Camera | None = None,
+           progress=None, tracer=None) -> Result:
+    """Render a view. progress(done, total) -> bool is called during tracing (False cancels).
+    Raises RenderError for settings that cannot be rendered, a size too large for this machine's
+    memory (checked before anything is allocated) and a MemoryError on the way."""
+    settings.check()
+    try:
+        return _render(space, scene, settings, camera, progress, tracer)
+    except MemoryError:
+        raise RenderError(f"out of memory rendering {settings.width}x{settings.height} "
+                          f"(about {memory_needed(settings.width, settings.height) / 2**30:.1f} GiB needed)") from None
+
+
+def _render(space, scene, settings, camera, progress, tracer) -> Result:
+    """render() after the settings' check.
+    Colour: the average of the stratified samples of sample_offsets. The other passes (depth,
+    normal, position, object, crossings, stop): the ray through the pixel centre, traced unshaded
+    on its own unless a colour sample lies at the centre (one sample per pixel, odd counts)."""
+    camera = camera or scene.camera or Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
+    if not (0 < camera.fov < 180):
+        raise RenderError(f"camera field of view must be between 0 and 180 degrees, got {camera.fov}")
+    reach = settings.max_distance or space.max_distance
+    if not (0 <= camera.clip_start < min(reach, camera.clip_end or math.inf)):
+        raise RenderError(f"camera clip start {camera.clip_start} must be at least 0 and less than the clip end "
+                          f"({camera.clip_end}) and the distance the rays reach ({reach})")
+    max_crossings = space.max_crossings if settings.max_crossings is None else settings.max_crossings
+    t0 = time.perf_counter()
+    frame = camera_frame(space, camera)  # once: bring_inside and the re-orthonormalised frame
+    tracer = tracer or make_tracer(space, scene, settings.threads, light_reach_for(space, settings))
+    offsets = sample_offsets(settings.samples_per_pixel)
+    W = settings.width
+    _, _, w, h = settings.window  # the pixels rendered
+    pixel_angle = PROJECTIONS[settings.projection].width_angle(camera) / W
+    tolerances = settings.tolerances(space, pixel_angle)
+    shade = settings.shading == "lambert"
+    # (jitter, shade, is colour sample): the centre pass first where no colour sample gives it
+    jobs = [(o, shade, True) for o in offsets]
+    if CENTRE not in offsets:
+        jobs.insert(0, (CENTRE, False, False))
+    pixels = w * h
+    total = len(jobs) * pixels
+    color_sum = None
+    brightness_squares = np.zeros(w * h)  # per pixel: the sum over samples of (mean of RGB)^2
+    hit_sum = np.zeros(w * h)
+    first = None
+    chords = light_failures = light_paths = shaded_points = bounce_paths = 0
+    light_energy = 0.0
+    for k, (jitter, shaded, colour) in enumerate(jobs):
+        view = view_directions(camera, settings, jitter)
+        origins, directions = camera_rays(space, camera, settings, jitter, frame=frame, view=view)
+        # every ray is traced from its clip start, as far as this sample's farthest clip end needs
+        start, end = clip_range(camera, settings, view[0], reach)
+        limits = (float(np.max(end - start)), max_crossings, *tolerances)
+        base = k * pixels
+        report = None if progress is None else (lambda done, _n, base=base: progress(base + done, total))
+        out = trace(tracer, origins, directions, *limits, shade=shaded, progress=report, fog=settings.fog,
+                    light_samples=settings.light_samples, seed=settings.seed + k, bounces=settings.bounces)
+        if np.any(out["stop"] == 3):
+            raise Cancelled("render cancelled")
+        _miss_beyond(out, end - start)
+        chords += int(out["chords"])
+        light_failures += int(out["light_failures"])
+        light_paths += int(out["light_paths"]) + int(out["emitter_paths"])
+        light_energy += float(out["light_energy"]) + float(out["emitter_energy"])
+        bounce_paths += int(out["bounce_paths"])
+        shaded_points += int(np.sum(out["stop"] == 0)) if shaded else 0
+        if jitter == CENTRE:
+            first, first_start, first_limits = out, start, limits
+            sample = error_sample(out, space.geometry)
+            probe = (origins[sample], directions[sample])
+        del origins, directions
+        if colour:
+            hit_sum += out["stop"] == 0
+            color = colorize(out, settings, space)
+            brightness_squares += color.mean(axis=1) ** 2
+            if color_sum is None:
+                color_sum = color
+            else:
+                color_sum += color
+            del color
+        del out
+    seconds = time.perf_counter() - t0
+    position, normal = own_hits(space, first)
+    passes = {
+        "color": (color_sum / len(offsets)).reshape(h, w, 3).astype(np.float32),
+        # the colour of a miss is 0, so the colour is premultiplied by this alpha
+        "alpha": (hit_sum / len(offsets) if settings.transparent else np.ones(w * h)).reshape(h, w).astype(np.float32),
+        "depth": (first["depth"] + first_start).reshape(h, w),
+        "normal": normal.reshape(h, w, 3),
+        "position": position.reshape(h, w, 3),
+        "object": first["object"].reshape(h, w),
+        "crossings": first["crossings"].reshape(h, w),
+        "stop": first["stop"].reshape(h, w),
+    }
+    hits = first["stop"] == 0
+    median_depth = float(np.median(first["depth"][hits])) if hits.any() else 0.0
+    origins, directions = probe
+    measured, measured_pixels, changed = retrace_error(space, tracer, origins, directions, first, sample, first_limits,
+                                                       pixel_angle)
+    stats = {
+        "rays": len(offsets) * pixels, "rays_traced": total, "chords": chords, "seconds": seconds,
+        "chords_per_ray": chords / total, "threads": tracer.num_threads,
+        "crossings_per_ray": float(first["crossings"].mean()), "hit_fraction": float(hits.mean()),
+        "samples_per_pixel": len(offsets), "triangles": tracer.num_triangles,
+        "instances": tracer.num_instances, "instanced_triangles": tracer.num_instanced_triangles,
+        # angular size of a pixel over sqrt(samples), at the median hit depth, in chart-scale units
+        "footprint": pixel_angle / math.sqrt(len(offsets)) * median_depth,
+        "tolerance": tolerances[0], "tolerance_per_distance": tolerances[1],
+        "bound": accuracy_bound(space, settings, tolerances),
+        # the per-ray error estimate of the hits: the largest and the median, chart units
+        "error_estimate_max": float(np.max(first["error"][hits])) if hits.any() else 0.0,
+        "error_estimate_median": float(np.median(first["error"][hits])) if hits.any() else 0.0,
+        # measured: sampled hits traced again at 1/RETRACE_FACTOR of the tolerance (the largest
+        # distance of a hit from the re-traced geodesic, in chart units and pixel footprints, and
+        # the fraction of them that met another object)
+        "measured_error": measured, "measured_error_pixels": measured_pixels, "retrace_changed": changed,
+        # measured: the largest distance of a (sampled) hit point from the reference geodesic
+        "geodesic_error": geodesic_error(space, origins, directions, first["depth"][sample],
+                                         first["position"][sample]),
+        "light_failures": light_failures,
+        "bounces": settings.bounces, "bounce_paths_per_point": bounce_paths / shaded_points if shaded_points else 0.0,
+        "noise": pixel_noise(color_sum, brightness_squares, len(offsets)),
+        **light_stats(space, settings, tracer, light_paths, light_energy, shaded_points),
+        "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},
+    }
+    return Result(passes, stats)

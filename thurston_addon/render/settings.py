@@ -1,0 +1,160 @@
+"""A render's settings: the quality levels, the Settings a render takes and their checks, the
+limits of what can be rendered, and the errors a render raises."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..files import physical_memory
+from ..passes import SHADING
+from ..spaces import Space
+from .projections import PROJECTIONS
+
+
+@dataclass(frozen=True)
+class Quality:
+    """A quality level: samples per pixel (antialiasing), and the bound of the hit-position error
+    as a fraction of the pixel footprint at the hit's distance (where geodesics bend in the chart
+    and are followed in chords; in E3, S3 and H3 they are exact chart lines)."""
+    samples: int
+    footprint_fraction: float
+
+
+# The same names are used by the add-on. The fractions keep what the chords do to the image below
+# what the sampling does at each quality (benchmarks/bench_curved.py, its image table).
+QUALITY = {"draft": Quality(1, 1.0), "preview": Quality(2, 0.5), "standard": Quality(4, 0.25),
+           "final": Quality(16, 0.1)}
+# `thurston trace` has no pixels: its qualities use the pixel of the default view (640 pixels
+# across 90 degrees).
+REFERENCE_PIXEL_ANGLE = math.radians(90.0) / 640
+# The bound stays positive at the camera: distances are counted from this fraction of the
+# domain's metric extent behind it.
+NEAR_FRACTION = 0.05
+RETRACE_FACTOR = 100  # the measured error: sampled rays traced again at tolerance / this
+# A chord tolerance's chords grow as 1 / sqrt(tolerance) (Nil: about 65 a ray at 1e-6), and the
+# measured error retraces at tolerance / RETRACE_FACTOR: below this a ray takes unbounded time.
+MIN_TOLERANCE = 1e-10
+
+
+# Peak memory of render() per pixel, whatever the sample count (samples are traced one after the
+# other): the rays of one sample (origins, directions and their temporaries), the tracer's output
+# for it and for the centre ray, and the colour sum. Measured at about 330 bytes (2000 x 1000, all
+# shading modes and projections; tests/test_render.py measures it again); rounded up.
+BYTES_PER_PIXEL = 400
+MAX_BOUNCES = 1024
+MEMORY_FRACTION = 0.8  # refuse renders that would need more than this share of physical memory
+# More threads than this gain nothing on any machine, and starting them all could take every
+# process id of the system for a moment (each thread has one; 32768 by default).
+MAX_THREADS = 4096
+
+
+def memory_needed(width: int, height: int) -> int:
+    return BYTES_PER_PIXEL * int(width) * int(height)
+
+
+class RenderError(ValueError):
+    """Input that cannot be rendered, with a message naming the problem."""
+
+
+class Cancelled(RuntimeError):
+    pass
+
+
+@dataclass
+class Settings:
+    width: int = 640
+    height: int = 360
+    projection: str = "perspective"  # a name in PROJECTIONS
+    quality: str = "standard"
+    samples: int | None = None  # samples per pixel; None: the quality's
+    shading: str = "lambert"
+    max_distance: float | None = None  # None: the space's default
+    max_crossings: int | None = None
+    fog: float | None = None  # distance at which colour falls to 1/e; None: no fog
+    # geodesics to lights longer than this are not summed; None: default_light_reach
+    light_reach: float | None = None
+    threads: int = 0
+    tolerance: float | None = None  # chord tolerance in chart units (S2xR: metric); None: the quality's bound
+    light_samples: int = 4  # points sampled on the emissive meshes per shaded point (each sample)
+    bounces: int = 0  # bounces after each camera hit (path tracing, any quality); 0: direct light only
+    seed: int = 0  # sample k's random numbers (light samples, bounces) come from seed + k
+    transparent: bool = False  # alpha: the share of a pixel's samples that hit something (else 1)
+    # (x, y, w, h): render only this window of the width x height image, x, y its top-left pixel
+    # (rows top-down); None: the whole image
+    region: tuple[int, int, int, int] | None = None
+
+    @property
+    def window(self) -> tuple[int, int, int, int]:
+        return self.region or (0, 0, self.width, self.height)
+
+    @property
+    def samples_per_pixel(self) -> int:
+        """The samples per pixel: the given count, else the quality's."""
+        return self.samples or QUALITY[self.quality].samples
+
+    def check(self):
+        if self.width < 1 or self.height < 1:
+            raise RenderError(f"image size {self.width}x{self.height} is not usable")
+        if self.region is not None:
+            x, y, w, h = self.region
+            if not (all(_whole(v) for v in self.region) and w >= 1 and h >= 1 and 0 <= x and x + w <= self.width
+                    and 0 <= y and y + h <= self.height):
+                raise RenderError(f"render region {self.region} is not a window of the {self.width}x{self.height} image")
+        need, have = memory_needed(self.width, self.height), physical_memory()
+        if have is not None and need > MEMORY_FRACTION * have:
+            raise RenderError(f"image size {self.width}x{self.height} needs about {need / 2**30:.1f} GiB of memory "
+                              f"to render, more than {MEMORY_FRACTION:.0%} of this machine's {have / 2**30:.1f} GiB")
+        if self.width * self.height > 2**28:
+            raise RenderError(f"image size {self.width}x{self.height} is not usable (more than 2^28 pixels)")
+        if self.projection not in PROJECTIONS:
+            raise RenderError(f"unknown projection {self.projection!r} ({', '.join(PROJECTIONS)})")
+        if self.quality not in QUALITY:
+            raise RenderError(f"unknown quality {self.quality!r} ({', '.join(QUALITY)})")
+        if self.samples is not None and not 1 <= self.samples <= 4096:
+            raise RenderError(f"samples per pixel must be between 1 and 4096, got {self.samples}")
+        if self.shading not in SHADING:
+            raise RenderError(f"unknown shading {self.shading!r} ({', '.join(SHADING)})")
+        if self.max_distance is not None and not (self.max_distance > 0 and math.isfinite(self.max_distance)):
+            raise RenderError(f"max distance must be a positive number, got {self.max_distance}")
+        if self.max_crossings is not None and not (_whole(self.max_crossings) and 0 <= self.max_crossings <= 2**31 - 1):
+            raise RenderError(f"max crossings must be a whole number >= 0, got {self.max_crossings}")
+        if self.fog is not None and not (self.fog > 0 and math.isfinite(self.fog)):
+            raise RenderError(f"fog distance must be a positive number (None: no fog), got {self.fog}")
+        if self.light_reach is not None and not self.light_reach >= 0:
+            raise RenderError(f"light reach must be a distance >= 0 (None: the space's default), got {self.light_reach}")
+        if not (_whole(self.light_samples) and 1 <= self.light_samples <= 4096):
+            raise RenderError(f"light samples must be a whole number between 1 and 4096, got {self.light_samples}")
+        if not (_whole(self.bounces) and 0 <= self.bounces <= MAX_BOUNCES):
+            raise RenderError(f"bounces must be a whole number between 0 (direct light only) and {MAX_BOUNCES}, "
+                              f"got {self.bounces}")
+        if not (_whole(self.seed) and 0 <= self.seed < 2**63):
+            raise RenderError(f"seed must be a whole number >= 0, got {self.seed}")
+        if not (_whole(self.threads) and 0 <= self.threads <= MAX_THREADS):
+            raise RenderError(f"threads must be a whole number from 0 (all cores) to {MAX_THREADS}, got {self.threads}")
+        if self.tolerance is not None and not (MIN_TOLERANCE <= self.tolerance < math.inf):
+            raise RenderError(f"tolerance must be a number of chart units of at least {MIN_TOLERANCE:g} (None: the "
+                              f"quality's), got {self.tolerance}")
+
+    def tolerances(self, space: Space, pixel_angle: float) -> tuple[float, float]:
+        """(tolerance at distance 0, growth per unit of distance) of the chords, chart units (S2xR:
+        metric, which its walk scales to the chart): the given tolerance, or the quality's fraction
+        of the pixel footprint (footprint()) times the geometry's chord_scale, which
+        benchmarks/bench_front.py derives from the measured error/time front (docs/front.md, "The
+        chord rule")."""
+        if self.tolerance is not None:
+            return self.tolerance, 0.0
+        fraction = space.geometry.chord_scale * QUALITY[self.quality].footprint_fraction
+        return fraction * footprint(space, pixel_angle, 0.0), fraction * pixel_angle
+
+
+def footprint(space: Space, pixel_angle: float, depth):
+    """The pixel footprint at geodesic distance depth that the qualities' bounds are fractions of
+    (a straight-line view's, with distances counted from NEAR_FRACTION of the domain's metric
+    extent behind the camera)."""
+    return pixel_angle * (depth + NEAR_FRACTION * space.metric_extent)
+
+
+def _whole(n) -> bool:
+    return isinstance(n, (int, np.integer)) and not isinstance(n, bool)

@@ -1,0 +1,47 @@
+"""The C++ tracer of a compiled scene, and its trace with what the core rejects raised as RenderError."""
+from __future__ import annotations
+
+import math
+
+from ..scenes import Scene
+from ..spaces import Space
+from .compilation import compile_scene
+from .settings import RenderError
+
+
+def make_tracer(space: Space, scene: Scene, threads: int = 0, light_reach: float | None = None):
+    """The C++ tracer for a scene, summing light over light_reach (None: default_light_reach); what
+    the core rejects (ValueError) is raised as RenderError."""
+    import thurston_core
+
+    data = compile_scene(space, scene, light_reach)
+    try:
+        return thurston_core.Tracer(**data, threads=threads)
+    except thurston_core.ThreadStartError as exc:
+        raise RenderError(f"{exc}; ask for fewer threads") from None
+    except ValueError as exc:
+        raise RenderError(f"the tracer rejected the scene: {exc}") from None
+
+
+def trace(tracer, origins, directions, max_distance, max_crossings, tolerance=1e-3, tolerance_per_distance=0.0,
+          shade=True, progress=None, fog=None, light_samples=1, seed=0, bounces=0):
+    """tracer.trace, with what the core rejects (ValueError) raised as RenderError. Exceptions
+    from the progress callback pass through unchanged (they are the caller's, not the input's)."""
+    raised = []
+
+    def report(done, total):
+        try:
+            return progress(done, total)
+        except BaseException as exc:
+            raised.append(exc)
+            raise
+
+    try:
+        return tracer.trace(origins, directions, max_distance, max_crossings, shade=shade,
+                            progress=None if progress is None else report, tolerance=tolerance,
+                            tolerance_per_distance=tolerance_per_distance, fog=fog or math.inf,
+                            light_samples=light_samples, seed=seed, bounces=bounces)
+    except ValueError as exc:
+        if raised:
+            raise
+        raise RenderError(f"the tracer rejected the rays: {exc}") from None
