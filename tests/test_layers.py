@@ -82,6 +82,16 @@ def test_the_library_never_imports_blender():
     assert not found, found
 
 
+def test_no_two_modules_share_a_name():
+    """A module's name (a file's stem, a package's folder) says what it is, once: `render` is the
+    library's render pipeline, not also a panel."""
+    by_name = {}
+    for name in MODULES:
+        if name != PACKAGE:
+            by_name.setdefault(name.rpartition(".")[2], []).append(name)
+    assert not {leaf: names for leaf, names in by_name.items() if len(names) > 1}
+
+
 def test_nothing_imports_the_entry():
     """thurston_addon/__init__.py is the top: Blender's entry, delegating to blender.registration."""
     found = [name for name in MODULES for imported, _ in imports(name) if imported == PACKAGE]
