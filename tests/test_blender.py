@@ -16,8 +16,8 @@ bpy = pytest.importorskip("bpy")
 
 import thurston_addon  # noqa: E402
 from thurston_addon import cli, render, spaces  # noqa: E402
-from thurston_addon import batch, export, guide, properties  # noqa: E402
-from thurston_addon.engine import ThurstonRenderEngine  # noqa: E402
+from thurston_addon.blender import batch, domain_guide, export, properties  # noqa: E402
+from thurston_addon.blender.engine import ThurstonRenderEngine  # noqa: E402
 
 import blender_helpers as bh  # noqa: E402
 
@@ -701,7 +701,7 @@ def outside_curved(space, shift):
     sc = build_scene(space)
     sc.camera.location = np.array(sc.camera.location) + shift
     bpy.context.view_layer.update()
-    assert guide.camera_outside(sc)
+    assert domain_guide.camera_outside(sc)
     return sc
 
 
@@ -711,7 +711,7 @@ def test_camera_inside_keeps_the_tracers_view_in_nil_and_sol(space, shift):
     before = tracer_view(sc)
     assert bpy.ops.thurston.camera_inside() == {"FINISHED"}
     bpy.context.view_layer.update()
-    assert not guide.camera_outside(sc)
+    assert not domain_guide.camera_outside(sc)
     M = np.array(sc.camera.matrix_world)
     np.testing.assert_allclose(M[:3, :3].T @ M[:3, :3], np.eye(3), atol=1e-6)
     assert np.all(np.abs(prism_coordinates(space, M[:3, 3])) < 0.5)
@@ -736,10 +736,10 @@ def test_camera_brought_onto_a_face_counts_as_inside():
     sc = build_scene("poincare")
     sc.camera.location = (0.0, 0.55, 0.2)
     bpy.context.view_layer.update()
-    assert guide.camera_outside(sc)
+    assert domain_guide.camera_outside(sc)
     assert bpy.ops.thurston.camera_inside() == {"FINISHED"}
     bpy.context.view_layer.update()
-    assert not guide.camera_outside(sc)
+    assert not domain_guide.camera_outside(sc)
 
 
 def test_camera_that_cannot_be_brought_in():

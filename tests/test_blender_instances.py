@@ -8,7 +8,8 @@ import pytest
 bpy = pytest.importorskip("bpy")
 pytestmark = pytest.mark.usefixtures("registered_addon")
 
-from thurston_addon import export, render  # noqa: E402
+from thurston_addon import render  # noqa: E402
+from thurston_addon.blender import export  # noqa: E402
 
 import blender_helpers as bh  # noqa: E402
 

@@ -30,7 +30,8 @@ def test_spot_area_and_sun_lights_are_exported(registered_addon):
     import bpy
 
     import blender_helpers as bh
-    from thurston_addon import checks, export
+    from thurston_addon import checks
+    from thurston_addon.blender import export
 
     sc = bh.fresh_scene("torus", scale=2.0)
     light_object("SPOT", "Spot", (0.2, 0.0, 0.4), spot_size=math.radians(50), spot_blend=0.3, energy=8.0)

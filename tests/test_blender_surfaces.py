@@ -131,7 +131,7 @@ def build_glossy():
 
 def test_principled_scattering_is_exported():
     sc = build_glossy()
-    from thurston_addon.export import surfaces
+    from thurston_addon.blender.export import surfaces
 
     for name, spec in GLOSSY.items():
         m = surfaces.material(sc.objects[name].active_material, name)

@@ -295,7 +295,7 @@ def test_blender_names_the_light_beyond_float32(registered_addon):
     import bpy
 
     import blender_helpers as bh
-    from thurston_addon import export
+    from thurston_addon.blender import export
 
     bh.fresh_scene("torus", scale=1.0)
     light = bpy.data.lights.new("Huge", "POINT")

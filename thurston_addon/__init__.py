@@ -2,36 +2,18 @@
 
 Importable without Blender: the geometry kernels, the spaces, the scene description and the tracer
 work in plain Python. Blender calls `register()` / `unregister()`, which load the Blender layer
-(`engine`, `properties`, `export`, `results`, `guide`, `batch`, `operators/`, `panels/`) only then.
+(`blender/`, `operators/`, `panels/`) only then.
 """
 __version__ = "0.1.0"
 
 
 def register():
-    import bpy
+    from .blender import registration
 
-    from . import engine, properties, results
-
-    for cls in _classes():
-        bpy.utils.register_class(cls)
-    properties.register()
-    results.register()
-    engine.register()
+    registration.register()
 
 
 def unregister():
-    import bpy
+    from .blender import registration
 
-    from . import engine, properties, results
-
-    engine.unregister()
-    results.unregister()
-    properties.unregister()
-    for cls in reversed(_classes()):
-        bpy.utils.unregister_class(cls)
-
-
-def _classes():
-    from . import engine, operators, panels, properties
-
-    return [*properties.CLASSES, *operators.CLASSES, *engine.CLASSES, *panels.CLASSES]
+    registration.unregister()

@@ -181,7 +181,7 @@ TRACE_OUTPUTS = {"depth": "depth", "object": "object", "position": "position", "
 
 def cmd_render_blend(args):
     try:
-        from . import batch, export
+        from .blender import batch, export
     except ImportError:
         raise CommandError("render-blend needs Blender's Python module: pip install bpy==5.0.1, "
                            "or run inside Blender: blender -b FILE.blend -E THURSTON -f 1") from None

@@ -4,7 +4,8 @@ import bpy
 import mathutils
 import numpy as np
 
-from .. import checks, export, guide
+from .. import checks
+from ..blender import domain_guide, export
 
 
 class THURSTON_OT_domain_guide(bpy.types.Operator):
@@ -16,7 +17,7 @@ class THURSTON_OT_domain_guide(bpy.types.Operator):
 
     def execute(self, context):
         try:
-            obj = guide.build(context.scene)
+            obj = domain_guide.build(context.scene)
         except export.ExportError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -39,7 +40,7 @@ class THURSTON_OT_camera_inside(bpy.types.Operator):
             return {"CANCELLED"}
         try:
             space = export.load_space(scene.thurston)
-            moved = guide.inside_matrix(space, np.array(cam.matrix_world, float), scene.thurston.scale)
+            moved = domain_guide.inside_matrix(space, np.array(cam.matrix_world, float), scene.thurston.scale)
         except (export.ExportError, ValueError) as exc:
             self.report({"ERROR"}, f"camera {cam.name!r}: {exc}")
             return {"CANCELLED"}

@@ -2,7 +2,7 @@
 import bpy
 from bl_operators.presets import AddPresetBase
 
-from .. import properties
+from ..blender import properties
 
 
 class THURSTON_OT_add_preset(AddPresetBase, bpy.types.Operator):

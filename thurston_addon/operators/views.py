@@ -8,7 +8,8 @@ import threading
 import bpy
 import numpy as np
 
-from .. import export, files, images, render, results
+from .. import files, images, render
+from ..blender import export, results
 
 OVERWRITE_IN_THE_PANEL = "tick Overwrite in the Thurston panel"
 

@@ -1,4 +1,4 @@
 """The add-on's panels and menus."""
-from . import render
+from . import render_properties
 
-CLASSES = render.CLASSES
+CLASSES = render_properties.CLASSES

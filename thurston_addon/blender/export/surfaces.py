@@ -8,8 +8,8 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from .. import scenes
-from ..images import srgb_to_linear
+from ... import scenes
+from ...images import srgb_to_linear
 
 
 def mesh_key(inst, obj) -> tuple:

@@ -1,14 +1,15 @@
 """Scene-level settings (bpy.types.Scene.thurston) and the last render's statistics."""
 import bpy
 
-from . import render, spaces
-from .passes import BLENDER_PASSES
+from .. import render, spaces
+from ..passes import BLENDER_PASSES
+from . import domain_guide
+from .export import FILE
 
 DEFAULT_SPACE = "poincare"
 PRESET_SUBDIR = "thurston"  # the settings presets' folder under Blender's presets
 # Path settings accept Blender's // (relative to the .blend); Blender before 4.5 has no such flag.
 _BLEND_RELATIVE = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
-FILE = "FILE"  # space_id of a user's space file (space_file)
 # The space enum's items before the setting stored the id: .blend files saved then hold an index into
 # this list under the key "space".
 _OLD_SPACE_ITEMS = ("half_turn", "hantzsche_wendt", "poincare", "quarter_turn", "seifert_weber", "sixth_turn",
@@ -57,9 +58,7 @@ def migrate_space_index(*_):
 
 
 def _space_changed(self, context):
-    from . import guide
-
-    guide.refresh(context.scene)
+    domain_guide.refresh(context.scene)
 
 
 class ThurstonNote(bpy.types.PropertyGroup):

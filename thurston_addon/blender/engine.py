@@ -9,7 +9,8 @@ from dataclasses import replace
 import numpy as np
 import bpy
 
-from . import export, progressive, render, scenes
+from .. import progressive, render, scenes
+from . import export
 
 # Callables (done, total) told of the progress of final renders; batch renders show it on the terminal.
 progress_listeners: list = []

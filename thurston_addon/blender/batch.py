@@ -5,14 +5,13 @@ from pathlib import Path
 
 import bpy
 
-from . import engine, export, files, images
+from .. import files, images
+from . import engine, export, registration
 
 
 def ensure_registered():
     if not hasattr(bpy.types.Scene, "thurston"):
-        from . import register
-
-        register()
+        registration.register()
 
 
 def open_blend(path: Path):

@@ -9,11 +9,12 @@ import warnings
 import bpy
 import numpy as np
 
-from .. import checks, properties, render, scenes, spaces
+from ... import checks, render, scenes, spaces
 from . import surfaces
-from ..passes import BLENDER_PASSES, LENGTHS, BlenderPass
+from ...passes import BLENDER_PASSES, LENGTHS, BlenderPass
 
 GUIDE_TAG = "thurston_guide"
+FILE = "FILE"  # space_id of a user's space file (space_file)
 _space_cache: dict = {}
 
 
@@ -23,7 +24,7 @@ class ExportError(ValueError):
 
 def load_space(settings) -> spaces.Space:
     """The space chosen in the settings (by id), cached by file path and modification time."""
-    if settings.space_id == properties.FILE:
+    if settings.space_id == FILE:
         if not settings.space_file:
             raise ExportError("Space is set to a space file, but no file is chosen")
         path = bpy.path.abspath(settings.space_file)

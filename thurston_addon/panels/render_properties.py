@@ -2,7 +2,7 @@
 and view layer passes, and the operators in the 3D viewport's sidebar (under any engine)."""
 import bpy
 
-from .. import export, guide, properties
+from ..blender import domain_guide, export, properties
 
 ENGINE = "THURSTON"
 
@@ -25,7 +25,7 @@ def draw_space(layout, context):
     s = context.scene.thurston
     col = layout.column()
     col.prop(s, "space")
-    if s.space_id == properties.FILE:
+    if s.space_id == export.FILE:
         col.prop(s, "space_file")
     elif properties.space_missing(s):
         col.label(text=f"No preset {s.space_id!r}: its file is gone; choose another space", icon="ERROR")
@@ -33,7 +33,7 @@ def draw_space(layout, context):
     row.prop(s, "scale")
     row.operator("thurston.fit_scale", text="", icon="FULLSCREEN_ENTER")
     col.operator("thurston.domain_guide", icon="MESH_ICOSPHERE")
-    if guide.camera_outside(context.scene):
+    if domain_guide.camera_outside(context.scene):
         box = layout.box()
         box.label(text="The camera is outside the domain", icon="ERROR")
         box.operator("thurston.camera_inside", icon="CAMERA_DATA")
