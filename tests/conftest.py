@@ -1,5 +1,16 @@
-"""Shared fixtures."""
+"""Shared fixtures, and the `blender` marker on every test that runs bpy."""
+from pathlib import Path
+
 import pytest
+
+BLENDER_TESTS = Path(__file__).parent / "blender"
+
+
+def pytest_collection_modifyitems(items):
+    """tests/blender/ and every test using the add-on registered in bpy are `blender` tests."""
+    for item in items:
+        if BLENDER_TESTS in item.path.parents or "registered_addon" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.blender)
 
 
 @pytest.fixture
@@ -11,3 +22,17 @@ def registered_addon():
 
     if not hasattr(bpy.types.Scene, "thurston"):
         thurston_addon.register()
+
+
+@pytest.fixture(scope="module")
+def space_of():
+    """spaces.load, once per space and test module."""
+    from thurston_addon import spaces
+
+    cache = {}
+
+    def load(sid):
+        if sid not in cache:
+            cache[sid] = spaces.load(sid)
+        return cache[sid]
+    return load

@@ -1,7 +1,7 @@
 """SL2~ (model D x R) against independent truth.
 
-The metric is written here from lam^2 (dx^2 + dy^2) + (dphi + lam (x dy - y dx))^2, lam = 2 / (1 - |w|^2);
-its derivatives by hand, checked against finite differences; the Christoffel symbols and the geodesic
+The metric is written in support/truth.py from lam^2 (dx^2 + dy^2) + (dphi + lam (x dy - y dx))^2, lam = 2 / (1 - |w|^2);
+its derivatives by hand there, checked against finite differences; the Christoffel symbols and the geodesic
 equation are built from them (truth.christoffel_from) and integrated with DOP853 at 1e-12.
 """
 import math
@@ -14,40 +14,14 @@ import trimesh
 from thurston_addon import render, spaces
 from thurston_addon.geometries import sl2
 from thurston_addon.scene import PointLight, Scene, SceneObject
-from cover import assert_no_leak_at_the_prism_edges, check_depths, first_hits
-from truth import check_flows_against_dop853, christoffel_from, unit_in
+from support.cover import assert_no_leak_at_the_prism_edges, check_depths, first_hits
+from support.truth import assert_sl2_flow, sl2_body_direction, sl2_christoffel, sl2_metric, sl2_metric_derivative, unit_in
 
 G = sl2.SL2()
 
 
-def metric_truth(x):
-    lam = 2 / (1 - x[0] ** 2 - x[1] ** 2)
-    form = np.array([-lam * x[1], lam * x[0], 1.0])
-    return np.diag([lam**2, lam**2, 0.0]) + np.outer(form, form)
-
-
-def metric_derivative(x):
-    """dg[l, i, j] = d_l g_ij: with d_l lam = lam^2 x_l (l = x, y), the disk block gives
-    2 lam^3 x_l delta_ij and the form f = (-lam y, lam x, 1) gives d_l f_i f_j + f_i d_l f_j."""
-    X, Y = x[0], x[1]
-    lam = 2 / (1 - X * X - Y * Y)
-    f = np.array([-lam * Y, lam * X, 1.0])
-    df = np.zeros((3, 3))  # df[l, i] = d_l f_i
-    df[0] = [-lam**2 * X * Y, lam + lam**2 * X * X, 0.0]
-    df[1] = [-lam - lam**2 * Y * Y, lam**2 * X * Y, 0.0]
-    dg = np.einsum("li,j->lij", df, f) + np.einsum("i,lj->lij", f, df)
-    for l, xl in enumerate((X, Y)):
-        dg[l, 0, 0] += 2 * lam**3 * xl
-        dg[l, 1, 1] += 2 * lam**3 * xl
-    return dg
-
-
-def christoffel_truth(x):
-    return christoffel_from(metric_truth(x), metric_derivative(x))
-
-
 def unit(x, u):
-    return unit_in(metric_truth, x, u)
+    return unit_in(sl2_metric, x, u)
 
 
 def random_point(rng, radius=0.8):
@@ -63,11 +37,6 @@ def jacobian(f, x, h=1e-6):
     return np.stack([(f(x + h * e) - f(x - h * e)) / (2 * h) for e in np.eye(3)], -1)
 
 
-def assert_flow(x, u, t, tol=1e-9):
-    """The Python and the C++ closed forms against DOP853."""
-    check_flows_against_dop853(G, christoffel_truth, metric_truth, [(x, u, t)], tol=tol)
-
-
 @pytest.fixture
 def rng():
     return np.random.default_rng(8)
@@ -76,17 +45,17 @@ def rng():
 def test_metric_and_christoffel(rng):
     for _ in range(20):
         x = random_point(rng, 0.95)
-        assert np.allclose(G.metric(x), metric_truth(x), rtol=1e-14, atol=0)
-        fd = jacobian(metric_truth, x).transpose(2, 0, 1)
-        assert np.allclose(metric_derivative(x), fd, rtol=1e-6, atol=1e-6)
-        assert np.allclose(G.christoffel(x), christoffel_truth(x), rtol=1e-12, atol=1e-12)
+        assert np.allclose(G.metric(x), sl2_metric(x), rtol=1e-14, atol=0)
+        fd = jacobian(sl2_metric, x).transpose(2, 0, 1)
+        assert np.allclose(sl2_metric_derivative(x), fd, rtol=1e-6, atol=1e-6)
+        assert np.allclose(G.christoffel(x), sl2_christoffel(x), rtol=1e-12, atol=1e-12)
 
 
 def test_isometries_pull_back_the_metric(rng):
     for _ in range(20):
         g, x = random_element(rng), random_point(rng)
         J = jacobian(lambda p: sl2.act(g, p), x)
-        assert np.allclose(J.T @ metric_truth(sl2.act(g, x)) @ J, metric_truth(x), rtol=1e-7, atol=1e-7)
+        assert np.allclose(J.T @ sl2_metric(sl2.act(g, x)) @ J, sl2_metric(x), rtol=1e-7, atol=1e-7)
         assert np.allclose(np.stack([sl2.act_tangent(g, x, e) for e in np.eye(3)], -1), J, rtol=1e-7, atol=1e-7)
 
 
@@ -105,14 +74,14 @@ def test_group_law(rng):
 def test_geodesic_random_starts(rng):
     for _ in range(20):
         x = random_point(rng)
-        assert_flow(x, unit(x, rng.normal(size=3)), rng.uniform(0, 10))
+        assert_sl2_flow(x, unit(x, rng.normal(size=3)), rng.uniform(0, 10))
 
 
 def test_geodesic_fibre_rays(rng):
     for sign in (1, -1):
         x = random_point(rng)
         u = unit(x, sl2.act_tangent(sl2.from_origin(x), np.zeros(3), [0, 0, sign]))
-        assert_flow(x, u, 7.0)
+        assert_sl2_flow(x, u, 7.0)
         assert np.allclose(G.chart_geodesic(x, u, 7.0)[0], x + [0, 0, 7.0 * sign], atol=1e-12)
 
 
@@ -127,14 +96,14 @@ def test_geodesic_at_the_branch_boundary(rng, offset, sign):
         x, a0 = random_point(rng), rng.uniform(0, 2 * math.pi)
         b = [a * math.cos(a0), a * math.sin(a0), c]
         u = sl2.act_tangent(sl2.from_origin(x), np.zeros(3), sl2.body_to_chart(b))
-        assert_flow(x, u, 9.0)
+        assert_sl2_flow(x, u, 9.0)
 
 
 def test_geodesic_near_the_disk_boundary(rng):
     for _ in range(10):
         a = rng.uniform(0, 2 * math.pi)
         x = np.array([0.99 * math.cos(a), 0.99 * math.sin(a), rng.uniform(-3, 3)])
-        assert_flow(x, unit(x, rng.normal(size=3)), rng.uniform(0, 3))
+        assert_sl2_flow(x, unit(x, rng.normal(size=3)), rng.uniform(0, 3))
 
 
 def test_geodesic_broadcasts_over_times(rng):
@@ -242,7 +211,7 @@ def test_the_model_carries_the_cover_elements(space):
             np.testing.assert_allclose(d, 0, atol=1e-10)
         for p in x[:4] * [1, 1, 0]:
             J = jacobian(lambda q: G.transform_points(M, q), p)
-            np.testing.assert_allclose(J.T @ metric_truth(G.transform_points(M, p)) @ J, metric_truth(p), rtol=1e-6, atol=1e-6)
+            np.testing.assert_allclose(J.T @ sl2_metric(G.transform_points(M, p)) @ J, sl2_metric(p), rtol=1e-6, atol=1e-6)
     fibre = space.generators[4]
     y = np.c_[x[:, :2], np.ones(20)]  # phi = 1 + 2 pi is read back as 1 - 2 pi
     np.testing.assert_allclose(G.transform_points(fibre, y), y - [0, 0, TAU], atol=1e-12)
@@ -336,11 +305,6 @@ def end_errors(got, want):
     return np.abs(d).max(axis=1)
 
 
-def body_direction(x, b):
-    """The unit chart velocity at x of body velocity b (carried from the origin by from_origin(x))."""
-    return sl2.act_tangent(sl2.from_origin(x), np.zeros(3), sl2.body_to_chart(b))
-
-
 def test_long_rays_end_where_the_cover_geodesic_ends(space):
     """About 100 crossings, mostly through the lids (small horizontal speed keeps the cover's disk
     coordinates well conditioned), fibre rays (a = 0) and rays at a = |c| +- 1e-9, where the closed
@@ -355,7 +319,7 @@ def test_long_rays_end_where_the_cover_geodesic_ends(space):
         c[i] = np.sign(c[i]) * (math.sqrt(2 - offset**2) - offset) / 2
         a[i] = abs(c[i]) + offset
     angle = rng.uniform(0, 2 * math.pi, n)
-    u = np.array([body_direction(x[i], [a[i] * math.cos(angle[i]), a[i] * math.sin(angle[i]), c[i]]) for i in range(n)])
+    u = np.array([sl2_body_direction(x[i], [a[i] * math.cos(angle[i]), a[i] * math.sin(angle[i]), c[i]]) for i in range(n)])
     length = 100 * TAU
     length_at = np.where(a > 0.5, 12.0, length)  # the balanced rays cross the sides: far fewer lids per length
     ends = []
@@ -384,7 +348,7 @@ def test_rays_near_the_rim_after_many_crossings_stay_finite_and_inside(space):
     V0 = space.domain.vertices
     x = V0[rng.integers(len(V0), size=n)] * [0.999, 0.999, 0.0] + np.c_[np.zeros((n, 2)), rng.uniform(-3, 3, n)]
     angle = rng.uniform(0, 2 * math.pi, n)
-    u = np.array([body_direction(p, [math.cos(t), math.sin(t), 0.0]) for p, t in zip(x, angle)])
+    u = np.array([sl2_body_direction(p, [math.cos(t), math.sin(t), 0.0]) for p, t in zip(x, angle)])
     _, _, out = trace(space, Scene(), x, u, 30.0)
     assert np.all(out["stop"] == 1) and np.all(np.isfinite(out["end"]))
     assert space.domain.contains(G.to_model(out["end"]), tol=1e-9).all()
@@ -430,7 +394,7 @@ def test_lambert_colour_is_base_power_cos_falloff(space):
     checked = 0
     for i in rows[:60]:
         h = out["position"][i]
-        frame = np.linalg.inv(np.linalg.cholesky(metric_truth(h)).T)  # columns orthonormal at h
+        frame = np.linalg.inv(np.linalg.cholesky(sl2_metric(h)).T)  # columns orthonormal at h
 
         def miss(w):
             r = np.linalg.norm(w)
@@ -440,9 +404,9 @@ def test_lambert_colour_is_base_power_cos_falloff(space):
         assert np.abs(miss(w)).max() < 1e-10
         r = np.linalg.norm(w)
         to_light = frame @ (w / r)
-        normal = np.linalg.solve(metric_truth(h), [0.0, 0.0, 1.0])
+        normal = np.linalg.solve(sl2_metric(h), [0.0, 0.0, 1.0])
         normal /= math.sqrt(normal[2])  # unit: n . g^-1 n = normal[2] for the covector (0, 0, 1)
-        cos = abs(normal @ metric_truth(h) @ to_light)  # the rays come from above, as the light
+        cos = abs(normal @ sl2_metric(h) @ to_light)  # the rays come from above, as the light
         H = G.to_model(h)
         falloff = float(G.falloff_along(H, G.normalize_tangent(H, G.tangent_to_model(h, to_light)), np.array(r)))
         want = colour * power * cos * falloff

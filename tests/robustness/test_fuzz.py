@@ -19,7 +19,7 @@ import trimesh
 from thurston_addon import cli, render, spaces
 from thurston_addon import scene as scenes
 
-from outputs import INTERNALS
+from support.outputs import INTERNALS
 
 SEED = 20261211
 TOML_VALUES = ["5", '"x"', "[1]", "{ a = 1 }", "true", "-1", "0", "1e300", "-1e300", "nan", "inf", "[[]]", '""',

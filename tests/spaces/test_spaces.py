@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from thurston_addon import spaces
-from truth import AMBIENT, chart_metric
+from support.truth import AMBIENT, chart_metric
 
 PRESETS = ["torus", "half_turn", "quarter_turn", "third_turn", "sixth_turn", "hantzsche_wendt", "poincare", "seifert_weber"]
 FLAT = PRESETS[:6]
@@ -22,7 +22,7 @@ COORDINATE = ["nil", "sol"]  # coordinate domains; the others are Dirichlet doma
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
 SIGN = {"E3": 0, "S3": 1, "H3": -1}
 PHI = (1 + math.sqrt(5)) / 2
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @lru_cache(maxsize=None)
@@ -876,7 +876,7 @@ def test_move_inside_many_points_at_once():
 
 
 # --- coordinate domains: Nil and Sol ---------------------------------------------------------------------
-from truth import CURVED_METRICS  # noqa: E402
+from support.truth import CURVED_METRICS  # noqa: E402
 
 SQ = math.sqrt(1 + PHI**2)
 U1, U2 = np.array([1, PHI]) / SQ, np.array([-PHI, 1]) / SQ  # the monodromy's eigenvectors, orthonormal

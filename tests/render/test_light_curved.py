@@ -1,7 +1,7 @@
 """Direct light along every geodesic in Nil, Sol and SL2 against independent truth.
 
 The truth is the geodesic equation built from the metrics' formulas (Christoffel symbols from the
-metric and its derivatives, checked against test_curved_geometries' and test_sl2's), integrated by
+metric and its derivatives, checked against support/truth.py's), integrated by
 DOP853, many geodesics at once: every geodesic from h to a point T no longer than a reach is found
 by a scan (geodesics from h in 1000 directions, each's closest approach to T over its length; a
 geodesic through T makes a local minimum of that miss over the directions) and damped Newton on
@@ -23,10 +23,9 @@ import thurston_core
 from thurston_addon import render, spaces
 from thurston_addon.geometries import sl2
 
-import test_curved_geometries
-import test_sl2
-from test_light import GLOW, RHO, ball_scene, shade_one
-from truth import christoffel_from, nil_metric, sol_metric
+from support.lit_ball import GLOW, RHO, ball_scene, shade_one
+from support.truth import (christoffel_from, nil_metric, nil_sol_christoffel, nil_sol_metric_derivative, sl2_christoffel,
+                           sl2_metric, sl2_metric_derivative, sol_metric)
 
 # --- the truth --------------------------------------------------------------------------------------
 
@@ -85,16 +84,16 @@ def christoffel(name, x):
 def test_the_vectorised_truth_is_the_formulas_of_the_other_tests():
     rng = np.random.default_rng(3)
     for x in np.c_[rng.uniform(-0.7, 0.7, (5, 2)), rng.uniform(-2, 2, 5)]:
-        np.testing.assert_allclose(christoffel("Nil", x), test_curved_geometries.christoffel_truth("Nil", x), rtol=1e-13,
+        np.testing.assert_allclose(christoffel("Nil", x), nil_sol_christoffel("Nil", x), rtol=1e-13,
                                    atol=1e-14)
-        np.testing.assert_allclose(christoffel("SL2", x), test_sl2.christoffel_truth(x), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(christoffel("SL2", x), sl2_christoffel(x), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(metric("Nil", x), nil_metric(x), rtol=1e-14)
         np.testing.assert_allclose(metric("Sol", x), sol_metric(x), rtol=1e-14)
-        np.testing.assert_allclose(metric("SL2", x), test_sl2.metric_truth(x), rtol=1e-14)
+        np.testing.assert_allclose(metric("SL2", x), sl2_metric(x), rtol=1e-14)
         for name in ("Nil", "Sol"):
-            np.testing.assert_allclose(metric_derivative(name, x), test_curved_geometries.metric_derivative(name, x),
+            np.testing.assert_allclose(metric_derivative(name, x), nil_sol_metric_derivative(name, x),
                                        rtol=1e-14, atol=1e-14)
-        np.testing.assert_allclose(metric_derivative("SL2", x), test_sl2.metric_derivative(x), rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(metric_derivative("SL2", x), sl2_metric_derivative(x), rtol=1e-13, atol=1e-13)
 
 
 def geodesic_equation(name, n):

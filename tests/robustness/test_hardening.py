@@ -20,7 +20,7 @@ from thurston_addon import cli, files, render, spaces
 from thurston_addon.scene import Camera
 from thurston_addon import scene as scenes
 
-from outputs import INTERNALS, error_line, fill, listing, stop, tmpfs
+from support.outputs import INTERNALS, error_line, fill, listing, stop, tmpfs
 
 THURSTON = Path(sys.executable).with_name("thurston")
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -295,7 +295,7 @@ def test_blender_names_the_light_beyond_float32(registered_addon):
     naming the Blender light (the engine and the operators report it)."""
     import bpy
 
-    import blender_helpers as bh
+    from support import blender_helpers as bh
     from thurston_addon import export
 
     bh.fresh_scene("torus", scale=1.0)

@@ -26,18 +26,18 @@ import pytest
 import trimesh
 
 import thurston_core
-from cover import first_hits
-from test_curved_geometries import GEOMETRY, christoffel_truth as sol_christoffel
-from test_marching import into_domain, report, space_of  # noqa: F401 (space_of: the fixture)
-from test_sl2 import assert_flow as assert_sl2_flow, body_direction, metric_truth as sl2_metric
+from support.cover import first_hits
 from thurston_addon import render, spaces
 from thurston_addon.scene import Scene, SceneObject
-from truth import AMBIENT, chart_metric, check_flows_against_dop853, h2xr_metric, nil_metric, s2xr_metric, sol_metric, unit_in
+from support.lattice import into_domain
+from support.report import report
+from support.truth import (AMBIENT, assert_sl2_flow, chart_metric, check_flows_against_dop853, h2xr_metric, nil_metric,
+                           nil_sol_christoffel, s2xr_metric, sl2_body_direction, sl2_metric, sol_metric, unit_in)
 
 ld = np.longdouble
 FINAL = render.QUALITY["final"].footprint_fraction
 LEVELS = (1, 10, 100, 1000)
-SOL = GEOMETRY["Sol"]
+SOL = spaces.load("sol").geometry
 
 
 def stated_bound(space, depth):
@@ -149,7 +149,7 @@ def stable_rays(space, rng, n):
         u = np.c_[np.zeros((n, 2)), np.where(np.arange(n) % 2, 1.0, -1.0)]
     elif space.id == "sl2":
         x = space._interior_points(rng, n)
-        u = np.array([body_direction(p, [0.0, 0.0, 1.0 if i % 2 else -1.0]) for i, p in enumerate(x)])
+        u = np.array([sl2_body_direction(p, [0.0, 0.0, 1.0 if i % 2 else -1.0]) for i, p in enumerate(x)])
     else:
         return None
     P = g.to_model(x)
@@ -419,7 +419,7 @@ def test_sol_starts_at_z_20(space_of):
     u = rng.normal(size=(n, 3))
     # the C++ and the Python flow (and their speed) against DOP853; tol 5e-10 (relative + absolute
     # on 1 + |reference|) is within 1e-9 (1 + |reference|)
-    check_flows_against_dop853(SOL, functools.partial(sol_christoffel, "Sol"), sol_metric,
+    check_flows_against_dop853(SOL, functools.partial(nil_sol_christoffel, "Sol"), sol_metric,
                                [(x[i], unit_in(sol_metric, x[i], u[i]), 1.5) for i in range(4)], tol=5e-10)
     P = g.to_model(x)
     V = g.normalize_tangent(P, g.tangent_to_model(x, u))
@@ -472,7 +472,7 @@ def test_sl2_rays_at_a_equal_to_c(space_of):
     b = np.zeros((n, 3))
     b[np.arange(n), axis] = np.abs(c) * np.where(np.arange(n) % 3, 1.0, -1.0)
     b[:, 2] = c
-    u = np.array([body_direction(p, q) for p, q in zip(x, b)])
+    u = np.array([sl2_body_direction(p, q) for p, q in zip(x, b)])
     for i in range(3):  # the C++ and the Python flow against DOP853, within 1e-9 (1 + |reference|)
         assert_sl2_flow(x[i], unit_in(sl2_metric, x[i], u[i]), 3.0, tol=5e-10)
     P = g.to_model(x)

@@ -15,8 +15,8 @@ import trimesh
 from thurston_addon import render, spaces
 from thurston_addon.geometries import get
 from thurston_addon.scene import Scene, SceneObject
-from cover import assert_no_leak_at_the_prism_edges, check_depths
-from truth import check_flows_against_dop853, christoffel_from, h2xr_metric, unit_in
+from support.cover import assert_no_leak_at_the_prism_edges, check_depths
+from support.truth import check_flows_against_dop853, christoffel_from, h2xr_metric, unit_in
 
 G = get("H2xR")
 SQ2 = math.sqrt(2.0)

@@ -1,7 +1,8 @@
 """Nil and Sol against independent truth.
 
-The metrics are the formulas in truth.py (Nil dx^2 + dy^2 + (dz - x dy)^2, Sol e^{2z} dx^2 +
-e^{-2z} dy^2 + dz^2); their derivatives are written here and checked against finite differences,
+The metrics and their derivatives are the formulas in support/truth.py (Nil dx^2 + dy^2 +
+(dz - x dy)^2, Sol e^{2z} dx^2 + e^{-2z} dy^2 + dz^2); the derivatives are checked here against
+finite differences,
 the Christoffel symbols and the geodesic equation are built from them, geodesics are integrated
 with DOP853 at 1e-12, Nil's closed form is also evaluated in the paper's plain form in decimals
 with enough digits to absorb its cancellation, and geodesic-sphere areas come from fans of
@@ -18,30 +19,13 @@ from thurston_addon.geometries import nil as nil_module
 from thurston_addon.geometries import sol as sol_module
 from thurston_addon.geometries.nil import Nil
 from thurston_addon.geometries.sol import Sol
-from truth import CURVED_METRICS, christoffel_from
+from support.truth import CURVED_METRICS, nil_sol_christoffel, nil_sol_metric_derivative
 
 NAMES = ["Nil", "Sol"]
 GEOMETRY = {"Nil": Nil(), "Sol": Sol()}
 
 
-# --- the metrics' derivatives, the Christoffel symbols and the geodesic equation ---------------
-
-def metric_derivative(name, x):
-    """dg[l, i, j] = d g_ij / d x_l from the formulas (Nil: g_yy = 1 + x^2, g_yz = -x;
-    Sol: g_xx = e^{2z}, g_yy = e^{-2z})."""
-    dg = np.zeros((3, 3, 3))
-    if name == "Nil":
-        dg[0, 1, 1] = 2 * x[0]
-        dg[0, 1, 2] = dg[0, 2, 1] = -1.0
-    else:
-        dg[2, 0, 0] = 2 * math.exp(2 * x[2])
-        dg[2, 1, 1] = -2 * math.exp(-2 * x[2])
-    return dg
-
-
-def christoffel_truth(name, x):
-    return christoffel_from(CURVED_METRICS[name](x), metric_derivative(name, x))
-
+# --- the geodesic equation (the metrics' derivatives and Christoffel symbols: support/truth.py) ---
 
 def integrate_geodesic(name, x0, v0, ts, scale=None):
     """DOP853 of x'' = -Gamma(x)(x', x') at rtol = atol = 1e-12 (atol times `scale` per
@@ -49,7 +33,7 @@ def integrate_geodesic(name, x0, v0, ts, scale=None):
     scale = np.ones(3) if scale is None else np.asarray(scale)
 
     def rhs(_t, y):
-        return np.concatenate([y[3:], -np.einsum("kij,i,j->k", christoffel_truth(name, y[:3]), y[3:], y[3:])])
+        return np.concatenate([y[3:], -np.einsum("kij,i,j->k", nil_sol_christoffel(name, y[:3]), y[3:], y[3:])])
 
     ts = np.atleast_1d(ts)
     sol = solve_ivp(rhs, (0.0, ts[-1]), np.concatenate([x0, v0]), method="DOP853", rtol=1e-12,
@@ -103,7 +87,7 @@ def test_attributes(name, geom):
 def test_metric_derivative_helper_matches_finite_differences(name, rng):
     for x in random_points(rng, 5):
         fd = np.stack([(CURVED_METRICS[name](x + h) - CURVED_METRICS[name](x - h)) / 2e-6 for h in 1e-6 * np.eye(3)])
-        np.testing.assert_allclose(metric_derivative(name, x), fd, rtol=1e-8, atol=1e-8)
+        np.testing.assert_allclose(nil_sol_metric_derivative(name, x), fd, rtol=1e-8, atol=1e-8)
 
 
 def test_metric_matches_the_formula_and_broadcasts(name, geom, rng):
@@ -119,7 +103,7 @@ def test_christoffel_symbols_from_the_metric(name, geom, rng):
     G = geom.christoffel(xs)
     assert G.shape == (3, 2, 3, 3, 3)
     for index in np.ndindex(3, 2):
-        np.testing.assert_allclose(G[index], christoffel_truth(name, xs[index]), rtol=1e-12, atol=1e-13)
+        np.testing.assert_allclose(G[index], nil_sol_christoffel(name, xs[index]), rtol=1e-12, atol=1e-13)
 
 
 def test_volume_density_is_sqrt_det_metric(name, geom, rng):

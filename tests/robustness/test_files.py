@@ -17,7 +17,7 @@ import pytest
 
 from thurston_addon import files, images
 
-from outputs import PREVIOUS, error_line, fill, listing, stop, tmpfs
+from support.outputs import PREVIOUS, error_line, fill, listing, stop, tmpfs
 
 THURSTON = Path(sys.executable).with_name("thurston")
 FORMATS = ("png", "jpg", "exr", "tif")

@@ -10,7 +10,7 @@ pytestmark = pytest.mark.usefixtures("registered_addon")
 
 from thurston_addon import export, render  # noqa: E402
 
-import blender_helpers as bh  # noqa: E402
+from support import blender_helpers as bh  # noqa: E402
 
 RADIUS = 0.02
 SIZE = (33, 33)  # odd: the centre pixel's ray is the optical axis

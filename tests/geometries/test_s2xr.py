@@ -15,8 +15,8 @@ import trimesh
 from thurston_addon import render, spaces
 from thurston_addon.geometries import get
 from thurston_addon.scene import Scene, SceneObject
-from cover import check_depths, first_hits
-from truth import check_flows_against_dop853, christoffel_from, s2xr_metric, unit_in
+from support.cover import check_depths, first_hits
+from support.truth import check_flows_against_dop853, christoffel_from, s2xr_metric, unit_in
 
 G = get("S2xR")
 

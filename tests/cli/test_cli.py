@@ -16,7 +16,7 @@ import trimesh
 from thurston_addon import cli, render, spaces
 from thurston_addon.scene import default_scene
 
-from outputs import error_line
+from support.outputs import error_line
 
 PRESETS = {"torus": "E3", "half_turn": "E3", "quarter_turn": "E3", "third_turn": "E3", "sixth_turn": "E3",
            "hantzsche_wendt": "E3", "poincare": "S3", "seifert_weber": "H3", "nil": "Nil", "sol": "Sol",

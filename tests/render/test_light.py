@@ -14,31 +14,7 @@ import trimesh
 
 from thurston_addon import render, spaces
 from thurston_addon.scene import PointLight, Scene, SceneObject, default_scene
-
-RHO, GLOW = 0.5, 1e-3  # the ball's base colour and its faint emission (which makes it cast no shadow)
-
-
-def ball_scene(centre, light, power=1.0):
-    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.02)
-    return Scene(objects=[SceneObject("ball", ball.vertices + centre, ball.faces, (RHO,) * 3, emission=(GLOW,) * 3)],
-                 lights=[PointLight(np.asarray(light, float), np.ones(3), power)])
-
-
-def shade_one(space, scene, origin, target, light_reach, fog=math.inf):
-    """The traced colour, model hit point and model unit normal of the ray from origin to target,
-    and the trace's output."""
-    g = space.geometry
-    tracer = render.make_tracer(space, scene, threads=1, light_reach=light_reach)
-    o, d = np.array([origin], float), np.array([target], float) - np.array([origin], float)
-    P = g.to_model(o)
-    D = g.normalize_tangent(P, g.tangent_to_model(o, d))
-    out = tracer.trace(P, D, 2.0, 20, shade=True, fog=fog)
-    assert out["stop"][0] == 0 and out["object"][0] == 0
-    x, n = out["position"][0], out["normal"][0].astype(float)
-    H = g.normalize_point(g.to_model(x[None]))[0]
-    N = g.normalize_tangent(H[None], g.tangent_to_model(x[None], n[None]))[0]
-    return out["color"][0].astype(float), H, N, out
-
+from support.lit_ball import GLOW, RHO, ball_scene, shade_one
 
 @pytest.mark.parametrize("fog", [math.inf, 0.5])
 def test_torus_sums_every_lattice_copy_within_the_reach(fog):
@@ -152,7 +128,7 @@ def floor_under_lamp():
     along y, repeated), a lamp 0.65 above the floor in plain view, seen from above. Nearest-copy
     lighting left the floor black: the lamp's nearest copy to it lies below it. What lights a point
     of the corridor: the lamp's copies along it, one per cell, 0.65 / r^3 falling off."""
-    import blender_helpers as bh
+    from support import blender_helpers as bh
 
     sc = bh.fresh_scene("torus", size=(48, 27))
     sc.view_settings.view_transform = "Standard"
@@ -173,8 +149,7 @@ def test_floor_under_the_lamp_matches_cycles_in_the_tiled_cover(tmp_path, regist
     (no face crossed), lit by every copy within reach 3.5 (Cycles' tiling holds the corridor's
     lamps three cells each way; the ones one cell further, at reach 3.5 to 4, send under 1%). A
     missing copy fails it: the reach that keeps only the lamp's own copy."""
-    import blender_helpers as bh
-    from test_blender_surfaces import interior
+    from support import blender_helpers as bh
 
     sc = floor_under_lamp()
     sc.view_layers[0].thurston.use_pass_crossings = True
@@ -182,7 +157,7 @@ def test_floor_under_the_lamp_matches_cycles_in_the_tiled_cover(tmp_path, regist
     sc.thurston.light_reach = CYCLES_REACH
     ch = bh.f12(sc, tmp_path / "thurston.exr")
     thurston = bh.rgb(ch, L + "Combined.")
-    central = interior(next(v for k, v in ch.items() if "Crossings" in k) < 0.5)
+    central = bh.interior(next(v for k, v in ch.items() if "Crossings" in k) < 0.5)
     sc.thurston.light_reach = 0.9  # the lamp's own copy only (the ones a cell away are farther)
     own_only = bh.rgb(bh.f12(sc, tmp_path / "own.exr"), L + "Combined.")
     bh.tile_torus_for_cycles(sc, CYCLES_CELLS)

@@ -14,7 +14,7 @@ bpy = pytest.importorskip("bpy")
 pytestmark = pytest.mark.usefixtures("registered_addon")
 
 
-import blender_helpers as bh  # noqa: E402
+from support import blender_helpers as bh  # noqa: E402
 
 SIZE = (64, 36)
 # The objects lie within 0.45 of the light and its other copies a cell (at least 0.55 from them) away.
@@ -50,15 +50,6 @@ def build():
     return sc
 
 
-def interior(mask):
-    """The mask without its border pixels (silhouettes are anti-aliased differently)."""
-    m = mask.copy()
-    m[1:] &= mask[:-1]
-    m[:-1] &= mask[1:]
-    m[:, 1:] &= mask[:, :-1]
-    m[:, :-1] &= mask[:, 1:]
-    return m
-
 
 def test_smooth_textured_per_face_materials_match_cycles_tiled(tmp_path):
     sc = build()
@@ -75,7 +66,7 @@ def test_smooth_textured_per_face_materials_match_cycles_tiled(tmp_path):
     bh.tile_torus_for_cycles(sc, 3, own_cell_light=True)
     cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=32), L + "Combined.")
     near = depth < 1.0  # hits within the 27 cells Cycles has
-    masks = {name: interior(near & (np.abs(index - k) < 0.01)) for name, k in (("ball", 1), ("plane", 2), ("box", 3))}
+    masks = {name: bh.interior(near & (np.abs(index - k) < 0.01)) for name, k in (("ball", 1), ("plane", 2), ("box", 3))}
 
     def error(image, mask):  # the per-pixel differences from Cycles relative to its brightness
         return float(np.abs(image[mask] - cycles[mask]).sum() / cycles[mask].sum())
@@ -161,7 +152,7 @@ def test_glossy_ball_and_plate_match_cycles_tiled(tmp_path):
     bh.tile_torus_for_cycles(sc, 3, own_cell_light=True)
     cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=32), L + "Combined.")
     near = depth < 1.0
-    masks = {name: interior(near & (np.abs(index - k) < 0.01)) for name, k in (("Metal", 1), ("Varnish", 2))}
+    masks = {name: bh.interior(near & (np.abs(index - k) < 0.01)) for name, k in (("Metal", 1), ("Varnish", 2))}
 
     def error(image, mask):  # the per-pixel differences from Cycles relative to its brightness
         return float(np.abs(image[mask] - cycles[mask]).sum() / cycles[mask].sum())

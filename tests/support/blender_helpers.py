@@ -285,3 +285,13 @@ def cycles_render(scene, path, samples=32):
     scene.render.filepath = str(path)
     b.ops.render.render(write_still=True)
     return read_exr(path)
+
+
+def interior(mask):
+    """The mask without its border pixels (silhouettes are anti-aliased differently)."""
+    m = mask.copy()
+    m[1:] &= mask[:-1]
+    m[:-1] &= mask[1:]
+    m[:, 1:] &= mask[:, :-1]
+    m[:, :-1] &= mask[:, 1:]
+    return m

@@ -13,7 +13,7 @@ import numpy as np
 def light_object(kind, name, location, rotation=(0.0, 0.0, 0.0), **props):
     import bpy
 
-    import blender_helpers as bh
+    from support import blender_helpers as bh
 
     data = bpy.data.lights.new(name, kind)
     for key, value in props.items():
@@ -29,7 +29,7 @@ def test_spot_area_and_sun_lights_are_exported(registered_addon):
     sun is left out, and the notes say why."""
     import bpy
 
-    import blender_helpers as bh
+    from support import blender_helpers as bh
     from thurston_addon import checks, export
 
     sc = bh.fresh_scene("torus", scale=2.0)
@@ -61,7 +61,7 @@ def lit_room():
     """A closed room (inner 0.76 wide) inside the torus's unit cube: a floor, walls and a ceiling,
     a spot pointing down from the ceiling (its cone's edge on the floor) and an area light beside
     it facing down, seen from above the floor looking down (the lamps out of view)."""
-    import blender_helpers as bh
+    from support import blender_helpers as bh
 
     sc = bh.fresh_scene("torus", size=(48, 27))
     sc.view_settings.view_transform = "Standard"
@@ -85,14 +85,13 @@ def test_spot_and_area_light_in_a_closed_room_match_cycles(tmp_path, registered_
     noise and Thurston's emitter sampling at 4 x 16 light samples per pixel). The area light gives
     about 90% of the light, the spot the rest; with the radiance strength / (4 area) that Cycles'
     kernel code suggests the image was pi / 4 as bright, which this fails."""
-    import blender_helpers as bh
-    from test_blender_surfaces import interior
+    from support import blender_helpers as bh
 
     sc = lit_room()
     L = "ViewLayer."
     thurston = bh.rgb(bh.f12(sc, tmp_path / "thurston.exr"), L + "Combined.")
     cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=1024), L + "Combined.")
-    inside = interior(np.ones(cycles.shape[:2], bool))
+    inside = bh.interior(np.ones(cycles.shape[:2], bool))
     assert cycles[inside].mean() > 0.02
     error = float(np.abs(thurston[inside] - cycles[inside]).sum() / cycles[inside].sum())
     print("means", thurston[inside].mean(axis=0), cycles[inside].mean(axis=0), "per-pixel difference", error)

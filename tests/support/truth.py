@@ -1,5 +1,8 @@
 """Independent truth shared by the tests: the chart metrics written from the textbook formulas,
-not taken from the library."""
+not taken from the library, their derivatives and Christoffel symbols, and the checks of the
+library's flows against DOP853 on them."""
+import math
+
 import numpy as np
 
 AMBIENT = {"E3": np.diag([1.0, 1.0, 1.0, 0.0]), "S3": np.eye(4), "H3": np.diag([1.0, 1.0, 1.0, -1.0])}
@@ -41,6 +44,62 @@ def h2xr_metric(x):
 def s2xr_metric(x):
     """S2xR: |dx|^2 / |x|^2 on R^3 minus the origin (x = e^w u: dw^2 + the unit sphere's metric)."""
     return np.eye(3) / (np.asarray(x, float) @ x)
+
+
+def nil_sol_metric_derivative(name, x):
+    """dg[l, i, j] = d g_ij / d x_l from the formulas (Nil: g_yy = 1 + x^2, g_yz = -x;
+    Sol: g_xx = e^{2z}, g_yy = e^{-2z})."""
+    dg = np.zeros((3, 3, 3))
+    if name == "Nil":
+        dg[0, 1, 1] = 2 * x[0]
+        dg[0, 1, 2] = dg[0, 2, 1] = -1.0
+    else:
+        dg[2, 0, 0] = 2 * math.exp(2 * x[2])
+        dg[2, 1, 1] = -2 * math.exp(-2 * x[2])
+    return dg
+
+
+def nil_sol_christoffel(name, x):
+    return christoffel_from(CURVED_METRICS[name](x), nil_sol_metric_derivative(name, x))
+
+
+def sl2_metric(x):
+    """SL2 (model D x R): lam^2 (dx^2 + dy^2) + (dphi + lam (x dy - y dx))^2, lam = 2 / (1 - |w|^2)."""
+    lam = 2 / (1 - x[0] ** 2 - x[1] ** 2)
+    form = np.array([-lam * x[1], lam * x[0], 1.0])
+    return np.diag([lam**2, lam**2, 0.0]) + np.outer(form, form)
+
+
+def sl2_metric_derivative(x):
+    """dg[l, i, j] = d_l g_ij: with d_l lam = lam^2 x_l (l = x, y), the disk block gives
+    2 lam^3 x_l delta_ij and the form f = (-lam y, lam x, 1) gives d_l f_i f_j + f_i d_l f_j."""
+    X, Y = x[0], x[1]
+    lam = 2 / (1 - X * X - Y * Y)
+    f = np.array([-lam * Y, lam * X, 1.0])
+    df = np.zeros((3, 3))  # df[l, i] = d_l f_i
+    df[0] = [-lam**2 * X * Y, lam + lam**2 * X * X, 0.0]
+    df[1] = [-lam - lam**2 * Y * Y, lam**2 * X * Y, 0.0]
+    dg = np.einsum("li,j->lij", df, f) + np.einsum("i,lj->lij", f, df)
+    for l, xl in enumerate((X, Y)):
+        dg[l, 0, 0] += 2 * lam**3 * xl
+        dg[l, 1, 1] += 2 * lam**3 * xl
+    return dg
+
+
+def sl2_christoffel(x):
+    return christoffel_from(sl2_metric(x), sl2_metric_derivative(x))
+
+
+def sl2_body_direction(x, b):
+    """The unit chart velocity at x of body velocity b (carried from the origin by from_origin(x))."""
+    from thurston_addon.geometries import sl2
+    return sl2.act_tangent(sl2.from_origin(x), np.zeros(3), sl2.body_to_chart(b))
+
+
+def assert_sl2_flow(x, u, t, tol=1e-9):
+    """SL2's Python and C++ closed forms against DOP853."""
+    from thurston_addon.geometries import sl2
+    check_flows_against_dop853(sl2.SL2(), sl2_christoffel, sl2_metric, [(x, u, t)], tol=tol)
 
 
 def christoffel_from(g, dg):

@@ -14,7 +14,7 @@ from scipy.integrate import quad, solve_ivp
 from scipy.optimize import brentq
 
 from thurston_addon import geometries
-from truth import AMBIENT, chart_metric
+from support.truth import AMBIENT, chart_metric
 
 NAMES = ["E3", "S3", "H3"]
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])

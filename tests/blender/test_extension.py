@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 BUILD = ROOT / "scripts" / "build_extension.py"
 
 BPY_SPEC = importlib.util.find_spec("bpy")

@@ -17,7 +17,7 @@ from thurston_addon import render, spaces
 from thurston_addon.scene import Camera, PointLight, Scene, SceneObject, default_scene
 
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -17,8 +17,8 @@ pytestmark = pytest.mark.usefixtures("registered_addon")
 import thurston_addon  # noqa: E402
 from thurston_addon import checks, engine  # noqa: E402
 
-import blender_helpers as bh  # noqa: E402
-from outputs import PREVIOUS, error_line, fill, listing, tmpfs  # noqa: E402
+from support import blender_helpers as bh  # noqa: E402
+from support.outputs import PREVIOUS, error_line, fill, listing, tmpfs  # noqa: E402
 
 THURSTON = Path(sys.executable).with_name("thurston")
 
