@@ -1,9 +1,14 @@
-"""Shared fixtures, and the `blender` marker on every test that runs bpy."""
+"""Shared fixtures, the `blender` marker on every test that runs bpy, and the built-in presets only."""
+import os
 from pathlib import Path
 
 import pytest
 
+from thurston_addon import spaces
+
 BLENDER_TESTS = Path(__file__).parent / "blender"
+# The tests see the built-in presets only (tests that need a user's folder set it themselves).
+os.environ.pop(spaces.SPACE_PATH_VARIABLE, None)
 
 
 def pytest_collection_modifyitems(items):

@@ -20,10 +20,11 @@ from thurston_addon import batch, export, guide, properties  # noqa: E402
 from thurston_addon.engine import ThurstonRenderEngine  # noqa: E402
 
 from support import blender_helpers as bh  # noqa: E402
+from support.presets import presets  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 THURSTON = Path(sys.executable).with_name("thurston")
-CURVED = ("nil", "sol", "genus2xs1", "s2xs1", "rp3_rp3", "sl2")  # geodesics bend in the chart: traced in chords within a tolerance
+CURVED = presets(lambda space: not space.geometry.projective)  # geodesics bend in the chart: traced in chords within a tolerance
 
 
 def _registered():

@@ -17,10 +17,7 @@ from thurston_addon import cli, render, spaces
 from thurston_addon.scene import default_scene
 
 from support.outputs import error_line
-
-PRESETS = {"torus": "E3", "half_turn": "E3", "quarter_turn": "E3", "third_turn": "E3", "sixth_turn": "E3",
-           "hantzsche_wendt": "E3", "poincare": "S3", "seifert_weber": "H3", "nil": "Nil", "sol": "Sol",
-           "genus2xs1": "H2xR", "s2xs1": "S2xR", "rp3_rp3": "S2xR", "sl2": "SL2"}
+from support.presets import BUILT_IN, presets
 
 
 @pytest.fixture(autouse=True)
@@ -70,14 +67,14 @@ def test_spaces_listing(capsys):
     code, out, _ = run(["spaces"], capsys)
     assert code == 0
     lines = out.strip().splitlines()
-    assert len(lines) == len(PRESETS)
+    assert len(lines) == len(BUILT_IN)
     for line in lines:
         sid, geom, *description = line.split()
-        assert PRESETS[sid] == geom and len(description) >= 5  # a one-line description of each
+        assert BUILT_IN[sid] == geom and len(description) >= 5  # a one-line description of each
     code, out, _ = run(["spaces", "--json"], capsys)
     assert code == 0
     rows = json.loads(out)
-    assert {r["id"]: r["geometry"] for r in rows} == PRESETS
+    assert {r["id"]: r["geometry"] for r in rows} == BUILT_IN
     faces = {r["id"]: (r["faces"], r["vertices"]) for r in rows}
     assert faces["torus"] == (6, 8) and faces["poincare"] == (12, 20) and faces["seifert_weber"] == (12, 20)
     assert faces["sixth_turn"] == (8, 12)
@@ -87,14 +84,14 @@ def test_entry_point_subprocess():
     exe = Path(sys.executable).parent / "thurston"
     proc = subprocess.run([str(exe), "spaces", "--json"], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
-    assert {r["id"] for r in json.loads(proc.stdout)} == set(PRESETS)
+    assert {r["id"] for r in json.loads(proc.stdout)} == set(BUILT_IN)
     proc = subprocess.run([str(exe), "render", "--space", "torus", "--passes", "bogus", "--out", "x.exr"],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "bogus" in proc.stderr
 
 
 # --- render ---------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("sid", sorted(PRESETS))
+@pytest.mark.parametrize("sid", presets())
 def test_every_preset_renders_its_default_view(tmp_path, capsys, sid):
     """From the command line, each preset's default scene: rays meet it, and the image is not flat."""
     out = tmp_path / f"{sid}.exr"

@@ -24,12 +24,12 @@ import numpy as np
 import pytest
 import trimesh
 
+from support.presets import simplest_per_geometry
 from thurston_addon import cli, render, spaces
 from thurston_addon.scene import Camera, Material, PointLight, Scene, SceneObject, default_scene
 
 LE = 1.0
-# one preset of each geometry
-SPACES = ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "sl2"]
+SPACES = simplest_per_geometry()  # one preset of each geometry
 
 
 def random_rays(space, centre, n, seed, down=False):

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from support.presets import presets
 from thurston_addon import render, spaces
 from thurston_addon.scene import Camera, PointLight, Scene, SceneObject, default_scene
 
@@ -314,7 +315,7 @@ def check_trace_outputs(space, out, max_distance, max_crossings, n_objects):
         assert inside.all(), f"{(~inside).sum()} hit positions outside the domain"
 
 
-@pytest.mark.parametrize("sid", spaces.preset_ids())
+@pytest.mark.parametrize("sid", presets())
 def test_no_leak_at_edges_and_vertices(space_cache, sid):
     space = space_cache(sid)
     if not space.domain.edges:
@@ -801,7 +802,7 @@ def test_poincare_light_sums_all_120_copies_near_the_vertices(space_cache):
 
 
 # --- the geodesic error: measured, and it sees a wrong pairing -------------------------------------------
-@pytest.mark.parametrize("sid", [s for s in spaces.preset_ids() if spaces.load(s).geometry.projective])
+@pytest.mark.parametrize("sid", presets(lambda space: space.geometry.projective))
 def test_geodesic_error_is_small_for_presets(space_cache, sid):
     space = space_cache(sid)
     res = render.render(space, default_scene(space), render.Settings(width=64, height=36, quality="draft"))

@@ -30,6 +30,7 @@ from support.cover import first_hits
 from thurston_addon import render, spaces
 from thurston_addon.scene import Scene, SceneObject
 from support.lattice import into_domain
+from support.presets import presets, simplest_per_geometry
 from support.report import report
 from support.truth import (AMBIENT, assert_sl2_flow, chart_metric, check_flows_against_dop853, h2xr_metric, nil_metric,
                            nil_sol_christoffel, s2xr_metric, sl2_body_direction, sl2_metric, sol_metric, unit_in)
@@ -99,7 +100,7 @@ CHART_METRICS = {"E3": lambda x: chart_metric("E3", x), "S3": lambda x: chart_me
                  "S2xR": s2xr_metric, "SL2": sl2_metric}
 
 
-@pytest.mark.parametrize("sid", ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "sl2"])
+@pytest.mark.parametrize("sid", simplest_per_geometry())
 def test_the_error_measure_is_the_metric_distance(space_of, sid):
     """end_errors (render._image_distance: Geometry.chord_distance over the neighbouring copies),
     which every bound below is checked with, against truth.py's metrics: a point 1e-6 from a
@@ -156,7 +157,8 @@ def stable_rays(space, rng, n):
     return P, g.normalize_tangent(P, g.tangent_to_model(x, u))
 
 
-@pytest.mark.parametrize("sid", ["torus", "poincare", "seifert_weber", "nil", "sol", "sl2"])
+# (H2xR's and S2xR's long rays: test_h2xr.py, test_s2xr.py)
+@pytest.mark.parametrize("sid", simplest_per_geometry(lambda space: space.geometry.name not in ("H2xR", "S2xR")))
 def test_ends_within_the_bound_from_1_to_1000_crossings(space_of, sid):
     """Rays through an empty scene at the final quality's tolerances, stopped by their length after
     about 1, 10, 100 and 1000 crossings: each ends (stop 1, finite, inside the domain) where the
@@ -542,8 +544,7 @@ def test_points_near_the_rim_of_the_disks(space_of, sid, gap):
 # --- 5. no leak at the domain's edges and vertices ----------------------------------------------
 
 LEAK_RAYS = 10**6
-# the built-in presets (not the user's THURSTON_SPACE_PATH)
-PRESETS = sorted(p.stem for p in spaces.preset_path("torus").parent.glob("*.toml"))
+PRESETS = presets()
 
 
 def boundary_targets(space, rng, n):

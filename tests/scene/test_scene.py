@@ -8,6 +8,7 @@ import pytest
 import trimesh
 from trimesh.visual.material import PBRMaterial
 
+from support.presets import presets
 from thurston_addon import render, spaces
 from thurston_addon.scene import (Camera, Scene, SceneError, default_scene, load_mesh_file, load_scene_file,
                                   load_scenes, primitive)
@@ -356,7 +357,7 @@ def test_degenerate_triangles_skipped_with_warning(tmp_path, torus):
 EDGE_CLASSES = {"torus": 3, "poincare": 10, "seifert_weber": 6}  # 12 edges in 3 cycles of 4; 30 in cycles of 3; of 5
 
 
-@pytest.mark.parametrize("sid", [s for s in spaces.preset_ids() if isinstance(spaces.load(s), spaces.DirichletSpace)])
+@pytest.mark.parametrize("sid", presets(lambda space: isinstance(space, spaces.DirichletSpace)))
 def test_default_scene_has_a_tube_along_every_edge(sid):
     space = spaces.load(sid)
     dom = space.domain

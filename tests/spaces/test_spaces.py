@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 
 from thurston_addon import spaces
+from support.presets import BUILT_IN, presets
 from support.truth import AMBIENT, chart_metric
 
-PRESETS = ["torus", "half_turn", "quarter_turn", "third_turn", "sixth_turn", "hantzsche_wendt", "poincare", "seifert_weber"]
-FLAT = PRESETS[:6]
-COORDINATE = ["nil", "sol"]  # coordinate domains; the others are Dirichlet domains
+PRESETS = presets(lambda space: space.geometry.projective)  # Dirichlet domains
+FLAT = presets(lambda space: space.geometry.name == "E3")
+COORDINATE = presets(lambda space: space.geometry.name in ("Nil", "Sol"))  # their lattices written here
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
 SIGN = {"E3": 0, "S3": 1, "H3": -1}
 PHI = (1 + math.sqrt(5)) / 2
@@ -271,7 +272,8 @@ def poincare_toml(twist):
 # --- every preset -----------------------------------------------------------------------------------
 
 def test_preset_ids():
-    assert sorted(spaces.preset_ids()) == sorted(PRESETS + COORDINATE + ["genus2xs1", "s2xs1", "rp3_rp3", "sl2"])  # test_h2xr.py, test_s2xr.py, test_sl2.py
+    assert sorted(spaces.preset_ids()) == sorted(BUILT_IN)
+    assert {sid: load(sid).geometry.name for sid in BUILT_IN} == BUILT_IN
 
 
 def test_density_helper_is_sqrt_det():
