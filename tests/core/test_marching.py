@@ -216,6 +216,7 @@ def dop853_cases(name, rng):
     return cases
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["Nil", "Sol"])
 def test_flows_match_dop853_of_the_geodesic_equation(name):
     """Both flows against DOP853 of the geodesic equation from the truth metric's Christoffel
@@ -312,6 +313,7 @@ def conditioned_bound(sid, kappa, crossings, tolerance=TOLERANCE):
     return 4 * kappa * (crossings + 1) * (3e-13 + flow)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sid", ["nil", "sol"])
 def test_empty_space_ends_where_the_cover_geodesic_ends(space_of, sid):
     """A ray through an empty scene stops at max_distance L (stop 1) at the point where the
@@ -567,6 +569,7 @@ def assert_within(world, rows, err, bound, tolerance, label):
                              f"end of their own chord), worst ray {rows[worst]}: {err[worst]:.3g} > {bound[worst]:.3g}")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sid", ["nil", "sol"])
 def test_depth_matches_first_hit_of_the_reference_geodesic(space_of, sid):
     """Rays from random points of the domain, traced at tolerance 1e-6 through the scene of three
@@ -1082,6 +1085,7 @@ def test_cli_trace_writes_chords_and_error_estimates(space_of, sid, tmp_path, mo
 
 # --- threads, progress and cancel, as for the projective kernel --------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sid", ["nil", "sol"])
 def test_marching_threads_progress_and_cancel(space_of, sid):
     """One and two threads give the same bits; progress is reported and a False answer stops the

@@ -358,6 +358,7 @@ def test_rays_near_the_rim_after_many_crossings_stay_finite_and_inside(space):
     assert end_errors(out["end"], want).max() < 1e-6
 
 
+@pytest.mark.slow
 def test_no_leak_at_the_octagon_vertices(space):
     """10^5 rays aimed at the prism's vertices and vertical edges (cover.assert_no_leak_at_the_prism_edges)."""
     assert_no_leak_at_the_prism_edges(space, math.pi, 0.15, seed=16)

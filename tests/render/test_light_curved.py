@@ -336,6 +336,7 @@ SCENES = {  # space: (light, ball centre, the ray's start offset, the domain's d
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("space_id", SCENES)
 def test_lit_colour_sums_every_copy_along_every_geodesic(space_id):
     """A point of a small emissive ball (which casts no shadow on the light) at the default light

@@ -669,6 +669,7 @@ def test_camera_frame_once_per_render(space_cache, monkeypatch):
 
 
 # --- memory: sizes this machine cannot hold are refused before anything is allocated -------------------
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="VmHWM in /proc/self/status: Linux")
 def test_bytes_per_pixel_estimate_covers_the_measured_peak():
     """The estimate behind the refusal, against the peak resident memory of a real render

@@ -587,6 +587,7 @@ def rays_through(space, rng, targets, s):
     return P[inside], V[inside]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sid", PRESETS)
 def test_no_leak_at_edges_and_vertices(space_of, sid):
     """10^6 rays per preset (a quarter at each quality's tolerances, each quarter from its own

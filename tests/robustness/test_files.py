@@ -130,6 +130,7 @@ def current_umask() -> int:
 
 # --- 2. concurrent runs and the overwrite promise -------------------------------------------------------
 
+@pytest.mark.slow
 def test_a_file_that_appears_during_the_render_is_not_replaced(tmp_path):
     """Without --overwrite the output is claimed only at the end: a file created while the render
     runs stays, and the render fails saying so (before: checked at the start, clobbered at the end)."""
@@ -145,6 +146,7 @@ def test_a_file_that_appears_during_the_render_is_not_replaced(tmp_path):
     assert out.read_bytes() == PREVIOUS and listing(tmp_path) == ["out.png"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("overwrite", (True, False))
 def test_concurrent_runs_on_one_path(tmp_path, overwrite):
     """Two processes rendering different views into one path at once: with --overwrite both succeed
