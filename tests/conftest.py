@@ -32,8 +32,6 @@ def registered_addon():
 @pytest.fixture(scope="module")
 def space_of():
     """spaces.load, once per space and test module."""
-    from thurston_addon import spaces
-
     cache = {}
 
     def load(sid):
