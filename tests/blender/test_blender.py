@@ -325,7 +325,7 @@ def test_domain_guide_of_sl2_is_the_curved_octagonal_prism():
     assert mid.any() and np.all(np.abs(w[mid]) < chord - 0.01)
 
 
-@pytest.mark.parametrize("space", ["s2xs1", "rp3_rp3"])
+@pytest.mark.parametrize("space", presets(lambda space: isinstance(space, spaces.ShellSpace)))
 def test_domain_guide_of_a_shell_is_its_two_spheres(space):
     """The shell 1 <= |x| <= e^(2 pi) (rp3_rp3: the file's shell, not the double cover's the tracer
     walks): the guide's vertices lie on the two spheres, both drawn."""
