@@ -483,6 +483,7 @@ def test_bake_panorama_world_nodes_and_orientation():
         assert at(d).max() < 0.01, d
 
 
+@pytest.mark.slow
 def test_baked_panorama_seen_by_cycles_matches_the_scene(tmp_path):
     """Independent of any formula: Cycles renders the World with the baked panorama, looking along
     -X and +Y from the bake point, and sees the colours of the objects that lie there."""
@@ -805,6 +806,7 @@ def test_render_blend_subprocess(tmp_path):
     assert [(f.read_bytes(), f.stat().st_mtime_ns) for f in frames] == stamp
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("space", CURVED)
 def test_render_blend_in_the_curved_geometries(tmp_path, space):
     sc = build_scene(space)

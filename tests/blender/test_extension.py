@@ -25,7 +25,9 @@ ROOT = Path(__file__).resolve().parents[2]
 BUILD = ROOT / "scripts" / "build_extension.py"
 
 BPY_SPEC = importlib.util.find_spec("bpy")
-pytestmark = pytest.mark.skipif(BPY_SPEC is None, reason="bpy is not installed (pip install -r requirements.txt)")
+# slow: every test needs the extension built (about two minutes)
+pytestmark = [pytest.mark.skipif(BPY_SPEC is None, reason="bpy is not installed (pip install -r requirements.txt)"),
+              pytest.mark.slow]
 
 # What Blender's bundled Python holds besides the standard library (and what the bpy wheel requires).
 BLENDER_BUNDLED = ["bpy", "numpy", "numpy.libs", "zstandard", "requests", "urllib3", "idna", "certifi",
