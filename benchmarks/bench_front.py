@@ -38,7 +38,7 @@ and within --margin of the bound above its error at scale 1 (what the larger cho
 CPU times are measured side by side (interleaved), and the derived scale is the cheapest of them
 up to --cap over the four qualities and the geometry's presets (E3, S3 and H3 have exact chords: the tolerance
 does not apply). The cap, 4: at 8 and more the silhouettes of two exports of one scene whose
-vertices lie 1e-7 apart differ by whole pixels (tests/test_blender.py, RP3 # RP3), where at 4 and
+vertices lie 1e-7 apart differ by whole pixels (tests/blender/test_blender.py, RP3 # RP3), where at 4 and
 less they agree to 2e-3. Scale 1 is the rule before.
 
 Written as Markdown tables (docs/front.md) and a plot of the 99th-percentile error against the time

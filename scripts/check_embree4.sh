@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Developer check (not CI): build the core against Embree 4's API and run tests/test_core.py on it.
+# Developer check (not CI): build the core against Embree 4's API and run tests/core/test_core.py on it.
 #
 # Debian bookworm ships only Embree 3, and no PyPI package ships Embree 4's headers: the embreex
 # wheel bundles libembree4 (4.4.0) but only Cython .pxd files. So this script takes the library from
@@ -51,7 +51,7 @@ spec.loader.exec_module(core)
 print("check_embree4: thurston_core built with Embree", core.EMBREE_VERSION)
 assert core.EMBREE_VERSION.startswith("4."), core.EMBREE_VERSION
 import pytest
-status = pytest.main(["-q", "-p", "no:cacheprovider", "tests/test_core.py"])
+status = pytest.main(["-q", "-p", "no:cacheprovider", "tests/core/test_core.py"])
 
 # EMBREE_VERSION is the headers' version: check which libraries the process really mapped.
 with open("/proc/self/maps") as maps:
