@@ -18,8 +18,9 @@ class, catalog.py the loading and the presets.
 from .catalog import PRESET_DIR, SPACE_KEYS, SPACE_PATH_VARIABLE, from_data, load, preset_dirs, preset_ids, preset_path
 from .coordinate import CoordinateSpace
 from .dirichlet import DirichletSpace
+from .shells import FoldedShellSpace, ShellSpace
 from .space import Space
 from .values import SpaceError
 
 __all__ = ["PRESET_DIR", "SPACE_KEYS", "SPACE_PATH_VARIABLE", "CoordinateSpace", "DirichletSpace",
-           "Space", "SpaceError", "from_data", "load", "preset_dirs", "preset_ids", "preset_path"]
+           "FoldedShellSpace", "ShellSpace",           "Space", "SpaceError", "from_data", "load", "preset_dirs", "preset_ids", "preset_path"]
