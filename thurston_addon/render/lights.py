@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..spaces import Space
+from ..spaces import DirichletSpace, Space
 from .settings import RenderError, Settings
 
 
@@ -34,7 +34,7 @@ def light_copies(space: Space, L, reach: float) -> np.ndarray:
     g = space.geometry
     if space.group_order is not None:  # finite (S3): all of it
         return np.array(space.elements_within(g.diameter + 1e-6))
-    if not g.projective:
+    if not isinstance(space, DirichletSpace):  # a coordinate domain: no tiling by Dirichlet cells
         return cover_copies(space, L, reach)
     tiles = light_tiles(space, reach)
     return tiles[[np.max(space.face_distances(g.normalize_point(M @ L))) <= reach + 1e-9 for M in tiles]]

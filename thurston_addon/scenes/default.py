@@ -40,8 +40,8 @@ def default_scene(space) -> Scene:
     g = space.geometry
     X = g.to_model(position)
     falloff = float(g.falloff_along(X, g.normalize_tangent(X, g.tangent_to_model(position, forward)), space.inradius))
-    if g.projective and g.curvature > 0:
-        # the finite group: every copy lights every point (render.py). An exposure choice: the
+    if space.group_order is not None:
+        # a finite group: every copy lights every point (render/lights.py). An exposure choice: the
         # copies within two circumradii of the light (the ones the domain's tubes do not hide),
         # summed at the point one inradius ahead, give 0.5 there
         ahead = g.geodesic(X, g.normalize_tangent(X, g.tangent_to_model(position, forward)), space.inradius)[0]
