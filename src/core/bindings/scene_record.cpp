@@ -163,7 +163,8 @@ void bind_scene_record(nb::module_& m) {
       .def(nb::init<std::string, DomainArrays, MeshArrays, SurfaceArrays, LightArrays, InstanceArrays,
                     EmitterArrays>(),
            nb::arg("geometry"), nb::arg("domain"), nb::arg("meshes"), nb::arg("surfaces"), nb::arg("lights"),
-           nb::arg("instances") = InstanceArrays{}, nb::arg("emitters") = EmitterArrays{})
+           nb::arg("instances").sig("Instances()") = InstanceArrays{},
+           nb::arg("emitters").sig("Emitters()") = EmitterArrays{})
       .def_ro("geometry", &SceneRecord::geometry)
       .def_ro("domain", &SceneRecord::domain)
       .def_ro("meshes", &SceneRecord::meshes)
