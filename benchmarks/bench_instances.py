@@ -28,7 +28,7 @@ def balls(n: int, subdivisions: int) -> SceneObject:
 def measure(space, scene, settings):
     t0 = time.perf_counter()
     data = render.compile_scene(space, scene)
-    tracer = thurston_core.Tracer(**data)
+    tracer = thurston_core.Tracer(render.core_scene(data))
     built = time.perf_counter() - t0
     nbytes = sum(v.nbytes for v in data.values() if isinstance(v, np.ndarray))
     t0 = time.perf_counter()

@@ -26,11 +26,14 @@ def rss_mb():
 
 
 def make_tracer(space, scene, threads):
-    """The tracer of whichever core is loaded (builds before the geometry registry took a curvature)."""
+    """The tracer of whichever core is loaded (builds before the compiled-scene record took the
+    arrays as keywords; builds before the geometry registry took a curvature)."""
     import thurston_core
     from thurston_addon import render
 
     data = render.compile_scene(space, scene)
+    if hasattr(thurston_core, "Scene"):
+        return thurston_core.Tracer(render.core_scene(data), threads=threads)
     if not hasattr(thurston_core, "GEOMETRIES"):
         data["curvature"] = {"E3": 0, "S3": 1, "H3": -1}[data.pop("geometry")]
     return thurston_core.Tracer(**data, threads=threads)

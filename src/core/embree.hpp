@@ -8,6 +8,11 @@
 #endif
 RTC_NAMESPACE_USE  // for Embree builds with an API namespace
 
+#include <stdexcept>
+#include <string>
+
+#include "vec.hpp"
+
 namespace thurston::embree {
 
 // A ray over the chord org + u * dir, u in [tnear, tfar].
@@ -26,6 +31,21 @@ inline RTCRay make_ray(const float org[3], const float dir[3], float tnear, floa
   ray.id = 0;
   ray.flags = 0;
   return ray;
+}
+
+// The ray over the chart chord from x0 to x1 (u in [tnear, 1]), in Embree's float.
+inline RTCRay chord_ray(const Vec3& x0, const Vec3& x1, float tnear) {
+  const float org[3] = {float(x0[0]), float(x0[1]), float(x0[2])};
+  const float dir[3] = {float(x1[0] - x0[0]), float(x1[1] - x0[1]), float(x1[2] - x0[2])};
+  return make_ray(org, dir, tnear, 1.0f);
+}
+
+// Raises the device's error, if it has one, as saying that Embree failed to do `what`.
+inline void check_device(RTCDevice device, const char* what) {
+  const RTCError error = rtcGetDeviceError(device);
+  if (error != RTC_ERROR_NONE)
+    throw std::runtime_error(std::string("Embree failed to ") + what + " (error " +
+                             std::to_string(int(error)) + ")");
 }
 
 // The first hit on a chord of a two-level scene whose top-level geometry IDs number the

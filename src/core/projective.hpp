@@ -27,6 +27,10 @@ struct ProjectiveKernel {
     return k == 0 ? s : k > 0 ? s + a[3] * b[3] : s - a[3] * b[3];
   }
 
+  // Whether a chart point is a point of the geometry: H3's Klein chart is the open unit ball; E3's
+  // and S3's gnomonic charts are all of R^3.
+  bool in_chart(const Vec3& x) const { return k >= 0 || dot3(x, x) < 1.0; }
+
   // A geodesic parameter t with the coefficients of X(t) = c P + s V: (cos t, sin t) in S3,
   // (cosh t, sinh t) in H3, (1, t) in E3.
   struct Turn {

@@ -1,7 +1,9 @@
 // Ray tracer for inside views of quotient manifolds: rays walk through a convex fundamental domain,
 // jump across faces by the face pairings, and meet the scene (triangles in the chart) through
-// Embree queries of chart chords. How a ray walks is the geometry's kernel (kernel.hpp); this file
-// is the part every geometry shares.
+// Embree queries of chart chords. How a ray walks is the geometry's kernel (kernel.hpp); the walk
+// and the light over it are kernel_tracer.hpp and integrator.hpp, a geometry's kernel is chosen by
+// name in registry.hpp; this file is the part every geometry shares: runs on the thread pool
+// (tracer.cpp) and the Embree scene (embree_scene.cpp).
 #pragma once
 
 #include <atomic>
@@ -16,66 +18,11 @@
 
 #include "embree.hpp"
 #include "kernel.hpp"
+#include "scene.hpp"
 #include "surface.hpp"
 #include "thread_pool.hpp"
 
 namespace thurston {
-
-// A placement of a mesh in the chart: its triangles mapped by `to_chart`; the object of a hit is
-// `object` plus the triangle's own object.
-struct Instance {
-  std::uint32_t mesh;
-  std::int32_t object;
-  Affine to_chart;
-};
-
-// A spot light's cone, as Cycles shapes it: the light leaving at angle theta from the axis is
-// scaled by smoothstep((cos theta - cos_half) * smooth), smooth = 1 / ((1 - cos_half) blend), and
-// is 0 outside the cone (blend 0: smooth = inf, a sharp edge). cos_half <= -1: no cone.
-struct SpotCone {
-  double cos_half = -1.0, smooth = kInf;
-  bool active() const { return cos_half > -1.0; }
-  double attenuation(double cos_theta) const {
-    const double f = (cos_theta - cos_half) * smooth;
-    if (!(f > 0.0)) return 0.0;
-    return f >= 1.0 ? 1.0 : f * f * (3.0 - 2.0 * f);
-  }
-};
-
-// Emissive triangles sampled as lights (next-event estimation): chart triangles of one copy of
-// each emitter (a group), with their radiance and whether they emit from their front only (the
-// side of cross(p1 - p0, p2 - p0)); every copy M of a group lights as the group's own triangles do.
-struct Emitters {
-  std::vector<std::array<Vec3, 3>> triangles;
-  std::vector<Rgb> radiance;
-  std::vector<std::uint8_t> one_sided;
-  std::vector<std::int32_t> group;
-  std::vector<Mat4> copies;  // the group elements (model maps), each of copy_group's group
-  std::vector<std::int32_t> copy_group;
-};
-
-// Validated scene description; see the Python docstring of Tracer for the meaning of each field.
-// The triangles are the meshes' (prototypes), one after the other; what is seen are the instances.
-struct SceneData {
-  std::vector<Vec4> face_covectors;
-  std::vector<Mat4> face_maps;
-  std::vector<Vec3> vertices;  // the meshes' own coordinates (chart coordinates where not moved)
-  std::vector<std::array<std::uint32_t, 3>> triangles;
-  std::vector<std::int32_t> triangle_object;
-  std::vector<std::uint32_t> mesh_first;  // first triangle of each mesh, ascending from 0
-  std::vector<Instance> instances;
-  Surfaces surfaces;  // materials, textures, corner normals and UVs of the triangles
-  std::vector<Vec4> light_lifts;  // points of the geometry (normalised by the kernel)
-  std::vector<std::int32_t> light_of_lift;
-  std::vector<Rgb> light_radiance;
-  std::vector<SpotCone> light_cone;  // per light (empty: no spot lights)
-  std::vector<Vec4> light_axis;      // per lift of a spot light: its unit axis there (else zero)
-  Emitters emitters;
-  double light_reach = kInf;  // light paths longer than this are not summed
-  // Every geodesic returns to its start after this length (S3 with -1 in the group: pi), so a light
-  // path longer than it from an opaque surface passes through that surface again: shadowed.
-  double geodesic_loop = kInf;
-};
 
 // Read-only strided 2-D view (strides in elements), so that rays need not be copied.
 template <class T>
@@ -121,6 +68,24 @@ struct TraceOutputs {
   std::int32_t* chords;  // Embree queries of the ray
   double* error;      // bound of the hit's distance from the true geodesic (chart units)
   double* end;        // (N,3) chart point where the ray stopped: the hit, or the end of its walk
+
+  // The outputs of ray i that hit nothing.
+  void write_miss(std::size_t i, Stop stop, int crossings, double distance, int chords,
+                  const Vec3& end_point = {kNaN, kNaN, kNaN}) const {
+    for (int a = 0; a < 3; ++a) {
+      color[3 * i + a] = 0.0f;
+      position[3 * i + a] = kNaN;
+      normal[3 * i + a] = float(kNaN);
+      end[3 * i + a] = end_point[a];
+    }
+    depth[i] = kInf;
+    object[i] = -1;
+    this->crossings[i] = crossings;
+    this->stop[i] = stop;
+    this->distance[i] = distance;
+    this->chords[i] = chords;
+    error[i] = kNaN;
+  }
 };
 
 struct TraceStats {
@@ -177,7 +142,7 @@ class Tracer {
                       std::int32_t* prim, std::int32_t* instance);
 
  protected:
-  Tracer(SceneData& scene, unsigned threads, bool occupancy);
+  Tracer(SceneData& scene, unsigned threads, bool occupancy);  // takes the scene's vectors
 
   // Traces rays [begin, end) into `out`; what the kernel does per ray.
   virtual void trace_range(std::size_t begin, std::size_t end, Strided2<double> origins,
@@ -259,6 +224,8 @@ class Tracer {
  private:
   // The chart bounds of the instances, the occupancy grid (marching kernels) and the scale.
   void bound_instances(bool occupancy);
+  // The Embree device, the shared vertex buffer and the scenes of all triangles and of the occluders.
+  void build_scenes();
   // The two-level Embree scene of the instances: top-level geometry i is instance i (the mesh's
   // triangles attached directly where its map is the identity, else an instance of the mesh's
   // own scene); casting: only the triangles whose material does not emit.
@@ -286,30 +253,5 @@ class Tracer {
   // the workers look at it between chunks and the walks on every step.
   std::atomic<bool> run_stop_{false};
 };
-
-// The geometries by name ("E3", "S3", "H3", "Nil", "Sol"), for the bindings.
-std::vector<std::string> geometry_names();
-bool has_geometry(const std::string& name);
-// Brings a light's position onto the geometry's model (false: not a point of it).
-bool normalise_point(const std::string& geometry, Vec4& X);
-// Brings a point and a tangent vector there onto the geometry's model, the vector of unit length
-// (false: no point, or no direction).
-bool normalise_direction(const std::string& geometry, Vec4& X, Vec4& V);
-std::unique_ptr<Tracer> make_tracer(const std::string& geometry, SceneData scene, unsigned threads);
-// The geometry's flow from chart points x with unit chart velocities v over arclength t, as the
-// tracer follows it (asked for `accuracy`); false for geometries without one (the projective
-// ones, whose geodesics are exact lines).
-bool geodesic_flow(const std::string& geometry, const Vec3& x, const Vec3& v, double t,
-                   double accuracy, Vec3& xt, Vec3& vt);
-// The tracer's light paths of a marching geometry within a reach, for the bindings: every
-// geodesic from the chart point h to the chart point l no longer than the reach, and how many the
-// search could tell it missed.
-class Connections {
- public:
-  virtual ~Connections() = default;
-  virtual int connect(const Vec3& h, const Vec3& l, std::vector<LightPath>& paths) const = 0;
-};
-// nullptr for geometries without a marching flow.
-std::unique_ptr<Connections> make_connections(const std::string& geometry, double reach);
 
 }  // namespace thurston

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import thurston_core as _core
+from thurston_addon.render import core_scene
 
 HALF = 0.5  # the E3 torus domain is the cube [-HALF, HALF]^3
 GEOMETRY = {0: "E3", 1: "S3", -1: "H3"}  # the projective geometries by curvature
@@ -117,11 +118,13 @@ def make_tracer(curvature, faces, maps, meshes=(), colors=None, emissions=None, 
     lifts = [np.zeros((0, 4))] + [np.asarray(l, float).reshape(-1, 4) for l, _ in lights]
     of_lift = [np.zeros(0, np.int32)] + [np.full(len(l), i, np.int32) for i, l in enumerate(lifts[1:])]
     radiance = np.array([r for _, r in lights], np.float32).reshape(-1, 3)
-    return _core.Tracer(GEOMETRY[curvature], np.asarray(faces, float).reshape(-1, 4),
-                        np.asarray(maps, float).reshape(-1, 4, 4), np.concatenate(vertices),
-                        np.concatenate(triangles).astype(np.int32), np.concatenate(objects),
-                        colors, emissions, np.concatenate(lifts), np.concatenate(of_lift),
-                        radiance, threads=threads, light_reach=light_reach)
+    scene = _core.Scene(GEOMETRY[curvature],
+                        _core.Domain(np.asarray(faces, float).reshape(-1, 4), np.asarray(maps, float).reshape(-1, 4, 4)),
+                        _core.Meshes(np.concatenate(vertices), np.concatenate(triangles).astype(np.int32),
+                                     np.concatenate(objects)),
+                        _core.Surfaces(colors, emissions),
+                        _core.Lights(np.concatenate(lifts), np.concatenate(of_lift), radiance, light_reach=light_reach))
+    return _core.Tracer(scene, threads=threads)
 
 
 def e3_rays(origins, directions):
@@ -578,25 +581,31 @@ def scene_arrays():
 def test_constructor_errors(change, message):
     args = scene_arrays() | change
     with pytest.raises(ValueError, match=message):
-        _core.Tracer(**args)
+        _core.Tracer(core_scene(args))
 
 
 def test_hyperbolic_vertices_must_be_in_the_ball():
     args = scene_arrays() | dict(geometry="H3", vertices=box_mesh([0.5, 0.5, 0.5], [0.7, 0.7, 0.7])[0])
     with pytest.raises(ValueError, match="inside the unit ball"):
-        _core.Tracer(**args)
+        _core.Tracer(core_scene(args))
+
+
+def test_the_core_and_python_registries_name_the_same_geometries():
+    from thurston_addon.geometries import GEOMETRIES
+
+    assert _core.KERNELS == tuple(GEOMETRIES)
 
 
 def test_zero_triangles_allowed_and_lists_rejected():
     args = scene_arrays() | dict(vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3), np.int32),
                                  triangle_object=np.zeros(0, np.int32))
-    assert _core.Tracer(**args).num_triangles == 0
+    assert _core.Tracer(core_scene(args)).num_triangles == 0
     with pytest.raises(TypeError):
-        _core.Tracer(**(args | dict(vertices=[[0.0, 0.0, 0.0]])))
+        _core.Tracer(core_scene(args | dict(vertices=[[0.0, 0.0, 0.0]])))
 
 
 def test_trace_errors():
-    tracer = _core.Tracer(**scene_arrays())
+    tracer = _core.Tracer(core_scene(scene_arrays()))
     o, d = e3_rays(np.zeros((5, 3)), [1, 0, 0])
     bad = d.copy()
     bad[3, 1] = np.inf

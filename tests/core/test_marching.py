@@ -649,10 +649,11 @@ def test_hit_refinement_finds_the_plane_on_straight_rays(geometry):
     for size in (1e-2, 1e-3, 1e-4):
         for winding in (1, -1):
             tri = np.array([[-size, -size, 0.2], [size, -size, 0.2], [0.0, size, 0.2]])[::winding]
-            tracer = thurston_core.Tracer(
-                geometry, np.zeros((0, 4)), np.zeros((0, 4, 4)), np.ascontiguousarray(tri), np.array([[0, 1, 2]], np.int32),
-                np.zeros(1, np.int32), np.ones((1, 3), np.float32), np.zeros((1, 3), np.float32), np.zeros((0, 4)),
-                np.zeros(0, np.int32), np.zeros((0, 3), np.float32))
+            tracer = thurston_core.Tracer(thurston_core.Scene(
+                geometry, thurston_core.Domain(np.zeros((0, 4)), np.zeros((0, 4, 4))),
+                thurston_core.Meshes(np.ascontiguousarray(tri), np.array([[0, 1, 2]], np.int32), np.zeros(1, np.int32)),
+                thurston_core.Surfaces(np.ones((1, 3), np.float32), np.zeros((1, 3), np.float32)),
+                thurston_core.Lights(np.zeros((0, 4)), np.zeros(0, np.int32), np.zeros((0, 3), np.float32))))
             z0 = np.linspace(0.0, 0.15, 200)
             O = np.c_[np.zeros((200, 2)), z0, np.ones(200)]
             D = np.tile([0.0, 0.0, 1.0, 0.0], (200, 1))

@@ -163,7 +163,7 @@ def test_ten_thousand_instances_hold_the_mesh_once():
     assert data["triangles"].shape == (nt, 3) and data["vertices"].shape == (nv, 3)
     assert data["triangle_material"].shape == (nt,)
     assert data["instance_transform"].shape == (1 + 10_000, 3, 4)  # the (empty) flat mesh and the balls
-    tracer = _core.Tracer(**data)
+    tracer = _core.Tracer(render.core_scene(data))
     assert tracer.num_triangles == nt
     assert tracer.num_instanced_triangles == 10_000 * nt
 
@@ -199,11 +199,11 @@ def test_core_rejects_singular_and_out_of_range_instances():
     singular = data["instance_transform"].copy()
     singular[1, :, :3] = 0
     with pytest.raises(ValueError, match="instance_transform row 1 is singular"):
-        _core.Tracer(**(data | dict(instance_transform=singular)))
+        _core.Tracer(render.core_scene(data | dict(instance_transform=singular)))
     with pytest.raises(ValueError, match="instance_object row 1 is 5"):
-        _core.Tracer(**(data | dict(instance_object=np.array([0, 5], np.int32))))
+        _core.Tracer(render.core_scene(data | dict(instance_object=np.array([0, 5], np.int32))))
     with pytest.raises(ValueError, match="go together"):
-        _core.Tracer(**(data | dict(instance_mesh=None)))
+        _core.Tracer(render.core_scene(data | dict(instance_mesh=None)))
 
 
 def test_scene_file_transforms(tmp_path):

@@ -81,7 +81,7 @@ def test_opaque_points_in_the_poincare_sphere_see_no_long_arcs():
     data = render.compile_scene(space, scene, 2 * math.pi)
     import thurston_core
 
-    traced = render.render(space, scene, settings, tracer=thurston_core.Tracer(**{**data, "geodesic_loop": math.inf},
+    traced = render.render(space, scene, settings, tracer=thurston_core.Tracer(render.core_scene({**data, "geodesic_loop": math.inf}),
                                                                                 threads=1)).passes["color"]
     np.testing.assert_allclose(shortcut, traced, rtol=1e-4, atol=1e-6)
 

@@ -855,7 +855,7 @@ def test_geodesic_error_sees_a_perturbed_pairing(space_cache):
     for eps in (0.0, 1e-6, 1e-5):
         maps = data["face_maps"].copy()
         maps[face, 1, 3] += eps  # a translation off the lattice, across the face's normal
-        tracer = thurston_core.Tracer(**{**data, "face_maps": np.ascontiguousarray(maps)})
+        tracer = thurston_core.Tracer(render.core_scene({**data, "face_maps": np.ascontiguousarray(maps)}))
         res = render.render(space, scene, settings, tracer=tracer)
         errors[eps] = res.stats["geodesic_error"]
         crossings = int(res.passes["crossings"].max())

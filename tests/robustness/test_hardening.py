@@ -313,13 +313,13 @@ def test_the_core_refuses_vertices_and_maps_beyond_float32():
     data["vertices"] = data["vertices"].copy()
     data["vertices"][1, 2] = 1e39
     with pytest.raises(ValueError, match="vertices row 1 is beyond the range of float32"):
-        thurston_core.Tracer(**data)
+        thurston_core.Tracer(render.core_scene(data))
     placed = scenes.SceneObject("b", obj.vertices, obj.triangles, instances=[np.eye(4), np.eye(4)])
     data = render.compile_scene(space, scenes.Scene(objects=[placed]))
     data["instance_transform"] = data["instance_transform"].copy()
     data["instance_transform"][1, 0, 0] = 1e39
     with pytest.raises(ValueError, match=r"instance_transform row 1 is beyond the range of float32"):
-        thurston_core.Tracer(**data)
+        thurston_core.Tracer(render.core_scene(data))
 
 
 def test_a_stray_far_vertex_does_not_make_an_object_degenerate(tmp_path):

@@ -13,13 +13,13 @@ from .projections import PROJECTIONS
 from .settings import (BYTES_PER_PIXEL, MAX_BOUNCES, MAX_THREADS, MIN_TOLERANCE, NEAR_FRACTION, QUALITY,
                        REFERENCE_PIXEL_ANGLE, Cancelled, Quality, RenderError, Settings, footprint, memory_needed)
 from .statistics import Result, pixel_noise
-from .tracer import make_tracer, trace
+from .tracer import core_scene, make_tracer, trace
 
 __all__ = [
     "BYTES_PER_PIXEL", "CENTRE", "Cancelled", "LIGHT_TILE_LIMIT", "MAX_BOUNCES", "MAX_THREADS", "MIN_TOLERANCE",
     "NEAR_FRACTION", "PASSES", "PROJECTIONS", "QUALITY", "Quality", "REFERENCE_PIXEL_ANGLE", "RenderError",
     "Result", "SHADING", "STOP_REASONS", "Settings", "camera_frame", "camera_rays", "clip_range", "compile_scene",
     "cover_copies", "default_light_reach", "footprint", "geodesic_loop", "light_copies", "light_reach_for",
-    "light_tiles", "make_tracer", "memory_needed", "own_hits", "pixel_noise", "render", "sample_offsets",
+    "light_tiles", "core_scene", "make_tracer", "memory_needed", "own_hits", "pixel_noise", "render", "sample_offsets",
     "trace", "view_directions",
 ]

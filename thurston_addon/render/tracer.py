@@ -9,6 +9,20 @@ from .compilation import compile_scene
 from .settings import RenderError
 
 
+def core_scene(data: dict):
+    """The core's record of a compiled scene (compile_scene's arrays): a thurston_core.Scene whose
+    parts take the arrays of their fields' names (a part's optional arrays left out: None)."""
+    import thurston_core as core
+
+    kinds = dict(domain=core.Domain, meshes=core.Meshes, surfaces=core.Surfaces, lights=core.Lights,
+                 instances=core.Instances, emitters=core.Emitters)
+    given = {part: {name: value for name, value in data.items() if hasattr(kind, name)} for part, kind in kinds.items()}
+    unknown = set(data) - {"geometry"} - set().union(*given.values())
+    if unknown:
+        raise TypeError(f"no part of the core's scene takes {sorted(unknown)}")
+    return core.Scene(data["geometry"], **{part: kinds[part](**arrays) for part, arrays in given.items()})
+
+
 def make_tracer(space: Space, scene: Scene, threads: int = 0, light_reach: float | None = None):
     """The C++ tracer for a scene, summing light over light_reach (None: default_light_reach); what
     the core rejects (ValueError) is raised as RenderError."""
@@ -16,7 +30,7 @@ def make_tracer(space: Space, scene: Scene, threads: int = 0, light_reach: float
 
     data = compile_scene(space, scene, light_reach)
     try:
-        return thurston_core.Tracer(**data, threads=threads)
+        return thurston_core.Tracer(core_scene(data), threads=threads)
     except thurston_core.ThreadStartError as exc:
         raise RenderError(f"{exc}; ask for fewer threads") from None
     except ValueError as exc:

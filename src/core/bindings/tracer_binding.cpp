@@ -1,0 +1,248 @@
+// The Python Tracer: a compiled scene's tracer, its trace() with numpy outputs and the GIL released
+// around the walk, cancel() and the bare Embree query.
+#include <nanobind/stl/string.h>
+
+#include <algorithm>
+#include <exception>
+#include <iterator>
+#include <limits>
+#include <string>
+#include <utility>
+
+#include "registry.hpp"
+#include "scene_record.hpp"
+#include "bind.hpp"
+
+namespace thurston::bindings {
+
+namespace {
+
+// The Python Tracer: the geometry's tracer behind one handle.
+struct TracerHandle {
+  std::unique_ptr<Tracer> tracer;
+  std::string geometry;
+};
+
+nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directions, double max_distance,
+               int max_crossings, bool shade, nb::object progress, bool record_segments,
+               double tolerance, double tolerance_per_distance, bool skip_empty, double fog,
+               int light_samples, std::uint64_t seed, int bounces, const std::string& emitter_sampling) {
+  if (light_samples < 1) throw nb::value_error("light_samples must be >= 1");
+  const char* const sampling_names[] = {"mis", "light", "bounce"};
+  const auto sampling = std::find(std::begin(sampling_names), std::end(sampling_names), emitter_sampling);
+  if (sampling == std::end(sampling_names))
+    throw nb::value_error(("emitter_sampling must be 'mis', 'light' or 'bounce', got '" + emitter_sampling + "'").c_str());
+  if (bounces < 0) throw nb::value_error("bounces must be >= 0 (0: direct light only)");
+  check_rays(origins, directions, "origins", "directions", 4, "ray");
+  if (!(fog > 0.0)) throw nb::value_error("fog must be a positive distance (inf: none)");
+  if (std::isnan(max_distance) || max_distance < 0.0)
+    throw nb::value_error("max_distance must be >= 0 (inf allowed)");
+  if (max_crossings < 0) throw nb::value_error("max_crossings must be >= 0");
+  if (!(tolerance > 0.0) || !std::isfinite(tolerance))
+    throw nb::value_error("tolerance must be a positive finite number (chart units)");
+  if (!(tolerance_per_distance >= 0.0) || !std::isfinite(tolerance_per_distance))
+    throw nb::value_error("tolerance_per_distance must be a finite number >= 0");
+  const std::size_t n = origins.shape(0);
+
+  std::unique_ptr<float[]> color(new float[3 * n]), normal(new float[3 * n]);
+  std::unique_ptr<double[]> depth(new double[n]), position(new double[3 * n]),
+      distance(new double[n]), error(new double[n]), end(new double[3 * n]);
+  std::unique_ptr<std::int32_t[]> object(new std::int32_t[n]), crossings(new std::int32_t[n]),
+      chords(new std::int32_t[n]);
+  std::unique_ptr<std::uint8_t[]> stop(new std::uint8_t[n]);
+  const TraceOutputs out{color.get(), depth.get(),    position.get(), normal.get(),
+                         object.get(), crossings.get(), stop.get(),   distance.get(),
+                         chords.get(), error.get(), end.get()};
+  const TraceOptions options{max_distance, max_crossings, shade, record_segments, tolerance,
+                             tolerance_per_distance, skip_empty, fog, light_samples, seed, bounces,
+                             EmitterSampling(sampling - std::begin(sampling_names))};
+
+  // The callback runs on this thread with the GIL re-acquired; its exception is kept until the
+  // workers have stopped.
+  std::exception_ptr callback_error;
+  Tracer::Poll poll;
+  if (!progress.is_none())
+    poll = [&](std::size_t done) {
+      nb::gil_scoped_acquire gil;
+      try {
+        const nb::object result = progress(done, n);
+        if (result.is_none()) return true;
+        const int truth = PyObject_IsTrue(result.ptr());
+        if (truth < 0) throw nb::python_error();
+        return truth == 1;
+      } catch (...) {
+        callback_error = std::current_exception();
+        return false;
+      }
+    };
+
+  TraceStats stats;
+  {
+    nb::gil_scoped_release release;
+    stats = handle.tracer->trace(n, view2<double>(origins), view2<double>(directions), options, out,
+                                 poll);
+  }
+  if (callback_error) std::rethrow_exception(callback_error);
+
+  nb::dict result;
+  result["color"] = to_numpy(std::move(color), {n, 3});
+  result["depth"] = to_numpy(std::move(depth), {n});
+  result["position"] = to_numpy(std::move(position), {n, 3});
+  result["normal"] = to_numpy(std::move(normal), {n, 3});
+  result["object"] = to_numpy(std::move(object), {n});
+  result["crossings"] = to_numpy(std::move(crossings), {n});
+  result["stop"] = to_numpy(std::move(stop), {n});
+  result["distance"] = to_numpy(std::move(distance), {n});
+  result["ray_chords"] = to_numpy(std::move(chords), {n});
+  result["error"] = to_numpy(std::move(error), {n});
+  result["end"] = to_numpy(std::move(end), {n, 3});
+  std::unique_ptr<std::int64_t[]> total(new std::int64_t[1]{std::int64_t(stats.chords)});
+  result["chords"] = to_numpy(std::move(total), {});
+  std::unique_ptr<std::int64_t[]> failures(new std::int64_t[1]{std::int64_t(stats.light_failures)});
+  result["light_failures"] = to_numpy(std::move(failures), {});
+  std::unique_ptr<std::int64_t[]> paths(new std::int64_t[1]{std::int64_t(stats.light_paths)});
+  result["light_paths"] = to_numpy(std::move(paths), {});
+  std::unique_ptr<double[]> energy(new double[1]{stats.light_energy});
+  result["light_energy"] = to_numpy(std::move(energy), {});
+  std::unique_ptr<std::int64_t[]> emitter_paths(new std::int64_t[1]{std::int64_t(stats.emitter_paths)});
+  result["emitter_paths"] = to_numpy(std::move(emitter_paths), {});
+  std::unique_ptr<double[]> emitter_energy(new double[1]{stats.emitter_energy});
+  result["emitter_energy"] = to_numpy(std::move(emitter_energy), {});
+  std::unique_ptr<std::int64_t[]> bounce_paths(new std::int64_t[1]{std::int64_t(stats.bounce_paths)});
+  result["bounce_paths"] = to_numpy(std::move(bounce_paths), {});
+  std::unique_ptr<std::int64_t[]> emitter_hits(new std::int64_t[1]{std::int64_t(stats.emitter_hits)});
+  result["emitter_hits"] = to_numpy(std::move(emitter_hits), {});
+  if (record_segments) {
+    std::size_t s = 0;
+    for (const auto& chunk : stats.segments) s += chunk.size() / 6;
+    std::unique_ptr<double[]> starts(new double[3 * s]), ends(new double[3 * s]);
+    std::size_t i = 0;
+    for (const auto& chunk : stats.segments)
+      for (std::size_t j = 0; j < chunk.size(); j += 6, ++i)
+        for (int a = 0; a < 3; ++a) {
+          starts[3 * i + a] = chunk[j + a];
+          ends[3 * i + a] = chunk[j + 3 + a];
+        }
+    result["segment_starts"] = to_numpy(std::move(starts), {s, 3});
+    result["segment_ends"] = to_numpy(std::move(ends), {s, 3});
+  }
+  return result;
+}
+
+nb::tuple query_segments(TracerHandle& handle, const Array& starts, const Array& ends) {
+  check_rays(starts, ends, "starts", "ends", 3, "segment");
+  const std::size_t n = starts.shape(0);
+  std::unique_ptr<float[]> t(new float[n]);
+  std::unique_ptr<std::int32_t[]> prim(new std::int32_t[n]), instance(new std::int32_t[n]);
+  {
+    nb::gil_scoped_release release;
+    handle.tracer->query_segments(n, view2<double>(starts), view2<double>(ends), t.get(), prim.get(),
+                                  instance.get());
+  }
+  return nb::make_tuple(to_numpy(std::move(t), {n}), to_numpy(std::move(prim), {n}),
+                        to_numpy(std::move(instance), {n}));
+}
+
+const char* const kTracerDoc = R"(Ray tracer for inside views of quotient manifolds of Thurston's geometries.
+
+Tracer(scene, threads=0): the compiled scene (a thurston_core.Scene), checked as it is taken:
+every array as it is (no conversion); wrong dtypes, shapes, indices or values raise ValueError
+naming the array. threads: worker threads, 0 for one per hardware thread (ThreadStartError where
+the system cannot start them all).)";
+
+const char* const kTraceDoc = R"(Traces rays through the domain and its face pairings.
+
+origins: float64 (N,4) points; directions: float64 (N,4) unit tangent vectors there.
+Rays stop at the first hit, after max_distance of geodesic length, or when they would make
+more than max_crossings face crossings. Curved geodesics (Nil, Sol) are followed in chart chords
+that stay within tolerance + tolerance_per_distance * d of the traced curve at distance d, which
+is the geodesic integrated to 1/20 of that (its separation from the true geodesic, which grows
+with the divergence of nearby geodesics, is in `error`); with
+skip_empty they step through empty space (no triangle near, by a coarse occupancy grid) to the
+next face without any Embree query (False: chords everywhere, for measuring the saving).
+light_samples points are sampled on the emitters per shaded point, with random numbers from
+`seed` and the ray's index (the same for any thread count).
+bounces: bounces after each hit (path tracing: a direction drawn from the BSDF in the metric's
+orthonormal frame at the hit, its geodesic traced through the pairings, its hit lit by next-event
+estimation; Russian roulette from the 4th bounce on); 0: direct light only.
+emitter_sampling: how the emitters' light is gathered where a bounce follows: "mis" (the emitters'
+samples and the emission the bounces meet, weighed by the power heuristic along each geodesic),
+"light" (the samples alone) or "bounce" (what the bounces meet alone).
+progress(done, total) is called about every 0.1 s (and at the start and end); returning False
+stops the trace like cancel(). Returns a dict of:
+color float32 (N,3), depth float64 (N,) (inf: no hit), position float64 (N,3) chart point of the
+hit (NaN: none), normal float32 (N,3) unit chart normal facing the ray (NaN: none), object int32
+(N,) (-1: none), crossings int32 (N,), stop uint8 (N,) (0 hit, 1 distance limit, 2 crossing
+limit, 3 cancelled), distance float64 (N,) geodesic length travelled, ray_chords int32 (N,)
+Embree queries of each ray, error float64 (N,) an upper estimate of the hit position's error
+(chart units: the path's distance from the true geodesic over the cosine of incidence; NaN: no
+hit), end float64 (N,3) the chart point where the ray stopped (the hit, the point at the distance
+or crossing limit, inside the domain; NaN where there is none), chords int64 () Embree queries of primary rays in all, light_failures int64 () light
+paths known to be missed (Sol's shooting: seeds that did not converge), light_paths int64 () geodesics to lights summed
+at the shaded points, light_energy float64 () their mean radiance times falloff (times fog: light
+falls to 1/e over `fog` of its path) summed before cosines and shadows, emitter_paths int64 ()
+and emitter_energy float64 () the same for the emitters' samples (their energy: mean radiance
+times the emitter's cosine times falloff over the sampling density), bounce_paths int64 ()
+geodesics traced for bounces, emitter_hits int64 () bounces that met an emitter and added its
+light, and with record_segments segment_starts /
+segment_ends float64 (S,3), the chart endpoints of the queries.)";
+
+}  // namespace
+
+void bind_tracer(nb::module_& m) {
+  nb::class_<TracerHandle>(m, "Tracer", kTracerDoc)
+      .def(
+          "__init__",
+          [](TracerHandle* self, const SceneRecord& scene, int threads) {
+            if (threads < 0) throw nb::value_error("threads must be >= 0 (0: all hardware threads)");
+            new (self) TracerHandle{make_tracer(scene.geometry, scene_from_record(scene), unsigned(threads)),
+                                    scene.geometry};
+          },
+          nb::arg("scene"), nb::arg("threads") = 0)
+      .def("trace", &trace,
+           nb::sig("def trace(self, origins: numpy.ndarray, directions: numpy.ndarray, "
+                   "max_distance: float, max_crossings: int, shade: bool = True, "
+                   "progress: collections.abc.Callable[[int, int], bool | None] | None = None, "
+                   "record_segments: bool = False, tolerance: float = 1e-3, "
+                   "tolerance_per_distance: float = 0.0, skip_empty: bool = True, "
+                   "fog: float = float('inf'), light_samples: int = 1, seed: int = 0, "
+                   "bounces: int = 0, emitter_sampling: str = 'mis') -> "
+                   "dict[str, numpy.ndarray]"),
+           nb::arg("origins").noconvert(), nb::arg("directions").noconvert(),
+           nb::arg("max_distance"), nb::arg("max_crossings"), nb::arg("shade") = true,
+           nb::arg("progress").none() = nb::none(), nb::arg("record_segments") = false,
+           nb::arg("tolerance") = 1e-3, nb::arg("tolerance_per_distance") = 0.0,
+           nb::arg("skip_empty") = true, nb::arg("fog") = kInf, nb::arg("light_samples") = 1,
+           nb::arg("seed") = 0, nb::arg("bounces") = 0, nb::arg("emitter_sampling") = "mis", kTraceDoc)
+      .def("cancel", [](TracerHandle& t) { t.tracer->cancel(); },
+           "Stops a running trace(); callable from any Python thread.")
+      .def("query_segments", &query_segments,
+           nb::sig("def query_segments(self, starts: numpy.ndarray, ends: numpy.ndarray) -> "
+                   "tuple[numpy.ndarray, numpy.ndarray, numpy.ndarray]"),
+           nb::arg("starts").noconvert(),
+           nb::arg("ends").noconvert(),
+           "Bare Embree first hit of the chart "
+           "segments (float64 (N,3) each) on the same BVH and threads: chord parameter t float32 "
+           "(N,) in [0, 1] (inf: none), the mesh triangle prim int32 (N,) and its instance int32 "
+           "(N,) (-1: none).")
+      .def_prop_ro("geometry", [](const TracerHandle& t) { return t.geometry; })
+      .def_prop_ro("light_reach", [](const TracerHandle& t) { return t.tracer->light_reach(); },
+                   "Light paths longer than this are not summed (E3, S3, H3, H2xR, S2xR).")
+      .def_prop_ro("num_light_lifts", [](const TracerHandle& t) { return t.tracer->num_light_lifts(); })
+      .def_prop_ro("light_power", [](const TracerHandle& t) { return t.tracer->light_power(); },
+                   "The sum over lights of their radiance's mean over RGB.")
+      .def_prop_ro("num_emitter_triangles", [](const TracerHandle& t) { return t.tracer->num_emitter_triangles(); })
+      .def_prop_ro("num_emitter_copies", [](const TracerHandle& t) { return t.tracer->num_emitter_copies(); })
+      .def_prop_ro("num_unmatched_emitters", [](const TracerHandle& t) { return t.tracer->num_unmatched_emitters(); },
+                   "Emissive triangles (per instance) not found among the emitters' copies: bounces "
+                   "that meet them add nothing (their light comes from the emitters' samples).")
+      .def_prop_ro("num_threads", [](const TracerHandle& t) { return t.tracer->num_threads(); })
+      .def_prop_ro("num_triangles", [](const TracerHandle& t) { return t.tracer->num_triangles(); },
+                   "The meshes' own triangles (each stored once).")
+      .def_prop_ro("num_instances", [](const TracerHandle& t) { return t.tracer->num_instances(); })
+      .def_prop_ro("num_instanced_triangles",
+                   [](const TracerHandle& t) { return t.tracer->num_instanced_triangles(); },
+                   "The triangles the instances place, each instance counting its mesh's.");
+}
+
+}  // namespace thurston::bindings
