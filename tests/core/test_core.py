@@ -590,12 +590,6 @@ def test_hyperbolic_vertices_must_be_in_the_ball():
         _core.Tracer(core_scene(args))
 
 
-def test_the_core_and_python_registries_name_the_same_geometries():
-    from thurston_addon.geometries import GEOMETRIES
-
-    assert _core.KERNELS == tuple(GEOMETRIES)
-
-
 def test_zero_triangles_allowed_and_lists_rejected():
     args = scene_arrays() | dict(vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3), np.int32),
                                  triangle_object=np.zeros(0, np.int32))

@@ -142,7 +142,7 @@ def test_the_core_and_python_registries_name_the_same_geometries():
     Python geometry of its name."""
     import thurston_core
 
-    core = set(thurston_core.GEOMETRIES)
+    core = set(thurston_core.KERNELS)
     assert {g.kernel for g in geometries.GEOMETRIES.values()} == core
     assert set(geometries.GEOMETRIES) == core
 
