@@ -9,7 +9,7 @@ Steps (each repeatable; the work tree is build/extension/, the core's CMake buil
 
 1. the C++ core alone as a wheel (packaging/core/pyproject.toml: scikit-build-core, no Python packages);
 2. `auditwheel repair` to a manylinux tag, vendoring libembree3 but NOT libtbb.so.12 (Blender loads
-   its own oneTBB, libtbb.so.12, before any add-on; see README "Blender extension");
+   its own oneTBB, libtbb.so.12, before any add-on; see docs/blender.md "TBB");
 3. the dependency wheels of packaging/extension-wheels.txt (pip download, cp311, manylinux, binary only);
 4. the staged extension: the contents of thurston_addon/ (no caches, no compiled dev builds), wheels/,
    and blender_manifest.toml with `wheels = [...]` filled in;
@@ -161,7 +161,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "dist"), help="output folder (default: dist/)")
     ap.add_argument("--vendor-tbb", action="store_true",
                     help="vendor a renamed libtbb.so.12 into the core wheel instead of using Blender's "
-                         "(experiment; see README)")
+                         "(experiment; see docs/blender.md)")
     args = ap.parse_args(argv)
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)

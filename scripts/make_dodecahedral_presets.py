@@ -3,7 +3,7 @@
 A regular dodecahedron centred at the chart origin with face normals along (0,±1,±φ), (±1,±φ,0),
 (±φ,0,±1); its inradius r is fixed by the dihedral angle (2π/3 in S3, 2π/5 in H3). The generator of a
 face pair translates the origin by 2r along the face normal and turns by the twist about it
-(1/10 turn for Poincaré, 3/10 turn for Seifert-Weber, see DESIGN.md errata). Run from the repository
+(1/10 turn for Poincaré, 3/10 turn for Seifert-Weber, see docs/mathematics.md#errata). Run from the repository
 root: python scripts/make_dodecahedral_presets.py
 """
 import math

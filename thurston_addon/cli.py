@@ -229,7 +229,7 @@ def build_parser():
     r.add_argument("--shading", choices=render.SHADING, default="lambert")
     r.add_argument("--fog", type=float, help="distance at which colour falls to 1/e")
     r.add_argument("--light-reach", type=float, help="light along every geodesic to every copy of a light up to "
-                                                     "this long (default: the space's, see README)")
+                                                     "this long (default: the space's, see docs/lighting.md)")
     r.add_argument("--light-samples", type=int, default=render.Settings.light_samples,
                    help="points sampled on the emissive meshes (and area lights) per shaded point and sample")
     r.add_argument("--bounces", type=int, default=render.Settings.bounces,

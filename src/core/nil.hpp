@@ -1,7 +1,7 @@
 // Nil: R^3 with the paper's metric dx^2 + dy^2 + (dz - x dy)^2, the Heisenberg group
 // (x, y, z) . (x', y', z') = (x + x', y + y', z + z' + x y') acting by left multiplication.
 // Geodesics in closed form: from the origin in the form that stays accurate for small w t
-// (GEOMETRIES.md), from any point by left translation. Connecting geodesics in closed form too,
+// (docs/mathematics.md#nil), from any point by left translation. Connecting geodesics in closed form too,
 // up to a one-dimensional root search per branch (connections).
 #pragma once
 

@@ -140,7 +140,7 @@ def identity(n):
 
 def reduce_in_cover(x, tau=TAU):
     """Chart points of the universal cover (phi continuous) carried into the domain by the lifted
-    generators as GEOMETRIES.md says: while a side test fails apply A_k^-1 for the most violated
+    generators as docs/mathematics.md#sl2 says: while a side test fails apply A_k^-1 for the most violated
     side k, then wrap phi into [-tau/2, tau/2). Returns the points and the elements applied."""
     x = np.array(x, float)
     R = identity(len(x))
@@ -226,7 +226,7 @@ def test_the_preset_is_the_octagon_times_the_fibre(space):
     np.testing.assert_allclose(klein, math.sqrt(12 * SQ2 - 16), rtol=1e-12)
     np.testing.assert_allclose(sorted(set(np.round(dom.vertices[:, 2], 12))), [-math.pi, math.pi], rtol=1e-12)
     assert abs(space.volume - 4 * math.pi * TAU) < 1e-6 * space.volume  # the genus-2 area 4 pi times tau
-    # the lifted relator is the fibre translation by -4 pi (GEOMETRIES.md), the identity of the model
+    # the lifted relator is the fibre translation by -4 pi (docs/mathematics.md#sl2), the identity of the model
     word = [0, 3, 6, 1, 4, 7, 2, 5]  # A0 A3 A2^-1 A1 A0^-1 A3^-1 A2 A1^-1
     R = lifted(word[0])
     for k in word[1:]:

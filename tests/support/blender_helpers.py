@@ -148,7 +148,7 @@ def _fmt(v):
 
 
 def material_values(obj):
-    """Kd and Ke read straight from the node inputs the test set (independent of export.py)."""
+    """Kd and Ke read straight from the node inputs the test set (independent of blender/export)."""
     mat = obj.active_material
     nodes = mat.node_tree.nodes
     p = nodes.get("Principled BSDF")

@@ -13,7 +13,7 @@ Implementations: shared.SharedGeometry writes the members most geometries share 
 projective.ProjectiveGeometry (E3, S3, H3) and affine.AffineGeometry (Nil, Sol, S2xR) the families';
 H2xR and SL2 their own. Adding a geometry: a subclass that implements every abstract member, the
 registry (geometries/__init__.py), a kernel of the core (or an existing one, by `kernel`), a preset;
-tests/test_contract.py then checks it with the others.
+tests/geometries/test_contract.py then checks it with the others.
 """
 from __future__ import annotations
 

@@ -330,7 +330,7 @@ def _light_lifts(space: Space, position, direction, index: int, reach: float):
 
 
 def _spot_arrays(lights, axes) -> dict:
-    """The tracer's cones (Cycles' smoothstep, scene.PointLight.cone) and axes where a light is a spot."""
+    """The tracer's cones (Cycles' smoothstep, scenes.PointLight.cone) and axes where a light is a spot."""
     if not any(light.spot_direction is not None for light in lights):
         return {}
     return dict(light_cone=np.array([light.cone() for light in lights], np.float64).reshape(-1, 2),

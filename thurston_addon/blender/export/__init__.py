@@ -160,12 +160,12 @@ SUN_NOTE = "sun lights (a closed space has no infinity for parallel light to com
 
 
 def export_light(light, world: np.ndarray, scale: float):
-    """A point or spot light (scene.PointLight) or an area light (an emissive mesh, scene.flat_light)
+    """A point or spot light (scenes.PointLight) or an area light (an emissive mesh, scenes.flat_light)
     as Cycles lights them, in chart units (world / scale). Point and spot: Blender's power (W)
     radiates over 4 pi sr, and a Lambert surface of albedo rho sends rho / pi of its irradiance back;
     a spot is that point light within Cycles' cone (spot size and blend; its axis the light's -Z).
     Area: a Lambertian emitter of power `strength` from one side, radiance strength / (pi area) as
-    Cycles renders it (tests/test_blender_lights.py; strength / pi where not normalized), area =
+    Cycles renders it (tests/blender/test_blender_lights.py; strength / pi where not normalized), area =
     size x size_y (times pi / 4 for a disk or ellipse) scaled by the object, emitted towards -Z."""
     color = np.array(light.color[:3], float)
     strength = light.energy * 2.0 ** getattr(light, "exposure", 0.0)

@@ -69,7 +69,7 @@ def _get(collection, attribute, count, dtype):
     return values
 
 
-# The Principled BSDF's inputs that become the material's scattering (scene.Material's names).
+# The Principled BSDF's inputs that become the material's scattering (scenes.Material's names).
 SCATTERING_INPUTS = {"roughness": "Roughness", "metallic": "Metallic", "specular": "Specular IOR Level", "ior": "IOR"}
 
 
