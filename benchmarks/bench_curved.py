@@ -19,15 +19,13 @@ For the default scene of each preset:
 Run: .venv/bin/python benchmarks/bench_curved.py [--size 320x180] [--repeat 3] [--spaces nil,sol]
      [--baseline torus] [--tolerances 1e-2,1e-3,1e-4,1e-5,1e-6] [--tables quality,empty,frame,sweep,image]
 """
+
 import argparse
 import math
 import os
 import time
 
 from thurston_addon import render, scenes, spaces
-
-
-
 
 
 def best_render(space, scene, tracer, settings, repeat):
@@ -58,11 +56,23 @@ def quality_rows(sid, space, scene, tracer, size, repeat):
     for name, level in render.QUALITY.items():
         s = best_render(space, scene, tracer, render.Settings(width=size[0], height=size[1], quality=name), repeat)
         ok = s["measured_error_pixels"] <= level.footprint_fraction
-        rows.append([sid, name, str(level.samples), f"{s['chords_per_ray']:.2f}",
-                     f"{s['seconds'] / s['rays_traced'] * 1e6:.2f}", f"{s['measured_error']:.1e}",
-                     f"{s['measured_error_pixels']:.2g}", f"{level.footprint_fraction:g}",
-                     "yes" if ok else "**NO**", f"{s['retrace_changed'] * 100:.1f}", f"{s['geodesic_error']:.1e}",
-                     f"{s['error_estimate_median']:.1e}", f"{s['error_estimate_max']:.1e}"])
+        rows.append(
+            [
+                sid,
+                name,
+                str(level.samples),
+                f"{s['chords_per_ray']:.2f}",
+                f"{s['seconds'] / s['rays_traced'] * 1e6:.2f}",
+                f"{s['measured_error']:.1e}",
+                f"{s['measured_error_pixels']:.2g}",
+                f"{level.footprint_fraction:g}",
+                "yes" if ok else "**NO**",
+                f"{s['retrace_changed'] * 100:.1f}",
+                f"{s['geodesic_error']:.1e}",
+                f"{s['error_estimate_median']:.1e}",
+                f"{s['error_estimate_max']:.1e}",
+            ]
+        )
     return rows
 
 
@@ -77,7 +87,7 @@ def image_rows(sid, space, scene, tracer, size):
 
     def spread(a, b):
         d = np.abs(a - b).max(axis=2)
-        return f"{np.sqrt(np.mean(d ** 2)):.4f}", f"{np.percentile(d, 99):.3f}"
+        return f"{np.sqrt(np.mean(d**2)):.4f}", f"{np.percentile(d, 99):.3f}"
 
     rows = []
     for name, level in render.QUALITY.items():
@@ -91,16 +101,36 @@ def image_rows(sid, space, scene, tracer, size):
         finally:
             render.QUALITY[name] = level
         sampled = colour(render.Settings(width=size[0], height=size[1], quality=name, samples=64))
-        rows.append([sid, name, str(level.samples), f"{level.footprint_fraction:g}", *spread(image, exact),
-                     *spread(image, sampled), f"{tolerances[0]:.1e} + {tolerances[1]:.1e} d"])
+        rows.append(
+            [
+                sid,
+                name,
+                str(level.samples),
+                f"{level.footprint_fraction:g}",
+                *spread(image, exact),
+                *spread(image, sampled),
+                f"{tolerances[0]:.1e} + {tolerances[1]:.1e} d",
+            ]
+        )
     return rows
 
 
 def image_table(loaded, curved, size):
     print("### What the chords do to the image, next to what the sampling does\n")
-    table(["space", "quality", "samples", "fraction", "chords RMS", "chords p99", "sampling RMS", "sampling p99",
-           "tolerance"],
-          [row for sid in curved for row in image_rows(sid, *loaded[sid], size)])
+    table(
+        [
+            "space",
+            "quality",
+            "samples",
+            "fraction",
+            "chords RMS",
+            "chords p99",
+            "sampling RMS",
+            "sampling p99",
+            "tolerance",
+        ],
+        [row for sid in curved for row in image_rows(sid, *loaded[sid], size)],
+    )
 
 
 def preview_rays(space, size):
@@ -109,8 +139,16 @@ def preview_rays(space, size):
     camera = scenes.Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
     origins, directions = render.camera_rays(space, camera, settings)
     tolerance, per_distance = settings.tolerances(space, math.radians(camera.fov) / size[0])
-    return origins, directions, dict(max_distance=space.max_distance, max_crossings=space.max_crossings,
-                                     tolerance=tolerance, tolerance_per_distance=per_distance)
+    return (
+        origins,
+        directions,
+        dict(
+            max_distance=space.max_distance,
+            max_crossings=space.max_crossings,
+            tolerance=tolerance,
+            tolerance_per_distance=per_distance,
+        ),
+    )
 
 
 def empty_space_row(sid, space, tracer, size, repeat):
@@ -127,7 +165,11 @@ def empty_space_row(sid, space, tracer, size, repeat):
                 chords[skip] = int(out["chords"]) / n
     row = [sid, f"{chords[True]:.2f}", f"{chords[False]:.2f}", f"{chords[False] / chords[True]:.2f}"]
     for shade in (False, True):
-        row += [f"{best[True, shade]:.2f}", f"{best[False, shade]:.2f}", f"{best[False, shade] / best[True, shade]:.2f}"]
+        row += [
+            f"{best[True, shade]:.2f}",
+            f"{best[False, shade]:.2f}",
+            f"{best[False, shade] / best[True, shade]:.2f}",
+        ]
     return row
 
 
@@ -152,47 +194,122 @@ def frame_seconds(loaded, size, repeat):
 def sweep_rows(sid, space, scene, tracer, size, repeat, tolerances):
     rows = []
     for tol in tolerances:
-        s = best_render(space, scene, tracer, render.Settings(width=size[0], height=size[1], quality="preview",
-                                                              tolerance=tol), repeat)
-        rows.append([sid, f"{tol:.0e}", f"{s['chords_per_ray']:.2f}", f"{s['seconds'] / s['rays_traced'] * 1e6:.2f}",
-                     f"{s['measured_error']:.1e}", f"{s['measured_error'] / tol:.2g}",
-                     f"{s['measured_error_pixels']:.2g}", f"{s['retrace_changed'] * 100:.1f}", f"{s['geodesic_error']:.1e}"])
+        s = best_render(
+            space,
+            scene,
+            tracer,
+            render.Settings(width=size[0], height=size[1], quality="preview", tolerance=tol),
+            repeat,
+        )
+        rows.append(
+            [
+                sid,
+                f"{tol:.0e}",
+                f"{s['chords_per_ray']:.2f}",
+                f"{s['seconds'] / s['rays_traced'] * 1e6:.2f}",
+                f"{s['measured_error']:.1e}",
+                f"{s['measured_error'] / tol:.2g}",
+                f"{s['measured_error_pixels']:.2g}",
+                f"{s['retrace_changed'] * 100:.1f}",
+                f"{s['geodesic_error']:.1e}",
+            ]
+        )
     return rows
 
 
 def quality_table(loaded, curved, size, repeat):
-    print("Per quality (render(); time per traced ray, the centre pass included; measured error in chart units "
-          "and in pixel footprints at the hit's distance, bound = the quality's footprint_fraction; changed = "
-          "re-traced rays that met another object; estimate = the tracer's own per-hit error estimate):\n")
+    print(
+        "Per quality (render(); time per traced ray, the centre pass included; measured error in chart units "
+        "and in pixel footprints at the hit's distance, bound = the quality's footprint_fraction; changed = "
+        "re-traced rays that met another object; estimate = the tracer's own per-hit error estimate):\n"
+    )
     rows = [r for sid in curved for r in quality_rows(sid, *loaded[sid], size, repeat)]
-    table(["space", "quality", "samples", "chords/ray", "µs/ray", "measured error", "error (footprints)",
-           "bound (footprints)", "within", "changed %", "geodesic error", "estimate median", "estimate max"], rows)
+    table(
+        [
+            "space",
+            "quality",
+            "samples",
+            "chords/ray",
+            "µs/ray",
+            "measured error",
+            "error (footprints)",
+            "bound (footprints)",
+            "within",
+            "changed %",
+            "geodesic error",
+            "estimate median",
+            "estimate max",
+        ],
+        rows,
+    )
 
 
 def empty_table(loaded, curved, size, repeat):
-    print("Empty-space steps (the preview frame's primary rays, trace(skip_empty=True) vs False, interleaved; "
-          "chords = Embree queries; process CPU µs per ray (all threads); ratio = no skip / skip):\n")
+    print(
+        "Empty-space steps (the preview frame's primary rays, trace(skip_empty=True) vs False, interleaved; "
+        "chords = Embree queries; process CPU µs per ray (all threads); ratio = no skip / skip):\n"
+    )
     rows = [empty_space_row(sid, loaded[sid][0], loaded[sid][2], size, repeat) for sid in curved]
-    table(["space", "chords skip", "chords no skip", "ratio", "CPU µs unshaded skip", "no skip", "ratio",
-           "CPU µs shaded skip", "no skip", "ratio"], rows)
+    table(
+        [
+            "space",
+            "chords skip",
+            "chords no skip",
+            "ratio",
+            "CPU µs unshaded skip",
+            "no skip",
+            "ratio",
+            "CPU µs shaded skip",
+            "no skip",
+            "ratio",
+        ],
+        rows,
+    )
 
 
 def frame_table(loaded, baseline, size, repeat):
-    print(f"Preview frame against {baseline} (same size and shading, the spaces interleaved; wall = render() "
-          f"seconds, CPU = process CPU seconds of the frame's trace, shaded and unshaded; target sol <= 10x):\n")
+    print(
+        f"Preview frame against {baseline} (same size and shading, the spaces interleaved; wall = render() "
+        f"seconds, CPU = process CPU seconds of the frame's trace, shaded and unshaded; target sol <= 10x):\n"
+    )
     wall, cpu, bare = frame_seconds(loaded, size, max(repeat, 3))
-    table(["space", "wall s", f"/ {baseline}", "CPU s", f"/ {baseline}", "CPU s unshaded", f"/ {baseline}"],
-          [[sid, f"{wall[sid]:.3f}", f"{wall[sid] / wall[baseline]:.2f}", f"{cpu[sid]:.3f}",
-            f"{cpu[sid] / cpu[baseline]:.2f}", f"{bare[sid]:.3f}", f"{bare[sid] / bare[baseline]:.2f}"]
-           for sid in loaded])
+    table(
+        ["space", "wall s", f"/ {baseline}", "CPU s", f"/ {baseline}", "CPU s unshaded", f"/ {baseline}"],
+        [
+            [
+                sid,
+                f"{wall[sid]:.3f}",
+                f"{wall[sid] / wall[baseline]:.2f}",
+                f"{cpu[sid]:.3f}",
+                f"{cpu[sid] / cpu[baseline]:.2f}",
+                f"{bare[sid]:.3f}",
+                f"{bare[sid] / bare[baseline]:.2f}",
+            ]
+            for sid in loaded
+        ],
+    )
 
 
 def sweep_table(loaded, curved, size, repeat, tolerances):
-    print("Tolerance sweep (absolute chord tolerance, preview: 1 sample; measured error / tolerance <= 1 "
-          "is the bound; footprints = what a footprint_fraction would have to be):\n")
+    print(
+        "Tolerance sweep (absolute chord tolerance, preview: 1 sample; measured error / tolerance <= 1 "
+        "is the bound; footprints = what a footprint_fraction would have to be):\n"
+    )
     rows = [r for sid in curved for r in sweep_rows(sid, *loaded[sid], size, repeat, tolerances)]
-    table(["space", "tolerance", "chords/ray", "µs/ray", "measured error", "/ tolerance", "footprints",
-           "changed %", "geodesic error"], rows)
+    table(
+        [
+            "space",
+            "tolerance",
+            "chords/ray",
+            "µs/ray",
+            "measured error",
+            "/ tolerance",
+            "footprints",
+            "changed %",
+            "geodesic error",
+        ],
+        rows,
+    )
 
 
 def main():
@@ -208,8 +325,10 @@ def main():
     size = tuple(int(v) for v in args.size.split("x"))
     curved = args.spaces.split(",")
     loaded = {sid: load(sid) for sid in [args.baseline] + curved}  # tracers built once
-    print(f"{args.size}, default scenes, lambert shading, {loaded[curved[0]][2].num_threads} threads, "
-          f"best of {args.repeat}; load average at the start {os.getloadavg()[0]:.1f}\n")
+    print(
+        f"{args.size}, default scenes, lambert shading, {loaded[curved[0]][2].num_threads} threads, "
+        f"best of {args.repeat}; load average at the start {os.getloadavg()[0]:.1f}\n"
+    )
     if "quality" in tables:
         quality_table(loaded, curved, size, args.repeat)
     if "empty" in tables:

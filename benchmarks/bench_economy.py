@@ -33,6 +33,7 @@ sphere). Rays: the default view's frame at --size, one ray per pixel (render.cam
 Run: .venv/bin/python benchmarks/bench_economy.py [--size 160x90] [--repeat 3] [--spaces torus,...]
      [--out docs/economy.md]
 """
+
 import argparse
 import math
 import os
@@ -41,11 +42,11 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
-from scipy.integrate import solve_ivp
-
 import thurston_core
 from bench_front import ball_scene, geodesic_equation
+from scipy.integrate import solve_ivp
 from timing import least_interleaved
+
 from thurston_addon import checks, render, spaces
 from thurston_addon.render import compilation
 from thurston_addon.scenes import Camera, default_scene
@@ -55,8 +56,13 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def table(title, header, rows):
-    return "\n".join([f"### {title}\n", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)] +
-                     ["| " + " | ".join(r) + " |" for r in rows]) + "\n"
+    return (
+        "\n".join(
+            [f"### {title}\n", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+            + ["| " + " | ".join(r) + " |" for r in rows]
+        )
+        + "\n"
+    )
 
 
 def frame_rays(space, settings):
@@ -75,6 +81,7 @@ def cpu_per_ray(runs, repeat, n):
 
 # --- 1. closed forms -------------------------------------------------------------------------------
 
+
 def closed_form_rows(sid, rng, n=2000, count=20, length=5.0):
     space = spaces.load(sid)
     g = space.geometry
@@ -92,30 +99,59 @@ def closed_form_rows(sid, rng, n=2000, count=20, length=5.0):
     python = (time.perf_counter() - t0) / n
     rhs = geodesic_equation(g)
     t0 = time.perf_counter()
-    xd = np.array([solve_ivp(rhs, (0.0, length), np.r_[x[i], u[i]], method="DOP853", rtol=1e-10, atol=1e-12).y[:3, -1]
-                   for i in range(count)])
+    xd = np.array(
+        [
+            solve_ivp(rhs, (0.0, length), np.r_[x[i], u[i]], method="DOP853", rtol=1e-10, atol=1e-12).y[:3, -1]
+            for i in range(count)
+        ]
+    )
     dop = (time.perf_counter() - t0) / count
     err = lambda a, k: f"{np.max(g.chord_distance(g.to_model(a), exact[:k])):.1e}"  # metric (SL2: phi mod 4 pi)
     name = g.name if sid != "sol" else f"{g.name} (no closed form: the C++ and Python Taylor integrators)"
-    return [sid, name, f"{cpp * 1e6:.2f}", f"{python * 1e6:.2f}", f"{dop * 1e6:.0f}", f"{dop / cpp:.0f}",
-            err(xc, n), err(xp, n), err(xd, count)]
+    return [
+        sid,
+        name,
+        f"{cpp * 1e6:.2f}",
+        f"{python * 1e6:.2f}",
+        f"{dop * 1e6:.0f}",
+        f"{dop / cpp:.0f}",
+        err(xc, n),
+        err(xp, n),
+        err(xd, count),
+    ]
 
 
 # --- 2. empty space --------------------------------------------------------------------------------
 
+
 def empty_space_row(sid, scene_name, space, tracer, rays, tolerances, repeat):
     origins, directions, _ = rays
-    limits = dict(max_distance=space.max_distance, max_crossings=space.max_crossings, shade=False,
-                  tolerance=tolerances[0], tolerance_per_distance=tolerances[1])
+    limits = dict(
+        max_distance=space.max_distance,
+        max_crossings=space.max_crossings,
+        shade=False,
+        tolerance=tolerances[0],
+        tolerance_per_distance=tolerances[1],
+    )
     runs = [lambda skip=skip: tracer.trace(origins, directions, skip_empty=skip, **limits) for skip in (True, False)]
     (on, off), (out_on, out_off) = cpu_per_ray(runs, repeat, len(origins))
     q_on, q_off = int(out_on["chords"]) / len(origins), int(out_off["chords"]) / len(origins)
     same = np.array_equal(out_on["object"], out_off["object"])
-    return [sid, scene_name, f"{q_on:.2f}", f"{q_off:.2f}", f"{q_off / q_on:.2f}", f"{on:.2f}", f"{off:.2f}",
-            f"{off / on:.2f}", "yes" if same else f"{np.mean(out_on['object'] != out_off['object']):.2%} differ"]
+    return [
+        sid,
+        scene_name,
+        f"{q_on:.2f}",
+        f"{q_off:.2f}",
+        f"{q_off / q_on:.2f}",
+        f"{on:.2f}",
+        f"{off:.2f}",
+        f"{off / on:.2f}",
+        "yes" if same else f"{np.mean(out_on['object'] != out_off['object']):.2%} differ",
+    ]
 
 
 # --- 3. chords sized by the footprint ---------------------------------------------------------------
+
 
 def image(space, scene, tracer, settings):
     result = render.render(space, scene, settings, tracer=tracer)
@@ -137,15 +173,28 @@ def footprint_row(sid, scene_name, space, scene, tracer, size, repeat):
         if rms(c) > rule_error:
             break
         fixed, fixed_error = near * 2**k, rms(c)
-    runs = [lambda s=s: render.render(space, scene, s, tracer=tracer).stats
-            for s in (rule, render.Settings(tolerance=fixed, **base))]
+    runs = [
+        lambda s=s: render.render(space, scene, s, tracer=tracer).stats
+        for s in (rule, render.Settings(tolerance=fixed, **base))
+    ]
     (t_rule, t_fixed), (s_rule, s_fixed) = cpu_per_ray(runs, repeat, size[0] * size[1])
-    return [sid, scene_name, f"{near:.1e} + {per_distance:.1e} d", f"{fixed:.1e}", f"{rule_error:.4f}",
-            f"{fixed_error:.4f}", f"{s_rule['chords_per_ray']:.2f}", f"{s_fixed['chords_per_ray']:.2f}",
-            f"{t_rule:.2f}", f"{t_fixed:.2f}", f"{t_fixed / t_rule:.2f}"]
+    return [
+        sid,
+        scene_name,
+        f"{near:.1e} + {per_distance:.1e} d",
+        f"{fixed:.1e}",
+        f"{rule_error:.4f}",
+        f"{fixed_error:.4f}",
+        f"{s_rule['chords_per_ray']:.2f}",
+        f"{s_fixed['chords_per_ray']:.2f}",
+        f"{t_rule:.2f}",
+        f"{t_fixed:.2f}",
+        f"{t_fixed / t_rule:.2f}",
+    ]
 
 
 # --- 4. copies only where objects cross the domain ---------------------------------------------------
+
 
 @contextmanager
 def every_neighbour_copy():
@@ -183,16 +232,32 @@ def copies_row(sid, scene_name, space, scene, rays, tolerances, repeat):
         seconds = time.perf_counter() - t0
         mib = (data["vertices"].nbytes + data["triangles"].nbytes) / 2**20
         built.append((tracer, seconds, mib))
-    limits = dict(max_distance=space.max_distance, max_crossings=space.max_crossings, shade=False,
-                  tolerance=tolerances[0], tolerance_per_distance=tolerances[1])
+    limits = dict(
+        max_distance=space.max_distance,
+        max_crossings=space.max_crossings,
+        shade=False,
+        tolerance=tolerances[0],
+        tolerance_per_distance=tolerances[1],
+    )
     runs = [lambda t=t: t.trace(origins, directions, **limits) for t, _, _ in built]
     (on, off), (out_on, out_off) = cpu_per_ray(runs, repeat, len(origins))
     (t_on, b_on, m_on), (t_off, b_off, m_off) = built
     same = np.array_equal(out_on["object"], out_off["object"])
-    return [sid, scene_name, str(t_on.num_triangles), str(t_off.num_triangles),
-            f"{t_off.num_triangles / max(t_on.num_triangles, 1):.1f}", f"{m_on:.2f}", f"{m_off:.2f}", f"{b_on:.2f}",
-            f"{b_off:.2f}", f"{on:.2f}", f"{off:.2f}", f"{off / on:.2f}",
-            "yes" if same else f"{np.mean(out_on['object'] != out_off['object']):.2%} differ"]
+    return [
+        sid,
+        scene_name,
+        str(t_on.num_triangles),
+        str(t_off.num_triangles),
+        f"{t_off.num_triangles / max(t_on.num_triangles, 1):.1f}",
+        f"{m_on:.2f}",
+        f"{m_off:.2f}",
+        f"{b_on:.2f}",
+        f"{b_off:.2f}",
+        f"{on:.2f}",
+        f"{off:.2f}",
+        f"{off / on:.2f}",
+        "yes" if same else f"{np.mean(out_on['object'] != out_off['object']):.2%} differ",
+    ]
 
 
 def main():
@@ -215,33 +280,93 @@ def main():
         settings = render.Settings(width=size[0], height=size[1], quality="standard")
         rays = frame_rays(space, settings)
         tolerances = settings.tolerances(space, rays[2])
-        for scene_name, scene in (("sparse", ball_scene(space, np.random.default_rng(7), 4)[0]),
-                                  ("dense", default_scene(space))):
+        for scene_name, scene in (
+            ("sparse", ball_scene(space, np.random.default_rng(7), 4)[0]),
+            ("dense", default_scene(space)),
+        ):
             tracer = render.make_tracer(space, scene)
             if curved:
                 rows["empty"].append(empty_space_row(sid, scene_name, space, tracer, rays, tolerances, args.repeat))
                 rows["footprint"].append(footprint_row(sid, scene_name, space, scene, tracer, size, args.repeat))
             rows["copies"].append(copies_row(sid, scene_name, space, scene, rays, tolerances, args.repeat))
         print(f"{sid} done (load {os.getloadavg()[0]:.1f})")
-    text = "\n".join([
-        table("1. Closed forms instead of integration (µs per geodesic of length 5; error: metric distance "
-              "from the closed form in extended precision)",
-              ["space", "geometry", "C++ closed form", "Python closed form (vectorised)", "scipy DOP853 (rtol 1e-10)",
-               "DOP853 / C++", "C++ error", "Python error", "DOP853 error"], rows["closed"]),
-        table("2. Empty-space steps without Embree queries (the standard quality's chords)",
-              ["space", "scene", "queries/ray on", "off", "off / on", "CPU µs/ray on", "off", "off / on",
-               "same objects hit"], rows["empty"]),
-        table("3. Chords sized by the pixel footprint against the cheapest fixed tolerance as accurate",
-              ["space", "scene", "footprint rule (standard)", "fixed tolerance", "image error: rule",
-               "fixed", "chords/ray: rule", "fixed", "CPU µs/ray: rule", "fixed", "fixed / rule"], rows["footprint"]),
-        table("4. Copies only where objects cross the domain, against every neighbour's whole copy",
-              ["space", "scene", "triangles: crossing", "every", "every / crossing", "MiB: crossing", "every",
-               "build s: crossing", "every", "CPU µs/ray: crossing", "every", "every / crossing", "same objects hit"],
-              rows["copies"]),
-    ])
-    header = (f"# What each economy saves (benchmarks/bench_economy.py)\n\n" + __doc__.split("\n\n", 1)[1].rsplit("\n\nRun:", 1)[0] +
-              f"\n\nMeasured {time.strftime('%Y-%m-%d')}, {args.size}, least of {args.repeat}, {os.cpu_count()} CPUs, "
-              f"load average {load:.1f} at the start and {os.getloadavg()[0]:.1f} at the end.\n\n")
+    text = "\n".join(
+        [
+            table(
+                "1. Closed forms instead of integration (µs per geodesic of length 5; error: metric distance "
+                "from the closed form in extended precision)",
+                [
+                    "space",
+                    "geometry",
+                    "C++ closed form",
+                    "Python closed form (vectorised)",
+                    "scipy DOP853 (rtol 1e-10)",
+                    "DOP853 / C++",
+                    "C++ error",
+                    "Python error",
+                    "DOP853 error",
+                ],
+                rows["closed"],
+            ),
+            table(
+                "2. Empty-space steps without Embree queries (the standard quality's chords)",
+                [
+                    "space",
+                    "scene",
+                    "queries/ray on",
+                    "off",
+                    "off / on",
+                    "CPU µs/ray on",
+                    "off",
+                    "off / on",
+                    "same objects hit",
+                ],
+                rows["empty"],
+            ),
+            table(
+                "3. Chords sized by the pixel footprint against the cheapest fixed tolerance as accurate",
+                [
+                    "space",
+                    "scene",
+                    "footprint rule (standard)",
+                    "fixed tolerance",
+                    "image error: rule",
+                    "fixed",
+                    "chords/ray: rule",
+                    "fixed",
+                    "CPU µs/ray: rule",
+                    "fixed",
+                    "fixed / rule",
+                ],
+                rows["footprint"],
+            ),
+            table(
+                "4. Copies only where objects cross the domain, against every neighbour's whole copy",
+                [
+                    "space",
+                    "scene",
+                    "triangles: crossing",
+                    "every",
+                    "every / crossing",
+                    "MiB: crossing",
+                    "every",
+                    "build s: crossing",
+                    "every",
+                    "CPU µs/ray: crossing",
+                    "every",
+                    "every / crossing",
+                    "same objects hit",
+                ],
+                rows["copies"],
+            ),
+        ]
+    )
+    header = (
+        "# What each economy saves (benchmarks/bench_economy.py)\n\n"
+        + __doc__.split("\n\n", 1)[1].rsplit("\n\nRun:", 1)[0]
+        + f"\n\nMeasured {time.strftime('%Y-%m-%d')}, {args.size}, least of {args.repeat}, {os.cpu_count()} CPUs, "
+        f"load average {load:.1f} at the start and {os.getloadavg()[0]:.1f} at the end.\n\n"
+    )
     print(text)
     Path(args.out).write_text(header + text)
     print(f"wrote {args.out}")

@@ -8,6 +8,7 @@ child process; the core is this checkout's).
 Run: .venv/bin/python benchmarks/bench_far_rays.py [--rays 1000000] [--spaces torus,nil]
      [--baseline 1ef33a8] [--repeat 1]
 """
+
 import argparse
 import json
 import subprocess
@@ -59,8 +60,15 @@ def measure(sid, n, repeat):
     tracer = render.make_tracer(space, default_scene(space))
     tolerances = render.Settings(quality="preview").tolerances(space, render.REFERENCE_PIXEL_ANGLE)
     trace_seconds, _ = least_interleaved(
-        [lambda X=X, V=V: render.trace(tracer, X, V, space.max_distance, space.max_crossings, *tolerances, shade=False)
-         for X, V in moved], repeat, time.perf_counter)
+        [
+            lambda X=X, V=V: render.trace(
+                tracer, X, V, space.max_distance, space.max_crossings, *tolerances, shade=False
+            )
+            for X, V in moved
+        ],
+        repeat,
+        time.perf_counter,
+    )
     return {far: (move_seconds[far], trace_seconds[far]) for far in (False, True)}
 
 
@@ -85,21 +93,29 @@ def main():
         return
     with tempfile.TemporaryDirectory() as folder:
         if args.baseline:
-            archive = subprocess.run(["git", "-C", str(REPO), "archive", args.baseline, "thurston_addon"],
-                                     capture_output=True, check=True).stdout
+            archive = subprocess.run(
+                ["git", "-C", str(REPO), "archive", args.baseline, "thurston_addon"], capture_output=True, check=True
+            ).stdout
             subprocess.run(["tar", "-x", "-C", folder], input=archive, check=True)
-        print(f"| space | build | rays | move in s | trace s | total s | x without the far ray |")
+        print("| space | build | rays | move in s | trace s | total s | x without the far ray |")
         print("|---|---|---|---|---|---|---|")
         for sid in args.spaces.split(","):
             builds = [("this", None)] + ([(args.baseline, folder)] if args.baseline else [])
             for name, build in builds:
-                timed = measure(sid, args.rays, args.repeat) if build is None else baseline(sid, args.rays, args.repeat, build)
+                timed = (
+                    measure(sid, args.rays, args.repeat)
+                    if build is None
+                    else baseline(sid, args.rays, args.repeat, build)
+                )
                 totals = {far: sum(timed[far]) for far in (False, True)}
                 for far in (False, True):
                     move, trace = timed[far]
                     label = f"{args.rays - 1} + 1 far" if far else str(args.rays)
-                    print(f"| {sid} | {name} | {label} | {move:.2f} | {trace:.2f} | {move + trace:.2f} | "
-                          f"{totals[far] / totals[False]:.2f} |", flush=True)
+                    print(
+                        f"| {sid} | {name} | {label} | {move:.2f} | {trace:.2f} | {move + trace:.2f} | "
+                        f"{totals[far] / totals[False]:.2f} |",
+                        flush=True,
+                    )
 
 
 if __name__ == "__main__":

@@ -46,6 +46,7 @@ per ray (docs/front.png).
 Run: .venv/bin/python benchmarks/bench_front.py [--rays 300] [--timing-rays 20000] [--repeat 3]
      [--spaces torus,...] [--tolerances 1e-2,...,1e-7] [--scales 1,2,4,8,16] [--margin 0.5] [--cap 4] [--out docs]
 """
+
 import argparse
 import math
 import os
@@ -57,10 +58,10 @@ import trimesh
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 from scipy.optimize import brentq, minimize_scalar
+from timing import least_interleaved
 
 from thurston_addon import render, spaces
 from thurston_addon.scenes import Scene, SceneObject
-from timing import least_interleaved
 
 SPACES = ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "rp3_rp3", "sl2"]
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,8 +82,10 @@ def ball_scene(space, rng, count=4):
             radii.append(r)
             if len(centres) == count:
                 break
-    objects = [SceneObject(f"ball{i}", c + r * sphere.vertices, sphere.faces, (0.7, 0.7, 0.7))
-               for i, (c, r) in enumerate(zip(centres, radii))]
+    objects = [
+        SceneObject(f"ball{i}", c + r * sphere.vertices, sphere.faces, (0.7, 0.7, 0.7))
+        for i, (c, r) in enumerate(zip(centres, radii))
+    ]
     return Scene(objects=objects), np.array(centres), np.array(radii)
 
 
@@ -155,8 +158,12 @@ class Reference:
         size = np.linalg.norm(d, axis=1)
         ok = size > 0
         direction = np.where(ok[:, None], d / np.where(ok, size, 1.0)[:, None], [1.0, 0.0, 0.0])
-        found = self.embree.run(x[:-1].astype(np.float32), direction.astype(np.float32),
-                                dists=(size * 1.0001 + 1e-7).astype(np.float32), output=1)
+        found = self.embree.run(
+            x[:-1].astype(np.float32),
+            direction.astype(np.float32),
+            dists=(size * 1.0001 + 1e-7).astype(np.float32),
+            output=1,
+        )
         for k in np.flatnonzero(found["primID"] >= 0):
             tri = self.triangles[found["primID"][k]]
             n = np.cross(tri[1] - tri[0], tri[2] - tri[0])
@@ -229,9 +236,13 @@ class Reference:
 
         u = np.linspace(s - radius, s + radius, 101)
         k = int(np.argmin(gap(u)[0]))
-        best = minimize_scalar(lambda v: gap(np.array([v]))[0][0], bounds=(u[max(k - 1, 0)], u[min(k + 1, 100)]),
-                               method="bounded", options={"xatol": 1e-12})
-        return float(min(best.fun, gap(u[k:k + 1])[0][0]))
+        best = minimize_scalar(
+            lambda v: gap(np.array([v]))[0][0],
+            bounds=(u[max(k - 1, 0)], u[min(k + 1, 100)]),
+            method="bounded",
+            options={"xatol": 1e-12},
+        )
+        return float(min(best.fun, gap(u[k : k + 1])[0][0]))
 
     def off_curve(self, ray, s, h):
         """The metric distance of the chart point h from the ray's true curve about arclength s."""
@@ -282,8 +293,9 @@ def wavefront(space, reference, P, V, length, h):
         x0, x1 = np.asarray(g.to_chart(P[live]), float), np.asarray(g.to_chart(X1), float)
         d = x1 - x0
         size = np.maximum(np.linalg.norm(d, axis=1), 1e-300)
-        found = reference.embree.run(x0.astype(np.float32), (d / size[:, None]).astype(np.float32),
-                                     dists=size.astype(np.float32), output=1)
+        found = reference.embree.run(
+            x0.astype(np.float32), (d / size[:, None]).astype(np.float32), dists=size.astype(np.float32), output=1
+        )
         met = found["primID"] >= 0
         fraction = found["tfar"][met] / size[met]
         depth[live[met]] = s[live[met]] + fraction * step[met]
@@ -298,6 +310,7 @@ def wavefront(space, reference, P, V, length, h):
 
 def geodesic_equation(g):
     """x'' = -Gamma(x)(x', x') with the geometry's Christoffel symbols, the state (x, v), for solve_ivp."""
+
     def rhs(_t, y):
         return np.concatenate([y[3:], -np.einsum("kij,i,j->k", g.christoffel(y[:3]), y[3:], y[3:])])
 
@@ -311,8 +324,15 @@ def solve_ivp_path(space, P, V, length):
 
     g = space.geometry
     x0, v0 = np.asarray(g.to_chart(P), float), np.asarray(g.tangent_to_chart(P, V), float)
-    sol = solve_ivp(geodesic_equation(g), (0.0, length), np.concatenate([x0, v0]), method="DOP853", rtol=1e-10, atol=1e-12,
-                    dense_output=True)
+    sol = solve_ivp(
+        geodesic_equation(g),
+        (0.0, length),
+        np.concatenate([x0, v0]),
+        method="DOP853",
+        rtol=1e-10,
+        atol=1e-12,
+        dense_output=True,
+    )
     return lambda s: g.to_model(np.atleast_2d(sol.sol(np.atleast_1d(s))[:3].T))
 
 
@@ -334,7 +354,10 @@ def least_seconds(tracer, P, V, length, max_crossings, settings, repeat, count, 
     times in turn (interleaved: a drift of the load falls on each alike) for the least time."""
     k = max(1, count // len(P))
     P, V = np.ascontiguousarray(np.tile(P, (k, 1))), np.ascontiguousarray(np.tile(V, (k, 1)))
-    runs = [lambda t=tolerances: render.trace(tracer, P, V, length, max_crossings, *t, shade=False) for tolerances in settings]
+    runs = [
+        lambda t=tolerances: render.trace(tracer, P, V, length, max_crossings, *t, shade=False)
+        for tolerances in settings
+    ]
     best, _ = least_interleaved(runs, repeat, clock)
     return [b / len(P) for b in best]
 
@@ -344,8 +367,24 @@ def p99(a):
 
 
 def row(sid, name, compared, chords, seconds, pos, depth, disagree, bound, verdict):
-    return "| " + " | ".join([sid, name, str(compared), chords, f"{seconds * 1e6:.2f}", fmt(pos), fmt(depth),
-                              str(disagree), bound, verdict]) + " |"
+    return (
+        "| "
+        + " | ".join(
+            [
+                sid,
+                name,
+                str(compared),
+                chords,
+                f"{seconds * 1e6:.2f}",
+                fmt(pos),
+                fmt(depth),
+                str(disagree),
+                bound,
+                verdict,
+            ]
+        )
+        + " |"
+    )
 
 
 def errors(space, out, firsts, radii):
@@ -378,8 +417,12 @@ def silhouettes(reference, out, refs, radii):
     worst = 0.0
     for i, ray in enumerate(refs):
         hit, obj = out["stop"][i] == 0, int(out["object"][i])
-        worst = max(worst, reference.silhouette_error(ray, hit, obj, float(out["depth"][i]), position[i].astype(float),
-                                                      2 * radii[obj]))
+        worst = max(
+            worst,
+            reference.silhouette_error(
+                ray, hit, obj, float(out["depth"][i]), position[i].astype(float), 2 * radii[obj]
+            ),
+        )
     return worst
 
 
@@ -396,21 +439,40 @@ def main():
     ap.add_argument("--spaces", default=",".join(SPACES))
     ap.add_argument("--tolerances", default="1e-2,1e-3,1e-4,1e-5,1e-6,1e-7")
     ap.add_argument("--scales", default="1,2,4,8,16", help="chord tolerances in units of a quality's bound")
-    ap.add_argument("--margin", type=float, default=0.5,
-                    help="a derived scale above 1 adds at most this fraction of the bound to the error at scale 1")
-    ap.add_argument("--cap", type=float, default=4.0,
-                    help="the largest scale taken: above it, silhouettes of nearly equal scenes (1e-7 apart) differ by pixels")
+    ap.add_argument(
+        "--margin",
+        type=float,
+        default=0.5,
+        help="a derived scale above 1 adds at most this fraction of the bound to the error at scale 1",
+    )
+    ap.add_argument(
+        "--cap",
+        type=float,
+        default=4.0,
+        help="the largest scale taken: above it, silhouettes of nearly equal scenes (1e-7 apart) differ by pixels",
+    )
     ap.add_argument("--balls", type=int, default=8)
     ap.add_argument("--timing-rays", type=int, default=20000, help="the rays tiled to this many for the times")
     ap.add_argument("--step", type=float, default=2e-3, help="arclength between the reference's samples")
     ap.add_argument("--out", default=str(ROOT / "docs"))
     args = ap.parse_args()
     scales = [float(v) for v in args.scales.split(",")]
-    print(f"{args.rays} rays per space, best of {args.repeat}, {os.cpu_count()} CPUs; load average at the start "
-          f"{os.getloadavg()[0]:.1f}\n")
-    header = ["space", "setting", "rays", "chords/ray", "µs/ray (wall)", "position error (median / p99 / max)",
-              "depth error (median / p99 / max)", "disagree", "error in footprints (positions; silhouettes) / bound",
-              "within / peer's time against ours at its accuracy"]
+    print(
+        f"{args.rays} rays per space, best of {args.repeat}, {os.cpu_count()} CPUs; load average at the start "
+        f"{os.getloadavg()[0]:.1f}\n"
+    )
+    header = [
+        "space",
+        "setting",
+        "rays",
+        "chords/ray",
+        "µs/ray (wall)",
+        "position error (median / p99 / max)",
+        "depth error (median / p99 / max)",
+        "disagree",
+        "error in footprints (positions; silhouettes) / bound",
+        "within / peer's time against ours at its accuracy",
+    ]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     front, sweep, cases = {}, {}, {}
     for sid in args.spaces.split(","):
@@ -432,8 +494,9 @@ def main():
         ours = []  # (setting, µs per ray, p99 position error)
         tolerances_of = [s.tolerances(space, render.REFERENCE_PIXEL_ANGLE) for _, s in settings]
         # the settings' wall times side by side (interleaved), as the peers' are wall times
-        seconds_of = least_seconds(tracer, P, V, length, 100000, tolerances_of, args.repeat, args.timing_rays,
-                                   time.perf_counter)
+        seconds_of = least_seconds(
+            tracer, P, V, length, 100000, tolerances_of, args.repeat, args.timing_rays, time.perf_counter
+        )
         for (name, _), tolerances, seconds in zip(settings, tolerances_of, seconds_of):
             out = render.trace(tracer, P, V, length, 100000, *tolerances, shade=False)
             compared, disagree, pos, depth, fp = errors(space, out, firsts, radii)
@@ -444,36 +507,68 @@ def main():
             if name == "standard":
                 standard_chords = chords
             measured = f"{float(fp.max()) if len(fp) else 0.0:.1e}; {sil:.1e}"
-            lines.append(row(sid, name, compared, f"{chords:.2f}", seconds, pos, depth, disagree,
-                             f"{measured} / {bound}" if bound else measured,
-                             ("yes" if worst <= bound else "NO") if bound else ""))
+            lines.append(
+                row(
+                    sid,
+                    name,
+                    compared,
+                    f"{chords:.2f}",
+                    seconds,
+                    pos,
+                    depth,
+                    disagree,
+                    f"{measured} / {bound}" if bound else measured,
+                    ("yes" if worst <= bound else "NO") if bound else "",
+                )
+            )
             ours.append((name, seconds * 1e6, p99(pos)))
         front[sid] = list(ours)
         if not space.geometry.projective:
             sweep[sid] = scale_sweep(space, tracer, P, V, length, reference, refs, radii, scales)
         # the peers, each against our cheapest setting at least as accurate (by the 99th percentile)
-        peers = [("peer: bare Embree, the chords (floor)", floor_seconds(reference, standard_chords, 0.5 * space.extent, rng),
-                  None)]
+        peers = [
+            (
+                "peer: bare Embree, the chords (floor)",
+                floor_seconds(reference, standard_chords, 0.5 * space.extent, rng),
+                None,
+            )
+        ]
         k = max(1, min(args.timing_rays, 3000) // len(P))  # a wavefront of thousands of rays, as a user would run
         for h in (0.1, 0.01):
             t0 = time.perf_counter()
-            depth_w, at_w, obj_w = (a[:len(P)] for a in wavefront(space, reference, np.tile(P, (k, 1)),
-                                                                  np.tile(V, (k, 1)), length, h))
+            depth_w, at_w, obj_w = (
+                a[: len(P)] for a in wavefront(space, reference, np.tile(P, (k, 1)), np.tile(V, (k, 1)), length, h)
+            )
             seconds = (time.perf_counter() - t0) / (k * len(P))
-            peers.append((f"peer: numpy + embreex, chords of {h}", seconds,
-                          {"stop": np.where(obj_w >= 0, 0, 1), "object": obj_w, "position": at_w, "depth": depth_w}))
+            peers.append(
+                (
+                    f"peer: numpy + embreex, chords of {h}",
+                    seconds,
+                    {"stop": np.where(obj_w >= 0, 0, 1), "object": obj_w, "position": at_w, "depth": depth_w},
+                )
+            )
         if not space.geometry.projective:
             count = min(60, len(P))
             t0 = time.perf_counter()
-            found = [reference.trace(P[i], V[i], length, path=solve_ivp_path(space, P[i], V[i], length)).first
-                     for i in range(count)]
+            found = [
+                reference.trace(P[i], V[i], length, path=solve_ivp_path(space, P[i], V[i], length)).first
+                for i in range(count)
+            ]
             seconds = (time.perf_counter() - t0) / count
             found += [None] * (len(P) - count)
             hit = [f is not None and math.isfinite(f[0]) for f in found]
-            peers.append(("peer: scipy solve_ivp per ray", seconds, {
-                "stop": np.array([0 if h else 1 for h in hit]), "object": np.array([f[2] if h else -1 for f, h in zip(found, hit)]),
-                "position": np.array([f[1] if h else [np.nan] * 3 for f, h in zip(found, hit)]),
-                "depth": np.array([f[0] if h else math.inf for f, h in zip(found, hit)])}))
+            peers.append(
+                (
+                    "peer: scipy solve_ivp per ray",
+                    seconds,
+                    {
+                        "stop": np.array([0 if h else 1 for h in hit]),
+                        "object": np.array([f[2] if h else -1 for f, h in zip(found, hit)]),
+                        "position": np.array([f[1] if h else [np.nan] * 3 for f, h in zip(found, hit)]),
+                        "depth": np.array([f[0] if h else math.inf for f, h in zip(found, hit)]),
+                    },
+                )
+            )
         for name, seconds, out in peers:
             if out is None:
                 lines.append(row(sid, name, "", "", seconds, [], [], "", "", ""))
@@ -482,8 +577,10 @@ def main():
             match = min((r for r in ours if r[2] <= p99(pos)), key=lambda r: r[1], default=None)
             versus = f"{seconds * 1e6 / match[1]:.0f}x our {match[0]}" if match else "more accurate than ours"
             lines.append(row(sid, name, compared, "", seconds, pos, depth, disagree, "", versus))
-        print(f"{sid}: reference {reference_seconds * 1e3:.0f} ms/ray, {sum(f is None for f in firsts)} of {len(refs)} "
-              "rays left out of the position errors (grazing)")
+        print(
+            f"{sid}: reference {reference_seconds * 1e3:.0f} ms/ray, {sum(f is None for f in firsts)} of {len(refs)} "
+            "rays left out of the position errors (grazing)"
+        )
     table = "\n".join(lines)
     print("\n" + table)
     rule = chord_rule(sweep, scales, args.margin, args.cap, cases, args.repeat, args.timing_rays)
@@ -491,10 +588,17 @@ def main():
     out = Path(args.out)
     out.mkdir(exist_ok=True)
     (out / "front.md").write_text(
-        "# The error/time front (benchmarks/bench_front.py)\n\n" + "\n\n".join(__doc__.split("\n\n")[1:3]) +
-        f"\n\nMeasured {time.strftime('%Y-%m-%d')}: {len(P)} rays per space, {args.balls} balls, best of {args.repeat}; load average "
-        f"{os.getloadavg()[0]:.1f} at the end.\n\n" + table + "\n\n## The chord rule\n\n" +
-        __doc__.split("\n\n")[3] + "\n\n" + rule + "\n")
+        "# The error/time front (benchmarks/bench_front.py)\n\n"
+        + "\n\n".join(__doc__.split("\n\n")[1:3])
+        + f"\n\nMeasured {time.strftime('%Y-%m-%d')}: {len(P)} rays per space, {args.balls} balls, best of {args.repeat}; load average "
+        f"{os.getloadavg()[0]:.1f} at the end.\n\n"
+        + table
+        + "\n\n## The chord rule\n\n"
+        + __doc__.split("\n\n")[3]
+        + "\n\n"
+        + rule
+        + "\n"
+    )
     plot(front, out / "front.png")
     print(f"\nload average at the end {os.getloadavg()[0]:.1f}; wrote {out / 'front.md'} and {out / 'front.png'}")
 
@@ -522,10 +626,15 @@ def chord_rule(sweep, scales, margin, cap, cases, repeat, count):
     `margin` of the bound above its error at scale 1), their CPU time measured side by side
     (interleaved), and the derived scale: the cheapest of them up to `cap` over the four qualities
     (and the geometry's presets)."""
-    lines = ["| space | quality | " + " | ".join(f"scale {s:g}: error / bound, chords/ray" for s in scales) + " |",
-             "|---|---|" + "---|" * len(scales)]
-    timing = [f"CPU µs per ray (both threads) of each scale that keeps the bounds, interleaved, least of {repeat}:\n",
-              "| space | quality | " + " | ".join(f"scale {s:g}" for s in scales) + " |", "|---|---|" + "---|" * len(scales)]
+    lines = [
+        "| space | quality | " + " | ".join(f"scale {s:g}: error / bound, chords/ray" for s in scales) + " |",
+        "|---|---|" + "---|" * len(scales),
+    ]
+    timing = [
+        f"CPU µs per ray (both threads) of each scale that keeps the bounds, interleaved, least of {repeat}:\n",
+        "| space | quality | " + " | ".join(f"scale {s:g}" for s in scales) + " |",
+        "|---|---|" + "---|" * len(scales),
+    ]
     above = [k for k, s in enumerate(scales) if s > 1]
     one = scales.index(1.0)
     keep = {}  # geometry: the scales (indices) that keep the bounds in every preset of it
@@ -543,21 +652,37 @@ def chord_rule(sweep, scales, margin, cap, cases, repeat, count):
         kept = sorted(keep[space.geometry.name])
         for q in found:
             base = np.array(rule_tolerances(space, q))
-            micro[sid, q] = dict(zip(kept, least_seconds(tracer, P, V, length, 100000, [scales[k] * base for k in kept],
-                                                         repeat, count)))
-            timing.append(f"| {sid} | {q} | " + " | ".join(f"{micro[sid, q][k] * 1e6:.2f}" if k in micro[sid, q] else "-"
-                                                            for k in range(len(scales))) + " |")
+            micro[sid, q] = dict(
+                zip(kept, least_seconds(tracer, P, V, length, 100000, [scales[k] * base for k in kept], repeat, count))
+            )
+            timing.append(
+                f"| {sid} | {q} | "
+                + " | ".join(f"{micro[sid, q][k] * 1e6:.2f}" if k in micro[sid, q] else "-" for k in range(len(scales)))
+                + " |"
+            )
     saving = []
     for name, kept in keep.items():
         sids = [sid for sid in sweep if cases[sid][0].geometry.name == name]
         total = lambda k: sum(micro[sid, q][k] for sid in sids for q in sweep[sid])
         best = min((k for k in kept if scales[k] <= cap), key=total)
-        final = ", ".join(f"{sid} {sweep[sid]['final'][one][1]:.2f} → {sweep[sid]['final'][best][1]:.2f}" for sid in sids)
-        saving.append(f"{name} **{scales[best]:g}** ({1 - total(best) / total(one):.0%} of the CPU time of its presets' four "
-                      f"qualities; chords/ray at final: {final}; its chord_scale is "
-                      f"{cases[sids[0]][0].geometry.chord_scale:g})")
-    return "\n".join(lines + ["", *timing, "", f"Derived scales (the cheapest up to {cap:g} that keeps the bounds; saved "
-                                "against scale 1): " + ", ".join(saving) + "."])
+        final = ", ".join(
+            f"{sid} {sweep[sid]['final'][one][1]:.2f} → {sweep[sid]['final'][best][1]:.2f}" for sid in sids
+        )
+        saving.append(
+            f"{name} **{scales[best]:g}** ({1 - total(best) / total(one):.0%} of the CPU time of its presets' four "
+            f"qualities; chords/ray at final: {final}; its chord_scale is "
+            f"{cases[sids[0]][0].geometry.chord_scale:g})"
+        )
+    return "\n".join(
+        lines
+        + [
+            "",
+            *timing,
+            "",
+            f"Derived scales (the cheapest up to {cap:g} that keeps the bounds; saved "
+            "against scale 1): " + ", ".join(saving) + ".",
+        ]
+    )
 
 
 def rule_tolerances(space, quality):
@@ -576,7 +701,7 @@ def plot(front, path):
     fig, ax = plt.subplots(figsize=(8, 5))
     for sid, rows in front.items():
         sweep = [(us, e) for name, us, e in rows if name.startswith("tol") and np.isfinite(e) and e > 0]
-        line, = ax.plot(*zip(*sweep), "-", label=sid) if sweep else ax.plot([], [], label=sid)
+        (line,) = ax.plot(*zip(*sweep), "-", label=sid) if sweep else ax.plot([], [], label=sid)
         qualities = [(us, e) for name, us, e in rows if not name.startswith("tol") and np.isfinite(e) and e > 0]
         if qualities:
             ax.plot(*zip(*qualities), "o", color=line.get_color())

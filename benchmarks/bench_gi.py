@@ -30,6 +30,7 @@ first with that build, in a child process, then with this one.
 Run: .venv/bin/python benchmarks/bench_gi.py [--size 160x90] [--spaces poincare,torus] [--bounces 4]
      [--tables 1,2,3] [--emitter-scenes lamp,metal] [--baseline OLD/thurston_core.cpython-311-x86_64-linux-gnu.so]
 """
+
 import argparse
 import math
 import subprocess
@@ -39,7 +40,6 @@ from dataclasses import replace
 
 import numpy as np
 import trimesh
-
 from timing import load_core
 
 GI_SAMPLES = (1, 4, 16, 64)
@@ -61,8 +61,10 @@ class Sampling:
 
 # The emitter scenes: the lamp's radius (of the inradius) and each object's finish (None: Lambert).
 EMITTER_SCENES = {
-    "lamp": (0.04, lambda name: dict(ring=dict(roughness=0.2, metallic=1.0),
-                                     sphere=dict(roughness=0.3, specular=0.5)).get(name)),
+    "lamp": (
+        0.04,
+        lambda name: dict(ring=dict(roughness=0.2, metallic=1.0), sphere=dict(roughness=0.3, specular=0.5)).get(name),
+    ),
     "metal": (0.15, lambda name: dict(roughness=0.15, metallic=1.0)),
 }
 
@@ -88,7 +90,9 @@ def lamp_scene(space, kind="lamp", glossy=True):
 
 
 def timed(space, scene, tracer, w, h, samples, bounces, seed=0, max_distance=None):
-    settings = render.Settings(width=w, height=h, samples=samples, bounces=bounces, seed=seed, max_distance=max_distance)
+    settings = render.Settings(
+        width=w, height=h, samples=samples, bounces=bounces, seed=seed, max_distance=max_distance
+    )
     t = time.perf_counter()
     result = render.render(space, scene, settings, tracer=tracer)
     return result, time.perf_counter() - t
@@ -127,18 +131,24 @@ def point_light_table(sid, args, w, h):
     space = spaces.load(sid)
     scene = scenes.default_scene(space)
     tracer = render.make_tracer(space, scene)
-    reference, ref_seconds = timed(space, scene, tracer, w, h, args.reference_samples, args.bounces,
-                                   seed=max(GI_SAMPLES))
+    reference, ref_seconds = timed(
+        space, scene, tracer, w, h, args.reference_samples, args.bounces, seed=max(GI_SAMPLES)
+    )
     rows = [(f"direct, {args.direct_samples} spp", *timed(space, scene, tracer, w, h, args.direct_samples, 0))]
-    rows += [(f"{args.bounces} bounces, {n} spp", *timed(space, scene, tracer, w, h, n, args.bounces))
-             for n in GI_SAMPLES]
+    rows += [
+        (f"{args.bounces} bounces, {n} spp", *timed(space, scene, tracer, w, h, n, args.bounces)) for n in GI_SAMPLES
+    ]
     direct_seconds = rows[0][2]
     for label, result, seconds in rows:
         noise = result.stats["noise"]
-        print(f"{sid:<10} {label:<24} {seconds:>8.2f} {seconds / direct_seconds:>9.2f} "
-              f"{brightness_rms(result, reference):>11.4f} {'-' if noise is None else f'{noise:.4f}':>11}")
-    print(f"{sid:<10} {'reference, ' + str(args.reference_samples) + ' spp':<24} {ref_seconds:>8.2f} "
-          f"{ref_seconds / direct_seconds:>9.2f} {'':>11} {reference.stats['noise']:>11.4f}")
+        print(
+            f"{sid:<10} {label:<24} {seconds:>8.2f} {seconds / direct_seconds:>9.2f} "
+            f"{brightness_rms(result, reference):>11.4f} {'-' if noise is None else f'{noise:.4f}':>11}"
+        )
+    print(
+        f"{sid:<10} {'reference, ' + str(args.reference_samples) + ' spp':<24} {ref_seconds:>8.2f} "
+        f"{ref_seconds / direct_seconds:>9.2f} {'':>11} {reference.stats['noise']:>11.4f}"
+    )
 
 
 def emitter_table(sid, kind, args, w, h):
@@ -147,14 +157,17 @@ def emitter_table(sid, kind, args, w, h):
     tracer = render.make_tracer(space, scene)
     lamp = len(scene.objects) - 1
     modes = ("mis", "light", "bounce")
-    found = twice(space, [(scene, Sampling(tracer, mode), args.bounces, lamp) for mode in modes], w, h,
-                  args.emitter_samples)
+    found = twice(
+        space, [(scene, Sampling(tracer, mode), args.bounces, lamp) for mode in modes], w, h, args.emitter_samples
+    )
     rows = [(mode, *f) for mode, f in zip(modes, found)]
     mis_seconds = rows[0][1]
     for mode, seconds, noise, mean in rows:
         label = {"mis": "MIS", "light": "emitter samples only", "bounce": "bounces only"}[mode]
-        print(f"{sid:<10} {kind:<6} {label:<22} {seconds:>8.2f} {noise:>11.4f} "
-              f"{noise * math.sqrt(seconds / mis_seconds):>11.4f} {mean:>11.4f}")
+        print(
+            f"{sid:<10} {kind:<6} {label:<22} {seconds:>8.2f} {noise:>11.4f} "
+            f"{noise * math.sqrt(seconds / mis_seconds):>11.4f} {mean:>11.4f}"
+        )
 
 
 def glossy_table(sid, args, w, h):
@@ -191,6 +204,7 @@ def main():
         load_core(args.core)
     global render, scenes, spaces  # imported once --core has chosen the core
     from thurston_addon import render, scenes, spaces
+
     if args.baseline:
         print("table 2 with the baseline build:", flush=True)
         child = [a for a in sys.argv[1:] if not a.startswith("--baseline") and a != args.baseline]
@@ -203,8 +217,10 @@ def main():
         for sid in args.spaces.split(","):
             point_light_table(sid, args, w, h)
     if "2" in tables:
-        print(f"\n{'space':<10} {'scene':<6} {'emitters lit by':<22} {'seconds':>8} {'noise':>11} {'equal time':>11} "
-              f"{'mean':>11}")
+        print(
+            f"\n{'space':<10} {'scene':<6} {'emitters lit by':<22} {'seconds':>8} {'noise':>11} {'equal time':>11} "
+            f"{'mean':>11}"
+        )
         for sid in args.spaces.split(","):
             for kind in args.emitter_scenes.split(","):
                 emitter_table(sid, kind, args, w, h)

@@ -4,6 +4,7 @@ the build time (compile_scene and the tracer's BVH), the bytes of the compiled a
 triangles, the render time of one view and the ratios flattened / instanced.
 Run: .venv/bin/python benchmarks/bench_instances.py [--counts 100,1000,10000] [--size 320x180]
 """
+
 import argparse
 import time
 

@@ -10,6 +10,7 @@ process, for the ratio.
 Run: .venv/bin/python benchmarks/bench_light.py [--size 320x180] [--repeat 3]
      [--spaces torus,poincare,seifert_weber,genus2xs1,s2xs1,nil,sol,sl2] [--baseline /tmp/base/wheel]
 """
+
 import argparse
 import json
 import subprocess
@@ -20,8 +21,16 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from timing import best_of, use_build  # noqa: E402
 
-FACTORS = {"S3": (0.25, 0.5, 1.0), "E3": (0.5, 1.0, 2.0, 4.0), "H3": (0.5, 1.0, 2.0, 4.0), "H2xR": (0.5, 1.0, 1.5),
-           "S2xR": (0.5, 1.0, 2.0), "Nil": (0.5, 1.0, 1.5), "Sol": (0.5, 1.0, 1.5), "SL2": (0.5, 1.0, 1.5)}
+FACTORS = {
+    "S3": (0.25, 0.5, 1.0),
+    "E3": (0.5, 1.0, 2.0, 4.0),
+    "H3": (0.5, 1.0, 2.0, 4.0),
+    "H2xR": (0.5, 1.0, 1.5),
+    "S2xR": (0.5, 1.0, 2.0),
+    "Nil": (0.5, 1.0, 1.5),
+    "Sol": (0.5, 1.0, 1.5),
+    "SL2": (0.5, 1.0, 1.5),
+}
 
 
 def view(sid, size, repeat, reach_factor=None):
@@ -41,8 +50,18 @@ def view(sid, size, repeat, reach_factor=None):
 def baseline_view(sid, size, repeat, build):
     """(seconds, light copies) of view() in a child process importing the baseline build instead of
     this checkout."""
-    command = [sys.executable, __file__, "--time-of", sid, "--size", f"{size[0]}x{size[1]}", "--repeat", str(repeat),
-               "--build", build]
+    command = [
+        sys.executable,
+        __file__,
+        "--time-of",
+        sid,
+        "--size",
+        f"{size[0]}x{size[1]}",
+        "--repeat",
+        str(repeat),
+        "--build",
+        build,
+    ]
     result = json.loads(subprocess.run(command, capture_output=True, text=True, check=True).stdout)
     return result["seconds"], result["copies"]
 
@@ -67,8 +86,10 @@ def copy_search(space, reach):
 def table(space_ids, size, repeat, baseline):
     from thurston_addon import render, spaces
 
-    print(f"{'space':<14} {'reach':>12} {'copies':>7} {'geodesics/pt':>12} {'search s':>8} {'render s':>8} "
-          f"{'x nearest':>9} {'left out':>9}")
+    print(
+        f"{'space':<14} {'reach':>12} {'copies':>7} {'geodesics/pt':>12} {'search s':>8} {'render s':>8} "
+        f"{'x nearest':>9} {'left out':>9}"
+    )
     for sid in space_ids:
         space = spaces.load(sid)
         old, old_copies = baseline_view(sid, size, repeat, baseline) if baseline else (None, None)
@@ -80,17 +101,23 @@ def table(space_ids, size, repeat, baseline):
             try:
                 copy_search(space, reach)
             except render.RenderError:
-                print(f"{sid:<14} {reach:>12.3g} refused: more than {render.LIGHT_TILE_LIMIT} tiles or copies within "
-                      "the reach")
+                print(
+                    f"{sid:<14} {reach:>12.3g} refused: more than {render.LIGHT_TILE_LIMIT} tiles or copies within "
+                    "the reach"
+                )
                 continue
             search = time.perf_counter() - t0
             seconds, s = view(sid, size, repeat, factor)
             ratio = f"{seconds / old:>9.2f}" if old else f"{'':>9}"
             label = f"{reach:.3g}" + (" (default)" if factor == 1.0 else "")
-            print(f"{sid:<14} {label:>12} {s['light_copies']:>7} {s['light_paths_per_point']:>12.1f} {search:>8.2f} "
-                  f"{seconds:>8.2f} {ratio} {s['light_energy_left_out']:>9.3g}")
-    print(f"{size[0]}x{size[1]} draft, the default scene and view, all threads; render s: least of {repeat}; "
-          "left out: estimated energy beyond the reach up to the distance limit, times the summed")
+            print(
+                f"{sid:<14} {label:>12} {s['light_copies']:>7} {s['light_paths_per_point']:>12.1f} {search:>8.2f} "
+                f"{seconds:>8.2f} {ratio} {s['light_energy_left_out']:>9.3g}"
+            )
+    print(
+        f"{size[0]}x{size[1]} draft, the default scene and view, all threads; render s: least of {repeat}; "
+        "left out: estimated energy beyond the reach up to the distance limit, times the summed"
+    )
 
 
 def main():

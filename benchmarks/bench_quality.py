@@ -6,6 +6,7 @@ linear units, after clipping to [0, 1] as a display would). This is where the qu
 promise ("more samples, less aliasing") is measured rather than assumed.
 Run: .venv/bin/python benchmarks/bench_quality.py [--size 320x180] [--spaces torus,poincare,seifert_weber]
 """
+
 import argparse
 import time
 
@@ -33,8 +34,10 @@ def main():
             res = render.render(space, scene, render.Settings(width=w, height=h, quality=quality), tracer=tracer)
             seconds = time.perf_counter() - t
             err = np.abs(np.clip(res.passes["color"], 0, 1) - ref_color).max(axis=2)
-            print(f"{sid:<15} {quality:<9} {samples:>7} {seconds:>8.3f} {np.sqrt(np.mean(err ** 2)):>10.4f} "
-                  f"{np.percentile(err, 99):>10.4f}")
+            print(
+                f"{sid:<15} {quality:<9} {samples:>7} {seconds:>8.3f} {np.sqrt(np.mean(err**2)):>10.4f} "
+                f"{np.percentile(err, 99):>10.4f}"
+            )
     print("error: per-pixel max over RGB of |colour - 64-sample reference|; time excludes building the BVH")
 
 

@@ -17,23 +17,21 @@ A second, smaller set of rays sits on either side of the elliptic form's guards 
 Errors: Euclidean chart distance of the end point from the reference's (chart units).
 Run: .venv/bin/python benchmarks/bench_sol_flow.py [--rays 200] [--lengths 0.1,1,5] [--repeat 3]
 """
+
 import argparse
 import math
 
 import numpy as np
-from scipy.integrate import solve_ivp
-
 import thurston_core
+from scipy.integrate import solve_ivp
+from timing import best_of
+
 from thurston_addon.geometries import sol
 from thurston_addon.geometries.sol import Sol
-
-from timing import best_of
 
 ACCURACIES = (1e-6, 1e-9, 1e-12)
 REFERENCE_TOLERANCE = 1e-13
 LONG_DOUBLE = "Python Taylor, long double"
-
-
 
 
 def frame_velocity(p, a):
@@ -87,8 +85,19 @@ def check_rhs(g):
 
 
 def reference(p, v, length):
-    return np.array([solve_ivp(geodesic_rhs, (0, length), np.r_[p[i], v[i]], method="DOP853",
-                               rtol=REFERENCE_TOLERANCE, atol=REFERENCE_TOLERANCE).y[:3, -1] for i in range(len(p))])
+    return np.array(
+        [
+            solve_ivp(
+                geodesic_rhs,
+                (0, length),
+                np.r_[p[i], v[i]],
+                method="DOP853",
+                rtol=REFERENCE_TOLERANCE,
+                atol=REFERENCE_TOLERANCE,
+            ).y[:3, -1]
+            for i in range(len(p))
+        ]
+    )
 
 
 def flows(g, p, v, length, repeat):
@@ -100,10 +109,11 @@ def flows(g, p, v, length, repeat):
     for acc in ACCURACIES:
         sec, (x, _) = best_of(repeat, lambda: thurston_core.geodesic_flow("Sol", p, v, t, accuracy=acc))
         out[f"C++ Taylor, accuracy {acc:.0e}"] = (sec / n, x)
-    for name, fn, args in (("Python Taylor (Sol.geodesic)", g.geodesic, (P, V, t)),
-                           ("Python elliptic (Sol.geodesic_elliptic)", g.geodesic_elliptic, (P, V, t)),
-                           (LONG_DOUBLE, g.geodesic,
-                            tuple(np.asarray(a, np.longdouble) for a in (P, V, t)))):
+    for name, fn, args in (
+        ("Python Taylor (Sol.geodesic)", g.geodesic, (P, V, t)),
+        ("Python elliptic (Sol.geodesic_elliptic)", g.geodesic_elliptic, (P, V, t)),
+        (LONG_DOUBLE, g.geodesic, tuple(np.asarray(a, np.longdouble) for a in (P, V, t))),
+    ):
         sec, (X, _) = best_of(repeat, lambda: fn(*args))
         out[name] = (sec / n, np.asarray(g.to_chart(X), float))
     return out
@@ -127,15 +137,19 @@ def main():
     v = frame_velocity(p, a)
     gp, ga = guard_rays(rng)
     gv = frame_velocity(gp, ga)
-    print(f"{args.rays} random rays; the elliptic form handed {int(guarded(a).sum())} of them to its integrator "
-          f"(guards |p_x p_y| < {sol.ELLIPTIC_MIN_PRODUCT:g}, sqrt(1 - 4 (p_x p_y)^2) < "
-          f"{sol.ELLIPTIC_MIN_MODULUS_GAP:g}); {len(ga)} rays at the guards, {int(guarded(ga).sum())} of them "
-          f"handed over. Errors in chart units against DOP853 (rtol = atol = {REFERENCE_TOLERANCE:g}); "
-          f"'vs long double', 'vs Taylor': max distance from the Python Taylor integrator in long double, in "
-          f"float64; 'at the guards': max distance from the long double one on the rays at the guards; C++ times: one "
-          f"geodesic after another, Python's: vectorised over all rays.\n")
-    print("| length | flow | median | 99th pct | max | max vs long double | max vs Taylor | max at the guards "
-          "| µs/geodesic |")
+    print(
+        f"{args.rays} random rays; the elliptic form handed {int(guarded(a).sum())} of them to its integrator "
+        f"(guards |p_x p_y| < {sol.ELLIPTIC_MIN_PRODUCT:g}, sqrt(1 - 4 (p_x p_y)^2) < "
+        f"{sol.ELLIPTIC_MIN_MODULUS_GAP:g}); {len(ga)} rays at the guards, {int(guarded(ga).sum())} of them "
+        f"handed over. Errors in chart units against DOP853 (rtol = atol = {REFERENCE_TOLERANCE:g}); "
+        f"'vs long double', 'vs Taylor': max distance from the Python Taylor integrator in long double, in "
+        f"float64; 'at the guards': max distance from the long double one on the rays at the guards; C++ times: one "
+        f"geodesic after another, Python's: vectorised over all rays.\n"
+    )
+    print(
+        "| length | flow | median | 99th pct | max | max vs long double | max vs Taylor | max at the guards "
+        "| µs/geodesic |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     summary = {}
     for length in lengths:
@@ -151,21 +165,32 @@ def main():
             vs = np.linalg.norm(x - taylor, axis=1).max()
             summary[length, name] = (ld, eg, seconds)
             label = name + " (the reference's floor)" if name == LONG_DOUBLE else name
-            print(f"| {length:g} | {label} | {' | '.join(stats(e))} | {ld:.1e} | {vs:.1e} | {eg:.1e} | "
-                  f"{seconds * 1e6:.1f} |")
-        print(f"| {length:g} | DOP853 reference (largest chart coordinate {scale:.1f}) | | | | | | | "
-              f"{sec / len(p) * 1e6:.0f} |")
+            print(
+                f"| {length:g} | {label} | {' | '.join(stats(e))} | {ld:.1e} | {vs:.1e} | {eg:.1e} | "
+                f"{seconds * 1e6:.1f} |"
+            )
+        print(
+            f"| {length:g} | DOP853 reference (largest chart coordinate {scale:.1f}) | | | | | | | "
+            f"{sec / len(p) * 1e6:.0f} |"
+        )
     print()
     longest = lengths[-1]
-    cpp, taylor, ell = (summary[longest, k] for k in (f"C++ Taylor, accuracy {ACCURACIES[-1]:.0e}",
-                                                       "Python Taylor (Sol.geodesic)",
-                                                       "Python elliptic (Sol.geodesic_elliptic)"))
+    cpp, taylor, ell = (
+        summary[longest, k]
+        for k in (
+            f"C++ Taylor, accuracy {ACCURACIES[-1]:.0e}",
+            "Python Taylor (Sol.geodesic)",
+            "Python elliptic (Sol.geodesic_elliptic)",
+        )
+    )
     better = "the C++ Taylor integrator" if max(cpp[:2]) <= max(ell[:2]) else "the elliptic closed form"
-    print(f"Conclusion (length {longest:g}, errors against the long double integrator): C++ Taylor at "
-          f"{ACCURACIES[-1]:.0e}: max error {cpp[0]:.1e} "
-          f"({cpp[1]:.1e} at the guards), {cpp[2] * 1e6:.1f} µs per geodesic; elliptic closed form: {ell[0]:.1e} "
-          f"({ell[1]:.1e} at the guards), {ell[2] * 1e6:.1f} µs vectorised ({ell[2] / cpp[2]:.1f}x the C++ "
-          f"time, {ell[2] / taylor[2]:.2f}x the Python Taylor's) -> the tracer should use {better}.")
+    print(
+        f"Conclusion (length {longest:g}, errors against the long double integrator): C++ Taylor at "
+        f"{ACCURACIES[-1]:.0e}: max error {cpp[0]:.1e} "
+        f"({cpp[1]:.1e} at the guards), {cpp[2] * 1e6:.1f} µs per geodesic; elliptic closed form: {ell[0]:.1e} "
+        f"({ell[1]:.1e} at the guards), {ell[2] * 1e6:.1f} µs vectorised ({ell[2] / cpp[2]:.1f}x the C++ "
+        f"time, {ell[2] / taylor[2]:.2f}x the Python Taylor's) -> the tracer should use {better}."
+    )
 
 
 if __name__ == "__main__":

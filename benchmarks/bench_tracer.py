@@ -12,6 +12,7 @@ round, and the change of the ratio printed: what a change to the walk cost the i
 Run: .venv/bin/python benchmarks/bench_tracer.py [--size 640x360] [--repeat 3] [--spaces poincare,seifert_weber]
      [--baseline OLD/thurston_core.cpython-311-x86_64-linux-gnu.so --rounds 5]
 """
+
 import argparse
 import json
 import resource
@@ -29,6 +30,7 @@ def make_tracer(space, scene, threads):
     """The tracer of whichever core is loaded (builds before the compiled-scene record took the
     arrays as keywords; builds before the geometry registry took a curvature)."""
     import thurston_core
+
     from thurston_addon import render
 
     data = render.compile_scene(space, scene)
@@ -62,8 +64,10 @@ def ratio(sid, size, repeat):
 
 
 def full_table(space_ids, size, repeat):
-    print(f"{'space':<15} {'rays':>7} {'chords':>9} {'tracer ns/chord':>16} {'bare ns/chord':>14} {'ratio':>6} "
-          f"{'1 thread s':>10} {'2 threads s':>11} {'speed-up':>8} {'shaded 2T s':>11} {'RSS growth MB':>13} {'passes MB':>9}")
+    print(
+        f"{'space':<15} {'rays':>7} {'chords':>9} {'tracer ns/chord':>16} {'bare ns/chord':>14} {'ratio':>6} "
+        f"{'1 thread s':>10} {'2 threads s':>11} {'speed-up':>8} {'shaded 2T s':>11} {'RSS growth MB':>13} {'passes MB':>9}"
+    )
     for sid in space_ids:
         space, scene, origins, directions, limits = frame(sid, size)
         rss0 = rss_mb()
@@ -75,13 +79,17 @@ def full_table(space_ids, size, repeat):
         tb, _ = best_of(repeat, lambda: one.query_segments(starts, ends))
         t2, _ = best_of(repeat, lambda: two.trace(origins, directions, *limits, shade=False))
         ts, out = best_of(repeat, lambda: two.trace(origins, directions, *limits, shade=True))
-        del rec, starts, ends
+        rec = starts = ends = None  # the recorded chords freed before the memory is measured
         growth = rss_mb() - rss0
         passes_mb = sum(v.nbytes for v in out.values()) / 2**20
-        print(f"{sid:<15} {len(origins):>7} {chords:>9} {t1 / chords * 1e9:>16.1f} {tb / chords * 1e9:>14.1f} "
-              f"{t1 / tb:>6.2f} {t1:>10.3f} {t2:>11.3f} {t1 / t2:>8.2f} {ts:>11.3f} {growth:>13.1f} {passes_mb:>9.1f}")
-    print("ratio = tracer / bare Embree on the same chords (target <= 1.5); speed-up = 1 thread / 2 threads "
-          "(target >= 1.8); RSS growth includes the recorded chords (2 x 24 bytes each) used for the bare query.")
+        print(
+            f"{sid:<15} {len(origins):>7} {chords:>9} {t1 / chords * 1e9:>16.1f} {tb / chords * 1e9:>14.1f} "
+            f"{t1 / tb:>6.2f} {t1:>10.3f} {t2:>11.3f} {t1 / t2:>8.2f} {ts:>11.3f} {growth:>13.1f} {passes_mb:>9.1f}"
+        )
+    print(
+        "ratio = tracer / bare Embree on the same chords (target <= 1.5); speed-up = 1 thread / 2 threads "
+        "(target >= 1.8); RSS growth includes the recorded chords (2 x 24 bytes each) used for the bare query."
+    )
 
 
 def child_ratio(sid, size, repeat, core=None):
@@ -106,7 +114,9 @@ def compare(space_ids, size, repeat, baseline, rounds):
         for who in ("baseline", "this"):
             t, b = best[sid][who]
             print(f"{sid:<15} {who:<9} {t:>16.1f} {b:>14.1f} {t / b:>6.3f}")
-        change = (best[sid]["this"][0] / best[sid]["this"][1]) / (best[sid]["baseline"][0] / best[sid]["baseline"][1]) - 1
+        change = (best[sid]["this"][0] / best[sid]["this"][1]) / (
+            best[sid]["baseline"][0] / best[sid]["baseline"][1]
+        ) - 1
         print(f"{sid:<15} {'change':<9} {'':>16} {'':>14} {change * 100:>+5.1f}%")
     print(f"least times of {rounds} alternating rounds of {repeat} repeats each, each in a fresh process; one thread")
 

@@ -1,5 +1,6 @@
 """What the benchmarks share: the least time of repeated runs (the run least disturbed by the
 machine's other work), and another build of the core or the add-on in place of the installed one."""
+
 import importlib.util
 import math
 import sys

@@ -15,6 +15,7 @@ Steps (each repeatable; the work tree is build/extension/, the core's CMake buil
    and blender_manifest.toml with `wheels = [...]` filled in;
 5. Blender's own extension tool (blender_ext.py, shipped in the bpy wheel) validates and builds the zip.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,8 +42,9 @@ DEP_PLATFORMS = ["manylinux_2_28_x86_64", "manylinux2014_x86_64"]
 # Libraries that the process already holds inside Blender: the core binds to those instead.
 EXCLUDE_LIBS = ["libtbb.so.12"]
 # Never staged from the add-on package.
-STAGE_IGNORE = shutil.ignore_patterns("__pycache__", "*.pyc", "*.pyo", "*.so", "*.pyd", "*.dylib",
-                                      ".*", "*.egg-info", "blender_manifest.toml")
+STAGE_IGNORE = shutil.ignore_patterns(
+    "__pycache__", "*.pyc", "*.pyo", "*.so", "*.pyd", "*.dylib", ".*", "*.egg-info", "blender_manifest.toml"
+)
 
 
 def log(msg: str) -> None:
@@ -81,8 +83,22 @@ def blender_ext_cli() -> Path:
 def build_core_wheel(exclude: list[str]) -> Path:
     raw = fresh_dir(WORK / "core-wheel")
     log("building the core wheel (CMake, incremental in build/extension/core)")
-    run([sys.executable, "-m", "pip", "wheel", "-q", "--no-build-isolation", "--no-deps",
-         "-C", f"build-dir={WORK / 'core'}", "-w", raw, CORE_PROJECT])
+    run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "-q",
+            "--no-build-isolation",
+            "--no-deps",
+            "-C",
+            f"build-dir={WORK / 'core'}",
+            "-w",
+            raw,
+            CORE_PROJECT,
+        ]
+    )
     (wheel,) = raw.glob("thurston_core-*.whl")
     repaired = fresh_dir(WORK / "core-repaired")
     log(f"auditwheel repair {wheel.name} (excluding {', '.join(exclude) or 'nothing'})")
@@ -116,10 +132,28 @@ def dependency_wheels() -> list[Path]:
         if len(have) != 1:
             log(f"downloading {req}")
             fresh_dir(cache)
-            cmd = [sys.executable, "-m", "pip", "download", "-q", "--only-binary=:all:", "--no-deps",
-                   "--python-version", PYTHON_VERSION, "--implementation", "cp",
-                   "--abi", "cp" + PYTHON_VERSION.replace(".", ""), "--abi", "abi3", "--abi", "none",
-                   "-d", cache, req]
+            cmd = [
+                sys.executable,
+                "-m",
+                "pip",
+                "download",
+                "-q",
+                "--only-binary=:all:",
+                "--no-deps",
+                "--python-version",
+                PYTHON_VERSION,
+                "--implementation",
+                "cp",
+                "--abi",
+                "cp" + PYTHON_VERSION.replace(".", ""),
+                "--abi",
+                "abi3",
+                "--abi",
+                "none",
+                "-d",
+                cache,
+                req,
+            ]
             for plat in DEP_PLATFORMS:
                 cmd += ["--platform", plat]
             run(cmd)
@@ -140,7 +174,7 @@ def manifest_with_wheels(wheel_names: list[str]) -> str:
     table = re.search(r"(?m)^\[", text)
     if table is None:
         return text.rstrip("\n") + "\n\n" + block
-    head, tail = text[: table.start()], text[table.start():]
+    head, tail = text[: table.start()], text[table.start() :]
     return head.rstrip("\n") + "\n\n" + block + "\n" + tail
 
 
@@ -159,9 +193,12 @@ def stage(wheels: list[Path]) -> Path:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=str(ROOT / "dist"), help="output folder (default: dist/)")
-    ap.add_argument("--vendor-tbb", action="store_true",
-                    help="vendor a renamed libtbb.so.12 into the core wheel instead of using Blender's "
-                         "(experiment; see docs/blender.md)")
+    ap.add_argument(
+        "--vendor-tbb",
+        action="store_true",
+        help="vendor a renamed libtbb.so.12 into the core wheel instead of using Blender's "
+        "(experiment; see docs/blender.md)",
+    )
     args = ap.parse_args(argv)
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)

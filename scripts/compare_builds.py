@@ -4,6 +4,7 @@ a multi-pass EXR, and every channel's pixels compared exactly. For a change that
 (a restructure): build the tree before it in another checkout, then
     .venv/bin/python scripts/compare_builds.py --baseline ../before/.venv [--size 320x180 --quality standard]
 Prints a table (preset, channels, differing pixels, largest difference) and exits 1 if any differ."""
+
 from __future__ import annotations
 
 import argparse
@@ -49,8 +50,9 @@ def main():
             renders = []
             for name, venv in (("build", args.build), ("baseline", args.baseline)):
                 out = Path(tmp) / f"{sid}_{name}.exr"
-                thurston(venv, "render", "--space", sid, "--size", args.size, "--quality", args.quality,
-                         "--out", str(out))
+                thurston(
+                    venv, "render", "--space", sid, "--size", args.size, "--quality", args.quality, "--out", str(out)
+                )
                 renders.append(channels(out))
             (names, a), (baseline_names, b) = renders
             if names != baseline_names or a.shape != b.shape:

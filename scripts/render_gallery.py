@@ -4,6 +4,7 @@ only and path traced, side by side (docs/<id>_direct.png, docs/<id>_gi.png, both
 samples per pixel), and their table.
 Run: .venv/bin/python scripts/render_gallery.py [--size 320x180] [--quality standard]
      [--gi torus,poincare,seifert_weber --gi-samples 16 --bounces 4]"""
+
 from __future__ import annotations
 
 import argparse

@@ -1,4 +1,5 @@
 """Shared fixtures, the `blender` marker on every test that runs bpy, and the built-in presets only."""
+
 import os
 from pathlib import Path
 
@@ -38,4 +39,5 @@ def space_of():
         if sid not in cache:
             cache[sid] = spaces.load(sid)
         return cache[sid]
+
     return load

@@ -4,6 +4,7 @@ Importable without Blender: the geometry kernels, the spaces, the scene descript
 work in plain Python. Blender calls `register()` / `unregister()`, which load the Blender layer
 (`blender/`, `operators/`, `panels/`) only then.
 """
+
 __version__ = "0.1.0"
 
 

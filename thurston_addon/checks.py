@@ -1,6 +1,7 @@
 """What makes a render come out black, empty or not as meant, found before and after it. Each finding
 is a Note: a kind (so a front end can offer its fix) and a message saying what to change. No Blender
 here: the command line prints the notes as warnings, the Blender layer puts them in its report."""
+
 from __future__ import annotations
 
 import math
@@ -45,7 +46,7 @@ def home_element(space: Space, vertices) -> np.ndarray:
     chart's missing origin.) Raises SpaceError if a vertex cannot be brought in."""
     g = space.geometry
     V = np.asarray(vertices, float)
-    sample = V[::max(1, len(V) // HOME_SAMPLE)]
+    sample = V[:: max(1, len(V) // HOME_SAMPLE)]
     M = space.move_inside(g.to_model(sample))[2]
     keys = [g.element_key(m) for m in M]
     best, _ = Counter(keys).most_common(1)[0]
@@ -87,12 +88,16 @@ def winding_numbers(points, vertices, triangles, block=1_000_000) -> np.ndarray:
     out = np.zeros(len(P))
     chunk = max(1, block // max(len(P), 1))
     for start in range(0, len(triangles), chunk):
-        T = triangles[start:start + chunk]
+        T = triangles[start : start + chunk]
         a, b, c = (vertices[T[:, k]][None, :, :] - P[:, None, :] for k in range(3))
         la, lb, lc = (np.linalg.norm(v, axis=-1) for v in (a, b, c))
         det = np.einsum("pti,pti->pt", a, np.cross(b, c))
-        div = (la * lb * lc + np.einsum("pti,pti->pt", a, b) * lc + np.einsum("pti,pti->pt", a, c) * lb
-               + np.einsum("pti,pti->pt", b, c) * la)
+        div = (
+            la * lb * lc
+            + np.einsum("pti,pti->pt", a, b) * lc
+            + np.einsum("pti,pti->pt", a, c) * lb
+            + np.einsum("pti,pti->pt", b, c) * la
+        )
         out += np.sum(2 * np.arctan2(det, div), axis=1) / (4 * math.pi)
     return out
 
@@ -119,32 +124,57 @@ def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> 
     notes = []
     X = g.to_model(np.asarray(camera.position, float))
     if not space.domain.contains(X):
-        notes.append(Note(CAMERA_OUTSIDE, "the camera lies outside the fundamental domain: the face pairings "
-                                          "move it in, to the same point of the space (the view is the same)"))
+        notes.append(
+            Note(
+                CAMERA_OUTSIDE,
+                "the camera lies outside the fundamental domain: the face pairings "
+                "move it in, to the same point of the space (the view is the same)",
+            )
+        )
     lights = [g.to_model(np.asarray(light.position, float)) for light in scene.lights]
     for obj in scene.objects:
         if np.any(obj.emission > 0) or not _encloses(space, obj, X):
             continue
         if not any(_encloses(space, obj, L) for L in lights):
-            notes.append(Note(CAMERA_IN_OBJECT, f"the camera is inside object {obj.name!r} and no light is: "
-                                                f"it sees the object's unlit inside; move the camera out of it"))
+            notes.append(
+                Note(
+                    CAMERA_IN_OBJECT,
+                    f"the camera is inside object {obj.name!r} and no light is: "
+                    f"it sees the object's unlit inside; move the camera out of it",
+                )
+            )
     emissive = [o for o in scene.objects if np.any(o.emission > 0)]
     if lambert and not scene.lights:
-        notes.append(Note(NO_LIGHTS, "the scene has no lights: "
-                          + ("only emissive objects show" if emissive else "everything renders black")
-                          + "; add a point light inside the domain"))
+        notes.append(
+            Note(
+                NO_LIGHTS,
+                "the scene has no lights: "
+                + ("only emissive objects show" if emissive else "everything renders black")
+                + "; add a point light inside the domain",
+            )
+        )
     size = _diagonal(space.domain.vertices)
     large = [o for o in scene.objects if _diagonal(o.vertices) > TOO_LARGE * size]
     if large:
         one = len(large) == 1
-        notes.append(Note(SCENE_TOO_LARGE, f"{_names(large)} {'is' if one else 'are'} larger than the domain "
-                                           f"({_diagonal(large[0].vertices):.3g} against {size:.3g} chart units across): "
-                                           f"{'its' if one else 'their'} copies overlap and fill it; scale the scene "
-                                           f"to fit the domain"))
+        notes.append(
+            Note(
+                SCENE_TOO_LARGE,
+                f"{_names(large)} {'is' if one else 'are'} larger than the domain "
+                f"({_diagonal(large[0].vertices):.3g} against {size:.3g} chart units across): "
+                f"{'its' if one else 'their'} copies overlap and fill it; scale the scene "
+                f"to fit the domain",
+            )
+        )
     elif scene.objects and max(_diagonal(o.vertices) for o in scene.objects) < size / TOO_SMALL:
-        notes.append(Note(SCENE_TOO_SMALL, f"the scene is over {TOO_SMALL:g} times smaller than the domain "
-                                           f"({size:.3g} chart units across): its copies show as specks; scale the "
-                                           f"scene to fit the domain"))
+        notes.append(
+            Note(
+                SCENE_TOO_SMALL,
+                f"the scene is over {TOO_SMALL:g} times smaller than the domain "
+                f"({size:.3g} chart units across): its copies show as specks; scale the "
+                f"scene to fit the domain",
+            )
+        )
     return notes
 
 
@@ -157,6 +187,11 @@ def after_render(scene: Scene, passes: dict, lambert: bool) -> list[Note]:
     emissive = np.array([np.any(o.emission > 0) for o in scene.objects] + [False])
     lit_surface = hit & ~emissive[obj]
     if lit_surface.any() and not np.any(passes["color"][lit_surface] > 0):
-        return [Note(UNLIT, "no light reaches any surface the camera sees: the lights are inside objects or "
-                            "hidden from the visible surfaces; move a light into view of them")]
+        return [
+            Note(
+                UNLIT,
+                "no light reaches any surface the camera sees: the lights are inside objects or "
+                "hidden from the visible surfaces; move a light into view of them",
+            )
+        ]
     return []

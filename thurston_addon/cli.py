@@ -1,4 +1,5 @@
 """Command line: `thurston spaces`, `thurston render`, `thurston trace`."""
+
 from __future__ import annotations
 
 import argparse
@@ -57,7 +58,9 @@ def _passes(text: str):
     names = [t.strip() for t in text.split(",") if t.strip()]
     bad = [n for n in names if n not in render.PASSES]
     if bad or not names:
-        raise argparse.ArgumentTypeError(f"unknown pass(es) {', '.join(bad) or text!r}; known: {', '.join(render.PASSES)}")
+        raise argparse.ArgumentTypeError(
+            f"unknown pass(es) {', '.join(bad) or text!r}; known: {', '.join(render.PASSES)}"
+        )
     return names
 
 
@@ -75,7 +78,12 @@ class Progress:
             self.shown = step
             bar = "#" * int(frac * 30)
             end = "\r" if self.tty and done < total else "\n"
-            print(f"{self.label} [{bar:<30}] {frac * 100:5.1f}% {time.perf_counter() - self.start:6.1f} s", end=end, file=sys.stderr, flush=True)
+            print(
+                f"{self.label} [{bar:<30}] {frac * 100:5.1f}% {time.perf_counter() - self.start:6.1f} s",
+                end=end,
+                file=sys.stderr,
+                flush=True,
+            )
         return True
 
 
@@ -105,11 +113,22 @@ def cmd_render(args):
     given = {"position": args.camera_position, "forward": args.camera_forward, "up": args.camera_up, "fov": args.fov}
     camera = dataclasses.replace(cam, **{k: v for k, v in given.items() if v is not None})
     w, h = args.size
-    settings = render.Settings(width=w, height=h, projection=args.projection, quality=args.quality, samples=args.samples,
-                               shading=args.shading, max_distance=args.max_distance,
-                               max_crossings=args.max_crossings, fog=args.fog, light_reach=args.light_reach,
-                               light_samples=args.light_samples, bounces=args.bounces, threads=args.threads,
-                               tolerance=args.tolerance)
+    settings = render.Settings(
+        width=w,
+        height=h,
+        projection=args.projection,
+        quality=args.quality,
+        samples=args.samples,
+        shading=args.shading,
+        max_distance=args.max_distance,
+        max_crossings=args.max_crossings,
+        fog=args.fog,
+        light_reach=args.light_reach,
+        light_samples=args.light_samples,
+        bounces=args.bounces,
+        threads=args.threads,
+        tolerance=args.tolerance,
+    )
     lambert = settings.shading == "lambert"
     render.camera_frame(space, camera)  # a camera that cannot be used is refused before the notes on it
     for note in checks.before_render(space, scene, camera, lambert):
@@ -117,8 +136,13 @@ def cmd_render(args):
     result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
     for note in checks.after_render(scene, result.passes, lambert):
         warnings.warn(note.message)
-    images.write(out, result.passes, names=args.passes, overwrite=args.overwrite, metadata={
-        "space": space.id, "quality": args.quality, "summary": result.summary()})
+    images.write(
+        out,
+        result.passes,
+        names=args.passes,
+        overwrite=args.overwrite,
+        metadata={"space": space.id, "quality": args.quality, "summary": result.summary()},
+    )
     print(f"{out}: {w}x{h} {space.id}; {result.summary()}")
 
 
@@ -155,48 +179,79 @@ def cmd_trace(args):
     out = files.check_output(args.out, args.overwrite)
     space, scene = _load_world(args)
     X, V = read_rays(args.rays, space)
-    settings = render.Settings(max_distance=args.max_distance, max_crossings=args.max_crossings, threads=args.threads,
-                               quality=args.quality, tolerance=args.tolerance)
+    settings = render.Settings(
+        max_distance=args.max_distance,
+        max_crossings=args.max_crossings,
+        threads=args.threads,
+        quality=args.quality,
+        tolerance=args.tolerance,
+    )
     settings.check()
     # make_tracer and trace raise what the core rejects as RenderError (exit 2)
     tracer = render.make_tracer(space, scene, args.threads)
-    result = render.trace(tracer, X, V,
-                          space.max_distance if args.max_distance is None else args.max_distance,
-                          space.max_crossings if args.max_crossings is None else args.max_crossings,
-                          *settings.tolerances(space, render.REFERENCE_PIXEL_ANGLE),
-                          shade=False, progress=Progress(f"trace {len(X)} rays"))
+    result = render.trace(
+        tracer,
+        X,
+        V,
+        space.max_distance if args.max_distance is None else args.max_distance,
+        space.max_crossings if args.max_crossings is None else args.max_crossings,
+        *settings.tolerances(space, render.REFERENCE_PIXEL_ANGLE),
+        shade=False,
+        progress=Progress(f"trace {len(X)} rays"),
+    )
     result["position"], result["normal"] = render.own_hits(space, result)
     hits = io.BytesIO()  # in memory first: the file is then written whole or not at all
     np.savez(hits, **{name: result[key] for name, key in TRACE_OUTPUTS.items()})
     files.write_bytes(out, hits.getbuffer(), args.overwrite)
     hit = result["stop"] == 0
-    print(f"{out}: {len(X)} rays, {hit.mean() * 100:.1f}% hits, {result['crossings'].mean():.2f} crossings/ray, "
-          f"{result['ray_chords'].mean():.2f} chords/ray")
+    print(
+        f"{out}: {len(X)} rays, {hit.mean() * 100:.1f}% hits, {result['crossings'].mean():.2f} crossings/ray, "
+        f"{result['ray_chords'].mean():.2f} chords/ray"
+    )
 
 
 # HITS.npz: its arrays by the names of the core's outputs
-TRACE_OUTPUTS = {"depth": "depth", "object": "object", "position": "position", "normal": "normal",
-                 "crossings": "crossings", "stop": "stop", "chords": "ray_chords", "error_estimate": "error"}
+TRACE_OUTPUTS = {
+    "depth": "depth",
+    "object": "object",
+    "position": "position",
+    "normal": "normal",
+    "crossings": "crossings",
+    "stop": "stop",
+    "chords": "ray_chords",
+    "error_estimate": "error",
+}
 
 
 def cmd_render_blend(args):
     try:
         from .blender import batch, export
     except ImportError:
-        raise CommandError("render-blend needs Blender's Python module: pip install bpy==5.0.1, "
-                           "or run inside Blender: blender -b FILE.blend -E THURSTON -f 1") from None
+        raise CommandError(
+            "render-blend needs Blender's Python module: pip install bpy==5.0.1, "
+            "or run inside Blender: blender -b FILE.blend -E THURSTON -f 1"
+        ) from None
     out_dir = Path(args.out)
     if not out_dir.is_dir():
         raise CommandError(f"output folder {str(out_dir)!r} does not exist")
     try:
-        batch.render_frames(Path(args.blend), args.frames, out_dir, args.format, args.overwrite,
-                            lambda label: Progress(label), lambda line: print(line))
+        batch.render_frames(
+            Path(args.blend),
+            args.frames,
+            out_dir,
+            args.format,
+            args.overwrite,
+            lambda label: Progress(label),
+            lambda line: print(line),
+        )
     except export.ExportError as exc:
         raise CommandError(str(exc)) from None
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="thurston", description="Inside views of 3-manifolds modeled on Thurston's geometries.")
+    p = argparse.ArgumentParser(
+        prog="thurston", description="Inside views of 3-manifolds modeled on Thurston's geometries."
+    )
     sub = p.add_subparsers(dest="command", required=True)
     s = sub.add_parser("spaces", help="list the preset spaces")
     s.add_argument("--json", action="store_true")
@@ -204,16 +259,31 @@ def build_parser():
 
     def world(q):
         q.add_argument("--space", required=True, help="preset id (see `thurston spaces`) or a space file (.toml)")
-        q.add_argument("--scene", action="append", metavar="FILE", help="mesh file (.obj .ply .stl .glb .gltf) or scene file (.toml); repeatable; default: the space's default scene")
+        q.add_argument(
+            "--scene",
+            action="append",
+            metavar="FILE",
+            help="mesh file (.obj .ply .stl .glb .gltf) or scene file (.toml); repeatable; default: the space's default scene",
+        )
         q.add_argument("--max-distance", type=float, help="geodesic length at which a ray stops (default: the space's)")
-        q.add_argument("--max-crossings", type=int, help="face crossings after which a ray stops (default: the space's)")
+        q.add_argument(
+            "--max-crossings", type=int, help="face crossings after which a ray stops (default: the space's)"
+        )
         q.add_argument("--threads", type=int, default=0, help="0: all cores")
-        q.add_argument("--quality", choices=tuple(render.QUALITY), default="standard",
-                       help="samples per pixel and the bound of the hit-position error as a fraction of the pixel "
-                            "footprint (where geodesics bend): " + ", ".join(
-                                f"{k} {v.samples} / {v.footprint_fraction:g}" for k, v in render.QUALITY.items()))
-        q.add_argument("--tolerance", type=float, metavar="T",
-                       help="chord tolerance in chart units (overrides the quality's bound)")
+        q.add_argument(
+            "--quality",
+            choices=tuple(render.QUALITY),
+            default="standard",
+            help="samples per pixel and the bound of the hit-position error as a fraction of the pixel "
+            "footprint (where geodesics bend): "
+            + ", ".join(f"{k} {v.samples} / {v.footprint_fraction:g}" for k, v in render.QUALITY.items()),
+        )
+        q.add_argument(
+            "--tolerance",
+            type=float,
+            metavar="T",
+            help="chord tolerance in chart units (overrides the quality's bound)",
+        )
         q.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     r = sub.add_parser("render", help="render a view to an image (.exr with all passes, or .png)")
@@ -224,17 +294,31 @@ def build_parser():
     r.add_argument("--fov", type=float, help="horizontal field of view in degrees")
     r.add_argument("--size", type=_size, default=(640, 360), metavar="WxH")
     r.add_argument("--projection", choices=tuple(render.PROJECTIONS), default=render.Settings.projection)
-    r.add_argument("--passes", type=_passes, help=f"EXR passes, comma separated (default all: {','.join(render.PASSES)})")
+    r.add_argument(
+        "--passes", type=_passes, help=f"EXR passes, comma separated (default all: {','.join(render.PASSES)})"
+    )
     r.add_argument("--samples", type=int, help="samples per pixel (overrides --quality)")
     r.add_argument("--shading", choices=render.SHADING, default="lambert")
     r.add_argument("--fog", type=float, help="distance at which colour falls to 1/e")
-    r.add_argument("--light-reach", type=float, help="light along every geodesic to every copy of a light up to "
-                                                     "this long (default: the space's, see docs/lighting.md)")
-    r.add_argument("--light-samples", type=int, default=render.Settings.light_samples,
-                   help="points sampled on the emissive meshes (and area lights) per shaded point and sample")
-    r.add_argument("--bounces", type=int, default=render.Settings.bounces,
-                   help="bounces after each camera hit: global illumination by path tracing, any quality "
-                        "(default 0: direct light only)")
+    r.add_argument(
+        "--light-reach",
+        type=float,
+        help="light along every geodesic to every copy of a light up to "
+        "this long (default: the space's, see docs/lighting.md)",
+    )
+    r.add_argument(
+        "--light-samples",
+        type=int,
+        default=render.Settings.light_samples,
+        help="points sampled on the emissive meshes (and area lights) per shaded point and sample",
+    )
+    r.add_argument(
+        "--bounces",
+        type=int,
+        default=render.Settings.bounces,
+        help="bounces after each camera hit: global illumination by path tracing, any quality "
+        "(default 0: direct light only)",
+    )
     r.add_argument("--out", required=True, metavar="FILE")
     r.set_defaults(run=cmd_render)
 

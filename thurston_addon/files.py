@@ -4,6 +4,7 @@ that a wrong or hostile file cannot take the machine's memory before anything is
 temporary file of a unique name beside the output, checked, flushed to the disk and moved into
 place in one step, so that a failed write (a full disk, a file too large, a signal) or a
 concurrent run never leaves a broken, mixed or foreign file under the output's name."""
+
 from __future__ import annotations
 
 import contextlib
@@ -45,12 +46,21 @@ def check_input(path: str | Path, what: str, error: type[Exception], limit: str 
     except OSError as exc:
         raise error(f"cannot read {what} {str(path)!r}: {exc.strerror}") from None
     if not stat.S_ISREG(mode):
-        kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
-                else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket")
+        kind = (
+            "a directory"
+            if stat.S_ISDIR(mode)
+            else "a FIFO (named pipe)"
+            if stat.S_ISFIFO(mode)
+            else "a device"
+            if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a socket"
+        )
         raise error(f"{what} {str(path)!r} is {kind}, not a regular file")
     if limit is not None and info.st_size > SIZE_LIMITS[limit]:
-        raise error(f"{what} {str(path)!r} is {size_text(info.st_size)}, more than the {size_text(SIZE_LIMITS[limit])} "
-                    f"a {limit} may have")
+        raise error(
+            f"{what} {str(path)!r} is {size_text(info.st_size)}, more than the {size_text(SIZE_LIMITS[limit])} "
+            f"a {limit} may have"
+        )
     return path
 
 
@@ -97,7 +107,9 @@ def load_npy(path: str | Path, what: str, error: type[Exception]) -> np.ndarray:
             version = np.lib.format.read_magic(f)
             if version not in ((1, 0), (2, 0)):
                 raise ValueError(f"unsupported .npy format version {version[0]}.{version[1]}")
-            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            read_header = (
+                np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            )
             shape, fortran_order, dtype = read_header(f)
             offset = f.tell()
     except (ValueError, EOFError, OSError) as exc:
@@ -107,8 +119,10 @@ def load_npy(path: str | Path, what: str, error: type[Exception]) -> np.ndarray:
     nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
     held = path.stat().st_size - offset
     if held < nbytes:
-        raise error(f"{name} is truncated: its header describes a {dtype} array of shape {tuple(shape)} "
-                    f"({size_text(nbytes)}), the file holds {size_text(held)} of data")
+        raise error(
+            f"{name} is truncated: its header describes a {dtype} array of shape {tuple(shape)} "
+            f"({size_text(nbytes)}), the file holds {size_text(held)} of data"
+        )
     check_memory(nbytes, f"{name} (a {dtype} array of shape {tuple(shape)})", error)
     try:
         return np.load(path, allow_pickle=False)
@@ -206,7 +220,9 @@ def _put_if_absent(tmp: Path, path: Path, to_replace: str):
     try:
         os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
     except FileExistsError:
-        raise OutputError(f"output {str(path)!r} appeared while this run was working; {to_replace} to replace it") from None
+        raise OutputError(
+            f"output {str(path)!r} appeared while this run was working; {to_replace} to replace it"
+        ) from None
     try:
         os.replace(tmp, path)
     except BaseException:

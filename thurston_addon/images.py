@@ -1,5 +1,6 @@
 """Writing renders (multi-channel linear EXR and 8-bit sRGB PNG or other formats) and reading
 textures, via OpenImageIO."""
+
 from __future__ import annotations
 
 import contextlib
@@ -36,8 +37,11 @@ def read_texture(path: str | Path) -> np.ndarray:
     try:
         spec = image.spec()
         # its header's size, checked before the pixels are allocated (as float32, and as RGB)
-        check_memory(4 * spec.width * spec.height * (spec.nchannels + 3), f"texture {str(path)!r} "
-                     f"({spec.width}x{spec.height}, {spec.nchannels} channels)", ValueError)
+        check_memory(
+            4 * spec.width * spec.height * (spec.nchannels + 3),
+            f"texture {str(path)!r} ({spec.width}x{spec.height}, {spec.nchannels} channels)",
+            ValueError,
+        )
         pixels = image.read_image(0, 0, 0, spec.nchannels, "float")
     finally:
         image.close()
@@ -50,8 +54,14 @@ def read_texture(path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(rgb, np.float32)
 
 
-def write(path: str | Path, passes: dict, names=None, metadata: dict | None = None, overwrite: bool = False,
-          to_replace: str = "pass --overwrite") -> Path:
+def write(
+    path: str | Path,
+    passes: dict,
+    names=None,
+    metadata: dict | None = None,
+    overwrite: bool = False,
+    to_replace: str = "pass --overwrite",
+) -> Path:
     """EXR: every pass in `names` (default all) as float channels, linear; other formats: the
     colour pass, sRGB-encoded, 8 bit. Whole or not at all (files.replacing): an existing file is
     replaced only if `overwrite`. Raises OutputError naming `path` where it cannot be written."""
@@ -117,8 +127,10 @@ def _file_size_limit_lifted(path: Path, pixel_bytes: int):
     file) is refused before: libjpeg would end the process on reaching it."""
     soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
     if hard != resource.RLIM_INFINITY and hard < pixel_bytes + 2**20:
-        raise OutputError(f"cannot write {str(path)!r}: the file size limit (ulimit -f) of {hard} bytes is "
-                          f"below the {pixel_bytes + 2**20} bytes the encoder may need")
+        raise OutputError(
+            f"cannot write {str(path)!r}: the file size limit (ulimit -f) of {hard} bytes is "
+            f"below the {pixel_bytes + 2**20} bytes the encoder may need"
+        )
     resource.setrlimit(resource.RLIMIT_FSIZE, (hard, hard))
     try:
         yield
@@ -133,8 +145,10 @@ def check_image_file(file: Path, path: Path, shape: tuple[int, int, int] | None 
 
     def failed(reason: str) -> OutputError:
         full = os.statvfs(file.parent).f_bavail == 0
-        return OutputError(f"cannot write {str(path)!r}: {'No space left on device: ' if full else ''}the written "
-                           f"file does not read back whole ({reason.strip().replace(str(file), str(path))})")
+        return OutputError(
+            f"cannot write {str(path)!r}: {'No space left on device: ' if full else ''}the written "
+            f"file does not read back whole ({reason.strip().replace(str(file), str(path))})"
+        )
 
     image = oiio.ImageInput.open(str(file))
     if image is None:

@@ -3,11 +3,12 @@ from, the key of a render's passes, the command line's --passes name, the add-on
 its EXR channels, the pseudo-colour mode that shows it (the Shading menu) and the Blender passes
 the engine fills from it. Everything else that lists passes is derived from it here. The colour's
 alpha (Blender's Combined) is no pass of its own."""
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numpy as np
 
@@ -15,6 +16,7 @@ import numpy as np
 @dataclass(frozen=True)
 class BlenderPass:
     """A render pass the engine fills besides Combined."""
+
     name: str  # Blender's pass name
     chan_id: str  # Blender's channel letters; their number is the channel count
     type: str  # VALUE or VECTOR
@@ -28,6 +30,7 @@ class BlenderPass:
 class ShadingMode:
     """A Shading menu entry: a pseudo-colour image of a pass, from the core's output `out` of the
     rays (arrays per ray) and the rays that hit."""
+
     name: str
     place: int  # in the Shading menu
     colour: Callable  # (out, hit, space) -> (n, 3) float64 colours
@@ -79,19 +82,57 @@ def _hue(h):
 
 PASS_TABLE = (
     Pass("color", ("R", "G", "B"), ShadingMode("lambert", 0, _lambert)),
-    Pass("depth", ("Z",), ShadingMode("depth", 3, _depth), (
-        BlenderPass("Depth", "Z", "VALUE", "use_pass_z", False),
-        BlenderPass("Geodesic Distance", "X", "VALUE", "use_pass_geodesic_distance", True,
-                    "The length of the geodesic from the camera to the hit (Blender units)")), length=True),
-    Pass("normal", ("Normal.X", "Normal.Y", "Normal.Z"), ShadingMode("normal", 1, _normal), (
-        BlenderPass("Normal", "XYZ", "VECTOR", "use_pass_normal", False),)),
-    Pass("position", ("Position.X", "Position.Y", "Position.Z"), ShadingMode("position", 2, _position), (
-        BlenderPass("Position", "XYZ", "VECTOR", "use_pass_position", False),), length=True),
-    Pass("object", ("IndexOB",), ShadingMode("object", 5, _object), (
-        BlenderPass("IndexOB", "X", "VALUE", "use_pass_object_index", False),)),
-    Pass("crossings", ("Crossings",), ShadingMode("crossings", 4, _crossings), (
-        BlenderPass("Crossings", "X", "VALUE", "use_pass_crossings", True,
-                    "How many times the ray crossed a face of the domain before the hit"),)),
+    Pass(
+        "depth",
+        ("Z",),
+        ShadingMode("depth", 3, _depth),
+        (
+            BlenderPass("Depth", "Z", "VALUE", "use_pass_z", False),
+            BlenderPass(
+                "Geodesic Distance",
+                "X",
+                "VALUE",
+                "use_pass_geodesic_distance",
+                True,
+                "The length of the geodesic from the camera to the hit (Blender units)",
+            ),
+        ),
+        length=True,
+    ),
+    Pass(
+        "normal",
+        ("Normal.X", "Normal.Y", "Normal.Z"),
+        ShadingMode("normal", 1, _normal),
+        (BlenderPass("Normal", "XYZ", "VECTOR", "use_pass_normal", False),),
+    ),
+    Pass(
+        "position",
+        ("Position.X", "Position.Y", "Position.Z"),
+        ShadingMode("position", 2, _position),
+        (BlenderPass("Position", "XYZ", "VECTOR", "use_pass_position", False),),
+        length=True,
+    ),
+    Pass(
+        "object",
+        ("IndexOB",),
+        ShadingMode("object", 5, _object),
+        (BlenderPass("IndexOB", "X", "VALUE", "use_pass_object_index", False),),
+    ),
+    Pass(
+        "crossings",
+        ("Crossings",),
+        ShadingMode("crossings", 4, _crossings),
+        (
+            BlenderPass(
+                "Crossings",
+                "X",
+                "VALUE",
+                "use_pass_crossings",
+                True,
+                "How many times the ray crossed a face of the domain before the hit",
+            ),
+        ),
+    ),
     Pass("stop", ("Stop",)),
 )
 

@@ -3,11 +3,13 @@ each requested view is traced coarse to fine on a worker thread, then, as Cycles
 more samples of the full-resolution frame are added to it up to the sample count (the running mean
 and its noise estimate shown); the newest finished frame is kept for drawing, and a new request
 cancels the one in progress. No Blender here."""
+
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -22,6 +24,7 @@ class Frame:
     """A finished frame: the view's key, its level (pixel block size), its pixels (the mean of
     `samples` full-resolution samples where level is 1), and the noise estimate of that mean
     (render.pixel_noise; None below two samples)."""
+
     key: Any
     level: int
     pixels: np.ndarray
@@ -95,10 +98,15 @@ class ProgressiveView:
                 pixels = np.asarray(pixels, np.float64)
                 brightness = pixels[..., :3].mean(axis=-1).ravel()
                 total = pixels if total is None else total + pixels
-                squares = brightness ** 2 if squares is None else squares + brightness ** 2
+                squares = brightness**2 if squares is None else squares + brightness**2
                 n = sample + 1
-                frame = Frame(key, 1, (total / n).astype(np.float32), n,
-                              render.pixel_noise(total[..., :3].reshape(-1, 3), squares, n))
+                frame = Frame(
+                    key,
+                    1,
+                    (total / n).astype(np.float32),
+                    n,
+                    render.pixel_noise(total[..., :3].reshape(-1, 3), squares, n),
+                )
             with self._lock:
                 if cancelled():
                     return

@@ -39,7 +39,8 @@ struct Ggx {
     Vec3 v{alpha * wo[0], alpha * wo[1], wo[2]};
     v = scaled3(1.0 / norm3(v), v);
     const double across = v[0] * v[0] + v[1] * v[1];
-    const Vec3 t1 = across > 0.0 ? scaled3(1.0 / std::sqrt(across), Vec3{-v[1], v[0], 0.0}) : Vec3{1.0, 0.0, 0.0};
+    const Vec3 t1 = across > 0.0 ? scaled3(1.0 / std::sqrt(across), Vec3{-v[1], v[0], 0.0})
+                                 : Vec3{1.0, 0.0, 0.0};
     const Vec3 t2 = cross3(v, t1);
     const double r = std::sqrt(u1), phi = 2.0 * kPi * u2, s = 0.5 * (1.0 + v[2]);
     const double a = r * std::cos(phi);
@@ -64,7 +65,9 @@ struct Ggx {
     const Vec3 h = add3(wo, wi);
     return scaled3(1.0 / norm3(h), h);
   }
-  static Vec3 reflect(const Vec3& wo, const Vec3& h) { return sub3(scaled3(2.0 * dot3(wo, h), h), wo); }
+  static Vec3 reflect(const Vec3& wo, const Vec3& h) {
+    return sub3(scaled3(2.0 * dot3(wo, h), h), wo);
+  }
 };
 
 // A direction of the local frame (z the normal) with density cos / pi over the upper hemisphere,

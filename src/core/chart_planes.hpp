@@ -9,9 +9,13 @@
 namespace thurston {
 
 struct ChartPlanes {
-  static double side(const Vec4& c, const Vec3& x) { return c[0] * x[0] + c[1] * x[1] + c[2] * x[2] + c[3]; }
+  static double side(const Vec4& c, const Vec3& x) {
+    return c[0] * x[0] + c[1] * x[1] + c[2] * x[2] + c[3];
+  }
   static Vec3 side_gradient(const Vec4& c, const Vec3&) { return {c[0], c[1], c[2]}; }
-  static double side_acceleration_bound(const Vec4& c, double K) { return norm3({c[0], c[1], c[2]}) * K; }
+  static double side_acceleration_bound(const Vec4& c, double K) {
+    return norm3({c[0], c[1], c[2]}) * K;
+  }
   // The chart length of a unit of the walk's tolerance at x over a step: 1 where the chart is about
   // isometric over the domain (Nil, Sol, H2xR); S2xR's chart scales with |x|.
   static double chart_scale(const Vec3&) { return 1.0; }

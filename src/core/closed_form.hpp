@@ -20,7 +20,8 @@ struct ClosedForm {
   void segment(const Vec3& p, const Vec3& v, double length, double, Segment& s) const {
     s = {p, v, length, Flow::rounding(p, length)};
   }
-  void flow(const Vec3& p, const Vec3& v, double t, double, Vec3& xt, Vec3& vt, double& error) const {
+  void flow(const Vec3& p, const Vec3& v, double t, double, Vec3& xt, Vec3& vt,
+            double& error) const {
     Flow::geodesic(p, v, t, xt, vt);
     error = Flow::rounding(p, t);
   }

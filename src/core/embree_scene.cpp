@@ -74,10 +74,10 @@ int Occupancy::cell(double x, int axis) const {
 bool Occupancy::touches(const Vec3& lo, const Vec3& hi) const {
   const int i0 = cell(lo[0], 0), j0 = cell(lo[1], 1), k0 = cell(lo[2], 2);
   const int i1 = cell(hi[0], 0) + 1, j1 = cell(hi[1], 1) + 1, k1 = cell(hi[2], 2) + 1;
-  const std::int64_t sum =
-      std::int64_t(prefix_[at(i1, j1, k1)]) - prefix_[at(i0, j1, k1)] - prefix_[at(i1, j0, k1)] -
-      prefix_[at(i1, j1, k0)] + prefix_[at(i0, j0, k1)] + prefix_[at(i0, j1, k0)] +
-      prefix_[at(i1, j0, k0)] - prefix_[at(i0, j0, k0)];
+  const std::int64_t sum = std::int64_t(prefix_[at(i1, j1, k1)]) - prefix_[at(i0, j1, k1)] -
+                           prefix_[at(i1, j0, k1)] - prefix_[at(i1, j1, k0)] +
+                           prefix_[at(i0, j0, k1)] + prefix_[at(i0, j1, k0)] +
+                           prefix_[at(i1, j0, k0)] - prefix_[at(i0, j0, k0)];
   return sum > 0;
 }
 
@@ -132,7 +132,8 @@ void Tracer::bound_instances(bool occupancy) {
   occupancy_.start(hit_lo_, hit_hi_, kOccupancyCells);
   for (std::size_t i : placed) {
     const Placement& p = instances_[i];
-    if (!is_identity(p.to_chart) && occupancy_.cells_spanned(boxes[i][0], boxes[i][1]) <= kInstanceBoxCells) {
+    if (!is_identity(p.to_chart) &&
+        occupancy_.cells_spanned(boxes[i][0], boxes[i][1]) <= kInstanceBoxCells) {
       occupancy_.mark(boxes[i][0], boxes[i][1]);
       continue;
     }

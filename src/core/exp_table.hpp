@@ -121,9 +121,15 @@ class ExpTable {
     const double s = f % 2 == 0 ? 1.0 : -1.0;
     Vec3 p;
     switch (f / 2) {
-      case 0: p = {s, u, v}; break;
-      case 1: p = {v, s, u}; break;
-      default: p = {u, v, s}; break;
+      case 0:
+        p = {s, u, v};
+        break;
+      case 1:
+        p = {v, s, u};
+        break;
+      default:
+        p = {u, v, s};
+        break;
     }
     return scaled3(1.0 / norm3(p), p);
   }
@@ -139,13 +145,15 @@ class ExpTable {
     std::array<Vec3, 8> w, x;
     for (int c = 0; c < 8; ++c) corner(cell, c, w[c], x[c]);
     // the 6 tetrahedra of the cell's split along its diagonal 0 -> 7, one per order of the axes
-    static constexpr int kOrders[6][3] = {{1, 2, 4}, {1, 4, 2}, {2, 1, 4}, {2, 4, 1}, {4, 1, 2}, {4, 2, 1}};
+    static constexpr int kOrders[6][3] = {{1, 2, 4}, {1, 4, 2}, {2, 1, 4},
+                                          {2, 4, 1}, {4, 1, 2}, {4, 2, 1}};
     for (const auto& order : kOrders) {
       const std::array<int, 3> v{order[0], order[0] | order[1], 7};
       // the edges from corner 0 as columns: image X, tangent W; the interpolation is W X^-1
       const Vec3 dx[3] = {sub3(x[v[0]], x[0]), sub3(x[v[1]], x[0]), sub3(x[v[2]], x[0])};
       const double det = dot3(dx[0], cross3(dx[1], dx[2]));
-      if (!(std::abs(det) > 1e-13 * norm3(dx[0]) * norm3(dx[1]) * norm3(dx[2]))) continue;  // degenerate
+      if (!(std::abs(det) > 1e-13 * norm3(dx[0]) * norm3(dx[1]) * norm3(dx[2])))
+        continue;  // degenerate
       // rows of X^-1: the cross products of its columns over the determinant
       const Vec3 rows[3] = {scaled3(1.0 / det, cross3(dx[1], dx[2])),
                             scaled3(1.0 / det, cross3(dx[2], dx[0])),
@@ -158,7 +166,8 @@ class ExpTable {
       for (int e = 0; e < 3; ++e) {
         const Vec3 dw = sub3(w[v[e]], w[0]);
         seed.w = add3(seed.w, scaled3(mu[e], dw));
-        for (int r = 0; r < 3; ++r) seed.inverse[r] = add3(seed.inverse[r], scaled3(dw[r], rows[e]));
+        for (int r = 0; r < 3; ++r)
+          seed.inverse[r] = add3(seed.inverse[r], scaled3(dw[r], rows[e]));
       }
       seeds.push_back(seed);
     }

@@ -8,7 +8,6 @@
 
 #include <algorithm>
 #include <cmath>
-
 #include <vector>
 
 #include "chart_planes.hpp"
@@ -36,7 +35,8 @@ struct H2xRFlow : ChartPlanes, ClosedForm<H2xRFlow> {
     xt = {Q[0] / Q[2], Q[1] / Q[2], p[2] + v[2] * t};
     vt = {(dQ[0] - xt[0] * dQ[2]) / Q[2], (dQ[1] - xt[1] * dQ[2]) / Q[2], v[2]};
   }
-  // What the closed form's roundings may add (a few ulps of the coordinates' size, per unit length).
+  // What the closed form's roundings may add (a few ulps of the coordinates' size, per unit
+  // length).
   static double rounding(const Vec3& p, double t) {
     return 4e-16 * (1.0 + std::abs(p[2]) + t) * (1.0 + t);
   }
@@ -67,7 +67,8 @@ struct H2xRFlow : ChartPlanes, ClosedForm<H2xRFlow> {
   // points), if no longer than reach: the H^2 geodesic of the disk parts (length d) times the
   // straight z part. The wavefront is H^2's circle of radius d times the flat direction:
   // area density r^2 sinh(d) / d.
-  static void connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>& paths) {
+  static void connections(const Vec3& h, const Vec3& l, double reach,
+                          std::vector<LightPath>& paths) {
     const double sh = 1.0 / std::sqrt(1.0 - h[0] * h[0] - h[1] * h[1]);
     const double sl = 1.0 / std::sqrt(1.0 - l[0] * l[0] - l[1] * l[1]);
     const double P[3] = {sh * h[0], sh * h[1], sh}, Q[3] = {sl * l[0], sl * l[1], sl};

@@ -15,12 +15,14 @@ namespace thurston {
 namespace {
 
 template <class Kernel>
-inline typename KernelTracer<Kernel>::Vertex KernelTracer<Kernel>::vertex_at(const Vec4& X, const Surface& s, int depth, const TraceOptions& options) const {
+inline typename KernelTracer<Kernel>::Vertex KernelTracer<Kernel>::vertex_at(
+    const Vec4& X, const Surface& s, int depth, const TraceOptions& options) const {
   Vertex v{X, s.N, s.S, !s.material->emits(), depth < options.bounces, s.base, {}, std::nullopt};
   const Principled& scattering = s.material->scattering;
   if (scattering.glossy()) {
     v.frame = frame_at(X, s.S);
-    v.bsdf.emplace(scattering, Color{s.base[0], s.base[1], s.base[2]}, local(X, v.frame, scaled(-1.0, s.V)));
+    v.bsdf.emplace(scattering, Color{s.base[0], s.base[1], s.base[2]},
+                   local(X, v.frame, scaled(-1.0, s.V)));
   }
   v.bounce_follows |= depth == options.bounces && !emitters_.triangles.empty() &&
                       (options.emitter_sampling == EmitterSampling::kBounces ||
@@ -54,7 +56,8 @@ inline double KernelTracer<Kernel>::bounce_density(const Vertex& v, const Vec4& 
 // the light its next-event estimate reflects. A bounce beyond the limit (vertex_at) gathers
 // emission only.
 template <class Kernel>
-inline Rgb KernelTracer<Kernel>::bounce(const WalkContext& context, Vertex v, const TraceOptions& options, TraceStats& stats,
+inline Rgb KernelTracer<Kernel>::bounce(const WalkContext& context, Vertex v,
+                                        const TraceOptions& options, TraceStats& stats,
                                         LightBuffers& buffers, Random& random) const {
   Color throughput{1.0, 1.0, 1.0};
   Rgb sum{0.0f, 0.0f, 0.0f};
@@ -67,7 +70,8 @@ inline Rgb KernelTracer<Kernel>::bounce(const WalkContext& context, Vertex v, co
       density = v.bsdf->density(wi);
       if (!(density > 0.0)) break;
       const Color f = v.bsdf->specular(wi);
-      for (int a = 0; a < 3; ++a) throughput[a] *= (v.bsdf->diffuse[a] / kPi + f[a]) * wi[2] / density;
+      for (int a = 0; a < 3; ++a)
+        throughput[a] *= (v.bsdf->diffuse[a] / kPi + f[a]) * wi[2] / density;
       V = world(v.frame, wi);
     } else {
       V = cosine_direction(v.X, v.S, random);
@@ -110,8 +114,9 @@ inline Rgb KernelTracer<Kernel>::bounce(const WalkContext& context, Vertex v, co
 // Sum over lights and over the geodesics from the vertex to each of them, each geodesic with its
 // own shadow ray; then the emitters' light, from options.light_samples points sampled on them.
 template <class Kernel>
-inline typename KernelTracer<Kernel>::Reflected KernelTracer<Kernel>::illumination(const WalkContext& context, const Vertex& v, const TraceOptions& options,
-                                                                                   TraceStats& stats, LightBuffers& buffers, Random& random) const {
+inline typename KernelTracer<Kernel>::Reflected KernelTracer<Kernel>::illumination(
+    const WalkContext& context, const Vertex& v, const TraceOptions& options, TraceStats& stats,
+    LightBuffers& buffers, Random& random) const {
   Reflected sum;
   const Vec4& H = v.X;
   std::vector<LightPath>& paths = buffers.paths;
@@ -124,8 +129,8 @@ inline typename KernelTracer<Kernel>::Reflected KernelTracer<Kernel>::illuminati
     for (const LightPath& path : paths) {
       double weight = path.falloff * std::exp(-path.distance / options.light_fog);
       if (cone.active())
-        weight *= cone.attenuation(kernel_.dot(light_lifts_[l][path.lift], light_axes_[l][path.lift],
-                                               kernel_.arrival(H, path)));
+        weight *= cone.attenuation(kernel_.dot(
+            light_lifts_[l][path.lift], light_axes_[l][path.lift], kernel_.arrival(H, path)));
       ++stats.light_paths;
       stats.light_energy += weight * mean_radiance;
       const double cosine = kernel_.dot(H, v.S, path.direction);
@@ -144,7 +149,8 @@ inline typename KernelTracer<Kernel>::Reflected KernelTracer<Kernel>::illuminati
 
 // Adds one geodesic's light (term: everything but the BSDF and the radiance) to the sums.
 template <class Kernel>
-inline void KernelTracer<Kernel>::reflect(Reflected& sum, const Vertex& v, const Vec4& direction, double term, const Rgb& radiance) const {
+inline void KernelTracer<Kernel>::reflect(Reflected& sum, const Vertex& v, const Vec4& direction,
+                                          double term, const Rgb& radiance) const {
   for (int a = 0; a < 3; ++a) sum.diffuse[a] += float(term * radiance[a]);
   if (!v.bsdf) return;
   const Color f = v.bsdf->specular(local(v.X, v.frame, direction));
@@ -156,7 +162,8 @@ inline void KernelTracer<Kernel>::reflect(Reflected& sum, const Vertex& v, const
 // triangle there, and in buffers its copies (points and normals), one per group element of the
 // emitter's copies. False where the triangle has no normal there.
 template <class Kernel>
-inline bool KernelTracer<Kernel>::emitter_point(std::size_t t, const Vec3& y, LightBuffers& buffers, double& area_density) const {
+inline bool KernelTracer<Kernel>::emitter_point(std::size_t t, const Vec3& y, LightBuffers& buffers,
+                                                double& area_density) const {
   const std::array<Vec3, 3>& p = emitters_.triangles[t];
   const Vec3 e1 = sub3(p[1], p[0]), e2 = sub3(p[2], p[0]), n = cross3(e1, e2);
   const Vec4 Y = kernel_.chart_point(y);
@@ -164,7 +171,8 @@ inline bool KernelTracer<Kernel>::emitter_point(std::size_t t, const Vec3& y, Li
   if (!kernel_.normalise(Y, normal)) return false;
   const Vec4 a = kernel_.chart_tangent(Y, e1), b = kernel_.chart_tangent(Y, e2);
   const double ab = kernel_.dot(Y, a, b);
-  area_density = std::sqrt(std::max(kernel_.dot(Y, a, a) * kernel_.dot(Y, b, b) - ab * ab, 0.0)) / norm3(n);
+  area_density =
+      std::sqrt(std::max(kernel_.dot(Y, a, a) * kernel_.dot(Y, b, b) - ab * ab, 0.0)) / norm3(n);
   std::vector<Vec4>&lifts = buffers.lifts, &normals = buffers.normals;
   lifts.clear();
   normals.clear();
@@ -182,7 +190,8 @@ inline bool KernelTracer<Kernel>::emitter_point(std::size_t t, const Vec3& y, Li
 // cos' = emitted: a point is drawn with density 1 / (A_chart area_density) per area, and an area
 // dA at the far end of the geodesic is cos' falloff dA of solid angle at its start.
 template <class Kernel>
-inline double KernelTracer<Kernel>::emitter_density(double area_density, double emitted, const LightPath& path,
+inline double KernelTracer<Kernel>::emitter_density(double area_density, double emitted,
+                                                    const LightPath& path,
                                                     const TraceOptions& options) const {
   return options.light_samples / (emitter_area_sum_.back() * area_density * emitted * path.falloff);
 }
@@ -190,7 +199,8 @@ inline double KernelTracer<Kernel>::emitter_density(double area_density, double 
 // Whether an emitter's copy shines towards the far end of a geodesic that arrives there with
 // tangent `arrival` (towards its start): cos' at the copy, from its front only where one-sided.
 template <class Kernel>
-inline double KernelTracer<Kernel>::emitted_cosine(std::size_t t, const Vec4& lift, const Vec4& normal, const Vec4& arrival) const {
+inline double KernelTracer<Kernel>::emitted_cosine(std::size_t t, const Vec4& lift,
+                                                   const Vec4& normal, const Vec4& arrival) const {
   const double towards = kernel_.dot(lift, normal, arrival);
   return emitters_.one_sided[t] ? towards : std::abs(towards);
 }
@@ -205,13 +215,16 @@ inline double KernelTracer<Kernel>::emitted_cosine(std::size_t t, const Vec4& li
 // Where a bounce leaves the vertex and could meet the same point along the same geodesic, the
 // two estimates are weighed by the power heuristic.
 template <class Kernel>
-inline void KernelTracer<Kernel>::sample_emitters(const WalkContext& context, const Vertex& v, const TraceOptions& options,
-                                                  TraceStats& stats, LightBuffers& buffers, Random& random, Reflected& sum) const {
+inline void KernelTracer<Kernel>::sample_emitters(const WalkContext& context, const Vertex& v,
+                                                  const TraceOptions& options, TraceStats& stats,
+                                                  LightBuffers& buffers, Random& random,
+                                                  Reflected& sum) const {
   const Vec4& H = v.X;
   const std::size_t t = pick_emitter(random.uniform());
   const std::array<Vec3, 3>& p = emitters_.triangles[t];
   const double root = std::sqrt(random.uniform()), u = random.uniform();
-  const Vec3 y = add3(p[0], add3(scaled3(root * (1.0 - u), sub3(p[1], p[0])), scaled3(root * u, sub3(p[2], p[0]))));
+  const Vec3 y = add3(
+      p[0], add3(scaled3(root * (1.0 - u), sub3(p[1], p[0])), scaled3(root * u, sub3(p[2], p[0]))));
   double area_density;
   if (!emitter_point(t, y, buffers, area_density)) return;
   const double scale = area_density * emitter_area_sum_.back() / (kPi * options.light_samples);
@@ -222,8 +235,8 @@ inline void KernelTracer<Kernel>::sample_emitters(const WalkContext& context, co
   const double mean_radiance = mean_rgb(radiance);
   const bool weighed = v.bounce_follows && options.emitter_sampling == EmitterSampling::kMis;
   for (const LightPath& path : paths) {
-    const double emitted =
-        emitted_cosine(t, buffers.lifts[path.lift], buffers.normals[path.lift], kernel_.arrival(H, path));
+    const double emitted = emitted_cosine(t, buffers.lifts[path.lift], buffers.normals[path.lift],
+                                          kernel_.arrival(H, path));
     const double weight = path.falloff * std::exp(-path.distance / options.light_fog) * scale;
     ++stats.emitter_paths;
     stats.emitter_energy += weight * std::max(emitted, 0.0) * mean_radiance;
@@ -231,12 +244,14 @@ inline void KernelTracer<Kernel>::sample_emitters(const WalkContext& context, co
     const double short_of = path.distance * (1.0 - 1e-6) - kSelfSkip * scale_;
     if (!(cosine > 0.0) || !(emitted > 0.0) || (v.opaque && path.distance > geodesic_loop_))
       continue;
-    const Stop stop = shadow(context, scene_.get(), H, path.direction, short_of, options.max_crossings);
+    const Stop stop =
+        shadow(context, scene_.get(), H, path.direction, short_of, options.max_crossings);
     if (stop == kHit) continue;
     double mis = 1.0;
     // a bounce meets the point along this geodesic if it is drawn and its walk gets there
     if (weighed && stop != kCrossingLimit && path.distance <= options.max_distance)
-      mis = power_weight(emitter_density(area_density, emitted, path, options), bounce_density(v, path.direction));
+      mis = power_weight(emitter_density(area_density, emitted, path, options),
+                         bounce_density(v, path.direction));
     reflect(sum, v, path.direction, cosine * emitted * weight * mis, radiance);
   }
 }
@@ -248,10 +263,13 @@ inline void KernelTracer<Kernel>::sample_emitters(const WalkContext& context, co
 // heuristic; 1 where they do not (an emitter beyond the reach lights through bounces alone), 0
 // for a triangle not found among the emitters' copies (their samples alone count it).
 template <class Kernel>
-inline double KernelTracer<Kernel>::emission_weight(const Vertex& v, const Vec4& V, double density, double length, const Found& f,
-                                                    const Surface& s, const TraceOptions& options, LightBuffers& buffers) const {
+inline double KernelTracer<Kernel>::emission_weight(const Vertex& v, const Vec4& V, double density,
+                                                    double length, const Found& f, const Surface& s,
+                                                    const TraceOptions& options,
+                                                    LightBuffers& buffers) const {
   if (options.emitter_sampling == EmitterSampling::kBounces) return 1.0;
-  const auto match = emitter_of_.find(emitter_key(std::size_t(f.placed - instances_.data()), f.prim));
+  const auto match =
+      emitter_of_.find(emitter_key(std::size_t(f.placed - instances_.data()), f.prim));
   if (match == emitter_of_.end()) return 0.0;
   const std::size_t t = std::size_t(match->second);
   // The hit's point on the emitter triangle it is a copy of: its barycentric weights carried over
@@ -266,12 +284,14 @@ inline double KernelTracer<Kernel>::emission_weight(const Vertex& v, const Vec4&
     w[k] = s.weights[k] * kernel_.chart_point(p[k])[3] / Q[3];
     total += w[k];
   }
-  const Vec3 y = add3(scaled3(w[0] / total, p[0]), add3(scaled3(w[1] / total, p[1]), scaled3(w[2] / total, p[2])));
+  const Vec3 y = add3(scaled3(w[0] / total, p[0]),
+                      add3(scaled3(w[1] / total, p[1]), scaled3(w[2] / total, p[2])));
   double area_density;
   if (!emitter_point(t, y, buffers, area_density)) return 1.0;
   std::vector<LightPath>& paths = buffers.paths;
   paths.clear();
-  kernel_.light_paths(v.X, buffers.lifts, light_reach_, paths);  // a geodesic missed: not among them
+  kernel_.light_paths(v.X, buffers.lifts, light_reach_,
+                      paths);  // a geodesic missed: not among them
   // the emitters' samples' geodesic along V of this length, if they have it
   const LightPath* same = nullptr;
   double best = 1.0 - kSameDirection;
@@ -283,8 +303,8 @@ inline double KernelTracer<Kernel>::emission_weight(const Vertex& v, const Vec4&
     }
   }
   if (!same || (v.opaque && same->distance > geodesic_loop_)) return 1.0;
-  const double emitted =
-      emitted_cosine(t, buffers.lifts[same->lift], buffers.normals[same->lift], kernel_.arrival(v.X, *same));
+  const double emitted = emitted_cosine(t, buffers.lifts[same->lift], buffers.normals[same->lift],
+                                        kernel_.arrival(v.X, *same));
   if (!(emitted > 0.0)) return 1.0;
   return power_weight(density, emitter_density(area_density, emitted, *same, options));
 }
@@ -320,7 +340,8 @@ inline void KernelTracer<Kernel>::match_emitters() {
       seen.push_back({moved(identity, p), emitter_key(i, t)});
     }
   }
-  std::sort(seen.begin(), seen.end(), [](const Seen& a, const Seen& b) { return a.corners[0][0] < b.corners[0][0]; });
+  std::sort(seen.begin(), seen.end(),
+            [](const Seen& a, const Seen& b) { return a.corners[0][0] < b.corners[0][0]; });
   const auto size = [](const Vec4& a) {
     return 1.0 + std::max({std::abs(a[0]), std::abs(a[1]), std::abs(a[2]), std::abs(a[3])});
   };
@@ -330,14 +351,16 @@ inline void KernelTracer<Kernel>::match_emitters() {
     return true;
   };
   std::vector<std::vector<std::size_t>> of_group(emitter_copies_.size());
-  for (std::size_t t = 0; t < emitters_.triangles.size(); ++t) of_group[emitters_.group[t]].push_back(t);
+  for (std::size_t t = 0; t < emitters_.triangles.size(); ++t)
+    of_group[emitters_.group[t]].push_back(t);
   for (std::size_t g = 0; g < of_group.size(); ++g)
     for (const Mat4& M : emitter_copies_[g])
       for (const std::size_t t : of_group[g]) {
         const std::array<Vec4, 3> lifted = moved(M, emitters_.triangles[t]);
         const double x = lifted[0][0], margin = 2.0 * kSamePoint * size(lifted[0]);
-        auto it = std::lower_bound(seen.begin(), seen.end(), x - margin,
-                                   [](const Seen& s, double value) { return s.corners[0][0] < value; });
+        auto it =
+            std::lower_bound(seen.begin(), seen.end(), x - margin,
+                             [](const Seen& s, double value) { return s.corners[0][0] < value; });
         for (; it != seen.end() && it->corners[0][0] <= x + margin; ++it)
           if (close(it->corners[0], lifted[0]) && close(it->corners[1], lifted[1]) &&
               close(it->corners[2], lifted[2]))

@@ -17,8 +17,8 @@
 //   bool normalise(const Vec4& X, Vec4& v)                 unit length at X;
 //   Vec3 chart_vector(const Vec4& X, const Vec4& v)         its chart image, unit in the chart;
 //   int light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
-//       std::vector<LightPath>&)   every geodesic from the surface point H to the lifts (copies of a
-//       light) no longer than reach: closed forms (ProjectiveKernel; the marching kernels of H2xR
+//       std::vector<LightPath>&)   every geodesic from the surface point H to the lifts (copies of
+//       a light) no longer than reach: closed forms (ProjectiveKernel; the marching kernels of H2xR
 //       and S2xR), one-dimensional root searches per branch (Nil, SL2) or shooting from a table of
 //       the exponential map (Sol, which may miss some near caustics); returns how many it could
 //       tell were missed;
@@ -96,7 +96,9 @@ struct WalkContext {
   // distance or crossing limit may walk for minutes (it then ends as kCancelled).
   const std::atomic<bool>& stop;
   bool stopped() const { return stop.load(std::memory_order_relaxed); }
-  double tolerance_at(double distance) const { return tolerance + tolerance_per_distance * distance; }
+  double tolerance_at(double distance) const {
+    return tolerance + tolerance_per_distance * distance;
+  }
 
   // Whether a chord (a curve within `margin` of it) may meet the scene; also keeps non-finite or
   // float-overflowing chords away from Embree.

@@ -50,7 +50,8 @@ class KernelTracer final : public Tracer {
   KernelTracer(Kernel kernel, SceneData scene, unsigned threads, bool occupancy)
       : Tracer(scene, threads, occupancy), kernel_(kernel) {
     // (only where there is light to connect: Sol's table takes a tenth of a second)
-    if (!light_lifts_.empty() || !emitters_.triangles.empty()) kernel_.prepare_light_paths(light_reach_);
+    if (!light_lifts_.empty() || !emitters_.triangles.empty())
+      kernel_.prepare_light_paths(light_reach_);
     match_emitters();
   }
 
@@ -86,7 +87,8 @@ class KernelTracer final : public Tracer {
       out.write_miss(i, kDistanceLimit, 0, 0.0, 0);
       return;
     }
-    const Found found = first_hit(context, P, V, options.max_distance, options.max_crossings, 0.0, segments);
+    const Found found =
+        first_hit(context, P, V, options.max_distance, options.max_crossings, 0.0, segments);
     const WalkEnd& end = found.end;
     const Hit& h = found.hit;
     stats.chords += found.chords;
@@ -121,7 +123,8 @@ class KernelTracer final : public Tracer {
       glossy = direct.specular;
       if (vertex.bounce_follows && !context.stopped())
         bounced = bounce(shadows, vertex, options, stats, buffers, random);
-      if (context.stopped()) {  // a shadow or bounce walk may have been cut short: the light is not known
+      if (context.stopped()) {  // a shadow or bounce walk may have been cut short: the light is not
+                                // known
         out.write_miss(i, kCancelled, 0, 0.0, found.chords);
         return;
       }
@@ -227,7 +230,8 @@ class KernelTracer final : public Tracer {
     if (s.incidence > 0.0) s.N = scaled(-1.0, s.N);
     const auto& tri = triangles_[f.prim];
     const Vec3 in_mesh = f.placed->from_chart.point(h.x);
-    s.weights = Surfaces::barycentric(vertices_[tri[0]], vertices_[tri[1]], vertices_[tri[2]], in_mesh);
+    s.weights =
+        Surfaces::barycentric(vertices_[tri[0]], vertices_[tri[1]], vertices_[tri[2]], in_mesh);
     s.S = shading_normal(f.prim, s.weights, *f.placed, in_mesh, h, s.N);
     s.object = f.placed->object + triangle_object_[f.prim];
     surfaces_.look_up(f.prim, s.weights, s.base, s.emission);
@@ -245,7 +249,8 @@ class KernelTracer final : public Tracer {
   Frame frame_at(const Vec4& X, const Vec4& S) const {
     const Vec3 n = Kernel::chart_vector(X, S);
     std::array<int, 3> axes{0, 1, 2};
-    std::sort(axes.begin(), axes.end(), [&](int a, int b) { return std::abs(n[a]) < std::abs(n[b]); });
+    std::sort(axes.begin(), axes.end(),
+              [&](int a, int b) { return std::abs(n[a]) < std::abs(n[b]); });
     const auto axis_tangent = [&](int a) {
       Vec3 e{0.0, 0.0, 0.0};
       e[a] = 1.0;
@@ -314,7 +319,8 @@ class KernelTracer final : public Tracer {
                       const Vec3& in_mesh, const Hit& h, const Vec4& N) const {
     Vec3 n;
     if (!surfaces_.normal_covector(prim, weights, n)) return N;
-    Vec4 S = kernel_.plane_normal(h.X, placed.from_chart.pull_back({n[0], n[1], n[2], -dot3(n, in_mesh)}));
+    Vec4 S = kernel_.plane_normal(
+        h.X, placed.from_chart.pull_back({n[0], n[1], n[2], -dot3(n, in_mesh)}));
     if (!kernel_.normalise(h.X, S)) return N;
     return kernel_.dot(h.X, S, N) < 0.0 ? scaled(-1.0, S) : S;
   }
@@ -329,18 +335,23 @@ class KernelTracer final : public Tracer {
 
   Reflected illumination(const WalkContext& context, const Vertex& v, const TraceOptions& options,
                          TraceStats& stats, LightBuffers& buffers, Random& random) const;
-  void reflect(Reflected& sum, const Vertex& v, const Vec4& direction, double term, const Rgb& radiance) const;
+  void reflect(Reflected& sum, const Vertex& v, const Vec4& direction, double term,
+               const Rgb& radiance) const;
 
-  bool emitter_point(std::size_t t, const Vec3& y, LightBuffers& buffers, double& area_density) const;
+  bool emitter_point(std::size_t t, const Vec3& y, LightBuffers& buffers,
+                     double& area_density) const;
   double emitter_density(double area_density, double emitted, const LightPath& path,
                          const TraceOptions& options) const;
-  double emitted_cosine(std::size_t t, const Vec4& lift, const Vec4& normal, const Vec4& arrival) const;
+  double emitted_cosine(std::size_t t, const Vec4& lift, const Vec4& normal,
+                        const Vec4& arrival) const;
 
   void sample_emitters(const WalkContext& context, const Vertex& v, const TraceOptions& options,
-                       TraceStats& stats, LightBuffers& buffers, Random& random, Reflected& sum) const;
+                       TraceStats& stats, LightBuffers& buffers, Random& random,
+                       Reflected& sum) const;
 
-  double emission_weight(const Vertex& v, const Vec4& V, double density, double length, const Found& f,
-                         const Surface& s, const TraceOptions& options, LightBuffers& buffers) const;
+  double emission_weight(const Vertex& v, const Vec4& V, double density, double length,
+                         const Found& f, const Surface& s, const TraceOptions& options,
+                         LightBuffers& buffers) const;
   // A bounce's geodesic and a light sample's are the same where their directions agree to this
   // (1 - cos) and their lengths to this relative tolerance: far looser than the walk's errors, far
   // tighter than two geodesics between the same points differ but at focal points.
@@ -354,8 +365,9 @@ class KernelTracer final : public Tracer {
     const auto query = [&](const Chord& chord, float tnear) {
       return embree::occluded(blockers, embree::chord_ray(chord.x0, chord.x1, tnear));
     };
-    return kernel_.walk(context, H, dir, r, max_crossings, kSelfSkip * scale_, query,
-                        [](const auto&) {}).stop;
+    return kernel_
+        .walk(context, H, dir, r, max_crossings, kSelfSkip * scale_, query, [](const auto&) {})
+        .stop;
   }
 
   void match_emitters();

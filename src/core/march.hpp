@@ -11,9 +11,9 @@
 //   static bool to_chart(Vec4& P, Vec4& V)   a ray's model point and tangent as chart 4-vectors;
 //   static void map(const Mat4& M, Vec3& x, Vec3& v)   a face map applied to a chart state;
 //   static side(c, x), side_gradient(c, x), side_acceleration_bound(c, K)   a face covector's side
-//                                       function (negative inside), its gradient, and a bound of its
-//                                       second derivative along a curve with |x''| <= K (ChartPlanes
-//                                       where faces are chart planes);
+//                                       function (negative inside), its gradient, and a bound of
+//                                       its second derivative along a curve with |x''| <= K
+//                                       (ChartPlanes where faces are chart planes);
 // and for a chart point x and chart velocity v of unit length in the metric:
 //   void flow(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt,
 //             double& error) const      the geodesic at arclength t (error: a bound of the
@@ -30,7 +30,8 @@
 //   double growth_rate() const          nearby geodesics separate at most like e^(rate t);
 //   double max_step() const             the longest step, which keeps the bounds over it tight;
 //   static double chart_scale(x)        the chart length of a unit of the walk's tolerance about x
-//                                       (ChartPlanes: 1; S2xR, whose chart scales with |x|: |x| / e);
+//                                       (ChartPlanes: 1; S2xR, whose chart scales with |x|: |x| /
+//                                       e);
 //   double dot(const Vec3& x, const Vec3& a, const Vec3& b) const   the metric at x;
 //   Vec3 raise(const Vec3& x, const Vec3& covector) const           g^-1 at x;
 //   void connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>&) const
@@ -153,7 +154,8 @@ class MarchingKernel {
     }
     return missed;
   }
-  // What the flow needs to know of the reach before it connects (Sol's table of its exponential map).
+  // What the flow needs to know of the reach before it connects (Sol's table of its exponential
+  // map).
   void prepare_light_paths(double reach) {
     if constexpr (HasPrepare<Flow>::value) flow_.prepare_connections(reach);
   }
@@ -193,8 +195,8 @@ class MarchingKernel {
   // ChartPlanes for a triangle's plane), where the side function goes from f0 at t0 to the other
   // sign; `guess` is a starting point in [t0, t1].
   template <class Sides>
-  static double find_root(const typename Flow::Segment& segment, double t0, double t1, const Vec4& c,
-                          double f0, double guess) {
+  static double find_root(const typename Flow::Segment& segment, double t0, double t1,
+                          const Vec4& c, double f0, double guess) {
     double lo = t0, hi = t1, flo = f0;
     const double h = t1 - t0;
     double t = std::clamp(guess, lo, hi);
@@ -231,8 +233,7 @@ class MarchingKernel<Flow>::Walk {
  public:
   Walk(const MarchingKernel& kernel, const WalkContext& context, const Vec4& P, const Vec4& V,
        double length)
-      : flow_(kernel.flow()), context_(context), x_(head3(P)), v_(head3(V)),
-        length_(length) {
+      : flow_(kernel.flow()), context_(context), x_(head3(P)), v_(head3(V)), length_(length) {
     ok_ = settle();
   }
 
@@ -269,8 +270,10 @@ class MarchingKernel<Flow>::Walk {
       // the longest chord within the tolerance: from the bound over the span, then over that chord
       K = std::max(K_span, 1e-300);
       h_tolerance = std::min(span, std::max(h0, std::sqrt(8.0 * tolerance / K)));
-      const double longer = std::min(span, std::sqrt(8.0 * tolerance / segment_.acceleration_bound(h_tolerance)));
-      if (longer > h_tolerance && segment_.acceleration_bound(longer) * longer * longer <= 8.0 * tolerance)
+      const double longer =
+          std::min(span, std::sqrt(8.0 * tolerance / segment_.acceleration_bound(h_tolerance)));
+      if (longer > h_tolerance &&
+          segment_.acceleration_bound(longer) * longer * longer <= 8.0 * tolerance)
         h_tolerance = longer;
     }
     // Along the stretch, steps that the bound |x''| <= K keeps clear of every face plane, until
@@ -321,7 +324,8 @@ class MarchingKernel<Flow>::Walk {
       has_chord_ = true;
     }
     // errors of earlier steps grow with the separation of geodesics; this step adds its own
-    const double g = flow_.growth_rate() * h;  // 1 + g (1 + g) >= e^g for g <= 1 (steps are shorter)
+    const double g =
+        flow_.growth_rate() * h;  // 1 + g (1 + g) >= e^g for g <= 1 (steps are shorter)
     drift_ = drift_ * (1.0 + g * (1.0 + g)) + segment_.error;
     chord_margin_ = margin;
     distance_ += h;
@@ -339,7 +343,8 @@ class MarchingKernel<Flow>::Walk {
 
   // The point where the curve of the last chord meets a triangle's plane near Embree's parameter
   // u: the chord's ends are points of the curve, so a plane the chord crosses is crossed by the
-  // curve in the same interval, where a safeguarded Newton iteration on the step's segment finds it.
+  // curve in the same interval, where a safeguarded Newton iteration on the step's segment finds
+  // it.
   Hit refine(const Vec4& plane, double u) const {
     return refine_between(plane, 0.0, chord_.length, std::clamp(u, 0.0, 1.0));
   }
@@ -352,7 +357,8 @@ class MarchingKernel<Flow>::Walk {
     segment_.at(t0, x0, v);
     segment_.at(t1, x1, v);
     const double f0 = dot3(n, x0) + plane[3], f1 = dot3(n, x1) + plane[3];
-    if ((f0 < 0.0) != (f1 < 0.0) && f0 != 0.0) t = find_root<ChartPlanes>(segment_, t0, t1, plane, f0, t);
+    if ((f0 < 0.0) != (f1 < 0.0) && f0 != 0.0)
+      t = find_root<ChartPlanes>(segment_, t0, t1, plane, f0, t);
     return at(t);
   }
   // The curve's point at arclength t from the last chord's start.
@@ -405,8 +411,10 @@ class MarchingKernel<Flow>::Walk {
       const double a = std::min(Flow::side(c, x), 0.0), b = dot3(Flow::side_gradient(c, x), v);
       const double bound = Flow::side_acceleration_bound(c, K);
       const double root = std::sqrt(b * b - 2.0 * bound * a);
-      if (b > 0.0) safe = std::min(safe, -2.0 * a / (b + root));
-      else if (bound > 0.0) safe = std::min(safe, (root - b) / bound);  // else never reached
+      if (b > 0.0)
+        safe = std::min(safe, -2.0 * a / (b + root));
+      else if (bound > 0.0)
+        safe = std::min(safe, (root - b) / bound);  // else never reached
     }
     return safe;
   }
@@ -464,7 +472,7 @@ class MarchingKernel<Flow>::Walk {
   }
 
   static constexpr double kReduce = 1e-12;  // outside a face by more than this: reduce
-  static constexpr int kClearSteps = 16;  // safe steps along one stretch at the most
+  static constexpr int kClearSteps = 16;    // safe steps along one stretch at the most
 
   const Flow& flow_;
   const WalkContext& context_;

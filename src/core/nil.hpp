@@ -1,8 +1,8 @@
 // Nil: R^3 with the paper's metric dx^2 + dy^2 + (dz - x dy)^2, the Heisenberg group
 // (x, y, z) . (x', y', z') = (x + x', y + y', z + z' + x y') acting by left multiplication.
 // Geodesics in closed form: from the origin in the form that stays accurate for small w t
-// (docs/mathematics.md#nil), from any point by left translation. Connecting geodesics in closed form too,
-// up to a one-dimensional root search per branch (connections).
+// (docs/mathematics.md#nil), from any point by left translation. Connecting geodesics in closed
+// form too, up to a one-dimensional root search per branch (connections).
 #pragma once
 
 #include <algorithm>
@@ -38,7 +38,8 @@ struct NilFlow : AffineChart, ClosedForm<NilFlow> {
     xt = {X + p[0], Y + p[1], Z + p[2] + p[0] * Y};
     vt = {vx, vy, vz + p[0] * vy};
   }
-  // What the closed form's roundings may add (a few ulps of the coordinates' size, per unit length).
+  // What the closed form's roundings may add (a few ulps of the coordinates' size, per unit
+  // length).
   static double rounding(const Vec3& p, double t) {
     const double size = 1.0 + std::max({std::abs(p[0]), std::abs(p[1]), std::abs(p[2])}) + t;
     return 4e-16 * size * (1.0 + t);
@@ -73,19 +74,23 @@ struct NilFlow : AffineChart, ClosedForm<NilFlow> {
   //   height(theta) = theta + rho^2 F(theta) / (2 S(theta / 2)^2) = Z_s
   // and t^2 = theta^2 + rho^2 / S(theta / 2)^2. height is odd; for theta > 0 it increases from 0 to
   // infinity on (0, 2 pi) (the one geodesic of branch 0, the shortest) and falls from and returns
-  // to infinity on each (2 pi k, 2 pi (k + 1)) (two geodesics of branch k where its minimum is below
-  // |Z_s|, none elsewhere), where t >= |theta| > 2 pi k: within a reach below 2 pi, one geodesic per
-  // copy. On the axis (rho = 0) the geodesics of every branch k >= 1 form cones that focus there:
-  // only the vertical one is kept. Area density: rotations about the axis are isometries of the
-  // symmetric model, so in cylinder coordinates (rho, psi, Z_s) of the end, psi = a + theta / 2,
+  // to infinity on each (2 pi k, 2 pi (k + 1)) (two geodesics of branch k where its minimum is
+  // below |Z_s|, none elsewhere), where t >= |theta| > 2 pi k: within a reach below 2 pi, one
+  // geodesic per copy. On the axis (rho = 0) the geodesics of every branch k >= 1 form cones that
+  // focus there: only the vertical one is kept. Area density: rotations about the axis are
+  // isometries of the symmetric model, so in cylinder coordinates (rho, psi, Z_s) of the end, psi =
+  // a + theta / 2,
   //   r^2 |det d exp| = |d(rho, psi, Z_s) / d(t, a, w)| rho = rho |rho_t Z_w - rho_w Z_t|
   // (the sphere of directions has area da dw).
-  static void connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>& paths) {
+  static void connections(const Vec3& h, const Vec3& l, double reach,
+                          std::vector<LightPath>& paths) {
     const double X = l[0] - h[0], Y = l[1] - h[1], Z = l[2] - h[2] - h[0] * Y;
-    const double rho = std::hypot(X, Y), symmetric = Z - 0.5 * X * Y, up = symmetric < 0.0 ? -1.0 : 1.0;
+    const double rho = std::hypot(X, Y), symmetric = Z - 0.5 * X * Y,
+                 up = symmetric < 0.0 ? -1.0 : 1.0;
     const double lift = std::abs(symmetric);
     if (!(rho <= reach) || !(shortest_for_height(lift) <= reach)) return;
-    const bool axis = !(rho > kAxis * (1.0 + lift));  // the cones focus there: the vertical geodesic
+    const bool axis =
+        !(rho > kAxis * (1.0 + lift));  // the cones focus there: the vertical geodesic
     // one geodesic of turning angle up * theta (theta >= 0), if no longer than reach
     const auto add = [&](double theta) {
       theta *= up;
@@ -97,7 +102,8 @@ struct NilFlow : AffineChart, ClosedForm<NilFlow> {
       const double vx = axis ? 0.0 : (X * ch + Y * sh) / (t * S);
       const double vy = axis ? 0.0 : (Y * ch - X * sh) / (t * S);
       const double F = excess(theta), dF = excess_derivative(theta), dS = sin_over_derivative(half);
-      const double rho_t = c2 * t * S * ch, rho_w = t * t * S * (0.5 * c2 * t * dS - w * S);  // times rho
+      const double rho_t = c2 * t * S * ch,
+                   rho_w = t * t * S * (0.5 * c2 * t * dS - w * S);  // times rho
       const double z_t = w + c2 * t * (F + 0.5 * theta * dF);
       const double z_w = t - w * t * t * F + 0.5 * c2 * t * t * t * dF;
       paths.push_back({vector4({vx, vy, w + h[0] * vy}), t,
@@ -143,8 +149,8 @@ struct NilFlow : AffineChart, ClosedForm<NilFlow> {
   static double excess(double theta) {
     if (std::abs(theta) < 0.1) {
       const double q = theta * theta;
-      return theta * (1.0 / 6.0 - q * (1.0 / 120.0 - q * (1.0 / 5040.0 - q * (1.0 / 362880.0 -
-                                                                              q / 39916800.0))));
+      return theta * (1.0 / 6.0 - q * (1.0 / 120.0 -
+                                       q * (1.0 / 5040.0 - q * (1.0 / 362880.0 - q / 39916800.0))));
     }
     return (theta - std::sin(theta)) / (theta * theta);
   }
@@ -159,9 +165,11 @@ struct NilFlow : AffineChart, ClosedForm<NilFlow> {
   static double excess_derivative(double theta) {
     if (std::abs(theta) < 0.1) {
       const double q = theta * theta;
-      return 1.0 / 6.0 - q * (1.0 / 40.0 - q * (1.0 / 1008.0 - q * (1.0 / 51840.0 - q / 4435200.0)));
+      return 1.0 / 6.0 -
+             q * (1.0 / 40.0 - q * (1.0 / 1008.0 - q * (1.0 / 51840.0 - q / 4435200.0)));
     }
-    return (theta * (1.0 - std::cos(theta)) - 2.0 * (theta - std::sin(theta))) / (theta * theta * theta);
+    return (theta * (1.0 - std::cos(theta)) - 2.0 * (theta - std::sin(theta))) /
+           (theta * theta * theta);
   }
 };
 

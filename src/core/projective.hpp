@@ -1,5 +1,6 @@
-// The projective kernel: E3, S3 and H3 in their homogeneous models, where geodesics and the domain's
-// faces are straight in the chart, so every cell of the domain is crossed by one exact chord.
+// The projective kernel: E3, S3 and H3 in their homogeneous models, where geodesics and the
+// domain's faces are straight in the chart, so every cell of the domain is crossed by one exact
+// chord.
 //
 // Points are model 4-vectors X; the projective chart is x = X[:3] / X[3] (Euclidean: affine,
 // spherical: gnomonic, hyperbolic: Klein).
@@ -89,8 +90,8 @@ struct ProjectiveKernel {
   }
   // The exit search's key: exit_order's in E3 and H3; in S3 one division, -cot t = b / a, for the
   // usual exits t in (0, pi) from inside (a < 0), -inf for t = 0 and +inf for the rest (t >= pi or
-  // none), which a valid domain never leaves by first: when every key is +inf, the search falls back
-  // to exit_order.
+  // none), which a valid domain never leaves by first: when every key is +inf, the search falls
+  // back to exit_order.
   double exit_key(double a, double b) const {
     if (k <= 0) return exit_order(a, b);
     const double special = (b > 0.0) | ((a > 0.0) & (b >= 0.0)) ? -kInf : kInf;
@@ -119,8 +120,8 @@ struct ProjectiveKernel {
   static double estimate_angle(double c, double s) {
     const double ac = std::abs(c), lo = std::min(ac, s), hi = std::max(ac, s);
     const double z = hi > 0.0 ? lo / hi : 0.0, z2 = z * z;
-    double p = z * (0.9998660 + z2 * (-0.3302995 + z2 * (0.1801410 + z2 * (-0.0851330 +
-                                                                           z2 * 0.0208351))));
+    double p =
+        z * (0.9998660 + z2 * (-0.3302995 + z2 * (0.1801410 + z2 * (-0.0851330 + z2 * 0.0208351))));
     p = s > ac ? 0.5 * kPi - p : p;
     return c < 0.0 ? kPi - p : p;
   }
@@ -272,8 +273,8 @@ struct ProjectiveKernel {
   }
 
   // The exit from the domain along the geodesic (P, V): the face through which it leaves first
-  // (lowest index on ties). In S3 the edge of the gnomonic chart's hemisphere X[3] > 0 competes as a
-  // pseudo-face (it loses ties): a valid domain is left through a face before it, and chords must
+  // (lowest index on ties). In S3 the edge of the gnomonic chart's hemisphere X[3] > 0 competes as
+  // a pseudo-face (it loses ties): a valid domain is left through a face before it, and chords must
   // stop (just) short of it. In S3 the turn of a usual exit (exact == false) has exact cosine and
   // sine but an estimated t.
   static constexpr int kChartEdge = -2;
@@ -299,7 +300,7 @@ struct ProjectiveKernel {
 };
 
 inline ProjectiveKernel::Exit ProjectiveKernel::find_exit(const Domain& domain, const Vec4& P,
-                                                         const Vec4& V) const {
+                                                          const Vec4& V) const {
   // Blocks of faces on the stack, each pass a simple loop that the compiler vectorises; the face
   // arrays are padded with zero covectors (never an exit) to a multiple of 4.
   constexpr std::size_t kBlock = 16;
@@ -353,7 +354,7 @@ inline ProjectiveKernel::Exit ProjectiveKernel::find_exit(const Domain& domain, 
 
 // S3's exit search for the unusual case of no exit in [0, pi): exact turns, keys in [0, 3).
 inline ProjectiveKernel::Exit ProjectiveKernel::find_exit_exact(const Domain& domain, const Vec4& P,
-                                                               const Vec4& V) const {
+                                                                const Vec4& V) const {
   double best = kInf, best_a = 0.0, best_b = 0.0;
   int face = -1;
   for (std::size_t f = 0; f < domain.components[0].size(); ++f) {
@@ -374,8 +375,8 @@ inline ProjectiveKernel::Exit ProjectiveKernel::find_exit_exact(const Domain& do
 
 // The geodesic length travelled across a walk's crossings. Exact turns add up as numbers; S3's
 // usual turns, whose t is only estimated, multiply as unit complex numbers (cos t, sin t), which
-// fixes their sum modulo 2 pi, and the sum of the estimates picks the multiple of 2 pi (it is off by
-// at most kFold * kTurnEstimateError, far below pi) and bounds the total from above.
+// fixes their sum modulo 2 pi, and the sum of the estimates picks the multiple of 2 pi (it is off
+// by at most kFold * kTurnEstimateError, far below pi) and bounds the total from above.
 class Odometer {
  public:
   void add_exact(double t) { exact_ += t; }
@@ -413,7 +414,8 @@ class Odometer {
 // product (the same roundings).
 void mat_vec2(const Mat4& Mt, const Vec4& x, const Vec4& xv, Vec4& y, Vec4& yv);
 
-// A hit on a chord, for refinement: the chord is the exact geodesic segment from (P, V) over `turn`.
+// A hit on a chord, for refinement: the chord is the exact geodesic segment from (P, V) over
+// `turn`.
 struct ProjectiveKernel::ChordHit {
   const ProjectiveKernel& kernel;
   const Vec4 &P, &V;
@@ -451,7 +453,8 @@ template <class Query, class OnHit>
 WalkEnd ProjectiveKernel::walk(const WalkContext& context, Vec4 P, Vec4 V, double length,
                                int max_crossings, double first_skip, Query&& query,
                                OnHit&& on_hit) const {
-  constexpr double kH3Reach = 40.0;  // beyond this a Klein chart point is within e^-80 of the sphere
+  constexpr double kH3Reach =
+      40.0;  // beyond this a Klein chart point is within e^-80 of the sphere
   constexpr int kS3Renormalise = 8;
   Odometer odometer;
   int crossings = 0;
@@ -461,7 +464,7 @@ WalkEnd ProjectiveKernel::walk(const WalkContext& context, Vec4 P, Vec4 V, doubl
     // Whether the walk crosses the exit face within its length: an estimated turn decides from
     // the odometer's bound while that is clear of the length, else from the exact numbers.
     bool crosses;
-    double dist = kNaN;  // the distance before this step, where computed
+    double dist = kNaN;   // the distance before this step, where computed
     double limit = kNaN;  // where a walk that leaves no face ends
     if (exit.face >= 0 && !exit.exact && odometer.upper_after(exit.turn.t) <= length) {
       crosses = true;
@@ -474,8 +477,8 @@ WalkEnd ProjectiveKernel::walk(const WalkContext& context, Vec4 P, Vec4 V, doubl
       // How far the chart can follow the geodesic: S3 to its hemisphere's edge, H3 until the
       // point is indistinguishable from the sphere at infinity.
       const double reach = exit.face == kChartEdge ? exit.turn.t * (1.0 - 1e-6)
-                           : k < 0                  ? kH3Reach
-                                                    : kInf;
+                           : k < 0                 ? kH3Reach
+                                                   : kInf;
       limit = std::min(length - dist, reach);
       crosses = exit.face >= 0 && exit.turn.t <= limit;
       // A ray that leaves no face ends in this copy at `limit`; its chord need not go beyond the
@@ -490,8 +493,9 @@ WalkEnd ProjectiveKernel::walk(const WalkContext& context, Vec4 P, Vec4 V, doubl
     advance(P, V, u, X, Xv);
     if (u.t > 0.0) {
       // The chord's end from (cu, su) where known, so that Embree need not wait for the turn.
-      const Chord chord{chart(P), exit.cu != 0.0 || exit.su != 0.0 ? chart(lin4(exit.cu, P, exit.su, V))
-                                                                  : chart(X)};
+      const Chord chord{chart(P), exit.cu != 0.0 || exit.su != 0.0
+                                      ? chart(lin4(exit.cu, P, exit.su, V))
+                                      : chart(X)};
       const Vec3 d = sub3(chord.x1, chord.x0);
       const double tnear = first ? first_skip / std::sqrt(dot3(d, d)) : 0.0;
       if (tnear < 1.0 && context.may_hit(chord.x0, chord.x1, chord.margin) &&
@@ -509,7 +513,8 @@ WalkEnd ProjectiveKernel::walk(const WalkContext& context, Vec4 P, Vec4 V, doubl
       odometer.add_exact(u.t);
     else
       odometer.add_turn(u);
-    if (crossings == max_crossings) return {kCrossingLimit, odometer.value(), crossings, 0.0, chart(X)};
+    if (crossings == max_crossings)
+      return {kCrossingLimit, odometer.value(), crossings, 0.0, chart(X)};
     ++crossings;
     mat_vec2(context.domain.maps_t[exit.face], X, Xv, P, V);
     // S3's pairings are rotations and its turns unit complex numbers, so (P, V) stays orthonormal

@@ -183,7 +183,8 @@ bool normalise_direction(const std::string& geometry, Vec4& X, Vec4& V) {
   return g.start(g.curvature, X, V);
 }
 
-std::unique_ptr<Tracer> make_tracer(const std::string& geometry, SceneData scene, unsigned threads) {
+std::unique_ptr<Tracer> make_tracer(const std::string& geometry, SceneData scene,
+                                    unsigned threads) {
   const Geometry& g = find(geometry);
   return g.make(g.curvature, std::move(scene), threads);
 }

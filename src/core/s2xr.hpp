@@ -8,7 +8,6 @@
 
 #include <algorithm>
 #include <cmath>
-
 #include <vector>
 
 #include "affine_chart.hpp"
@@ -23,7 +22,8 @@ struct S2xRFlow : AffineChart, ClosedForm<S2xRFlow> {
     const double r2 = dot3(x, x), b = dot3(v, x) / r2;
     const Vec3 p = sub3(v, scaled3(b, x));
     const double a = std::sqrt(dot3(p, p) / r2), at = a * t;
-    const double grow = std::exp(b * t), c = std::cos(at), sin_over = a > 0.0 ? std::sin(at) / a : t;
+    const double grow = std::exp(b * t), c = std::cos(at),
+                 sin_over = a > 0.0 ? std::sin(at) / a : t;
     for (int i = 0; i < 3; ++i) {
       const double spiral = c * x[i] + sin_over * p[i];
       const double turning = -a * a * sin_over * x[i] + c * p[i];
@@ -42,7 +42,8 @@ struct S2xRFlow : AffineChart, ClosedForm<S2xRFlow> {
   double acceleration_bound(const Vec3& x, const Vec3&, double h) const {
     return std::sqrt(dot3(x, x)) * std::exp(h);
   }
-  // Sectional curvatures lie in [0, 1]: nearby geodesics separate at most linearly (rate 1 bounds it).
+  // Sectional curvatures lie in [0, 1]: nearby geodesics separate at most linearly (rate 1 bounds
+  // it).
   double growth_rate() const { return 1.0; }
   double max_step() const { return 1.0; }
 
@@ -55,7 +56,8 @@ struct S2xRFlow : AffineChart, ClosedForm<S2xRFlow> {
   // that r^2 = alpha^2 + dw^2; those no longer than reach. The wavefront is the sphere's circle
   // times the flat direction: area density r^2 |sin alpha| / alpha. Directions that coincide or
   // are antipodal (where whole cones of arcs focus) keep only the straight w path.
-  static void connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>& paths) {
+  static void connections(const Vec3& h, const Vec3& l, double reach,
+                          std::vector<LightPath>& paths) {
     const double rh = norm3(h), rl = norm3(l), dw = std::log(rl / rh);
     const Vec3 u = scaled3(1.0 / rh, h), ul = scaled3(1.0 / rl, l);
     const double cos_theta = dot3(u, ul);
@@ -84,7 +86,9 @@ struct S2xRFlow : AffineChart, ClosedForm<S2xRFlow> {
   }
 
   // Faces: the spheres c2 w + c3 = 0 (c[0] = c[1] = 0), w = log|x|, linear along every geodesic.
-  static double side(const Vec4& c, const Vec3& x) { return c[2] * 0.5 * std::log(dot3(x, x)) + c[3]; }
+  static double side(const Vec4& c, const Vec3& x) {
+    return c[2] * 0.5 * std::log(dot3(x, x)) + c[3];
+  }
   static Vec3 side_gradient(const Vec4& c, const Vec3& x) { return scaled3(c[2] / dot3(x, x), x); }
   static double side_acceleration_bound(const Vec4&, double) { return 0.0; }
   // The tolerance is metric: a unit of it is |x| of chart length at x, at least |x| / e over a step

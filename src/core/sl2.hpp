@@ -1,15 +1,17 @@
 // SL2~: the Poincare disk x R, chart (x, y, phi), w = x + iy, with the metric
 //   lam^2 (dx^2 + dy^2) + (dphi + lam (x dy - y dx))^2,   lam = 2 / (1 - |w|^2)
-// (geometries/sl2.py). Geodesics in closed form, branch-free: from the origin with unit body velocity
-// (a e^{i a0}, c) the element (alpha, beta, phi) of
-//   alpha = e^{ict} (C - i c S), beta = S a e^{i(a0 - ct)},  C = cosh sqrt(q), S = (t/2) sinh sqrt(q) / sqrt(q),
-//   q = (a^2 - c^2) t^2 / 4 (cos and sin of sqrt(-q) below zero), phi = 2 Arg(alpha) unwrapped;
+// (geometries/sl2.py). Geodesics in closed form, branch-free: from the origin with unit body
+// velocity (a e^{i a0}, c) the element (alpha, beta, phi) of
+//   alpha = e^{ict} (C - i c S), beta = S a e^{i(a0 - ct)},  C = cosh sqrt(q), S = (t/2) sinh
+//   sqrt(q) / sqrt(q), q = (a^2 - c^2) t^2 / 4 (cos and sin of sqrt(-q) below zero), phi = 2
+//   Arg(alpha) unwrapped;
 // from any chart state by composing on the left with the element taking the origin there. Model
-// vectors are the first rows (Re alpha, Im alpha, Re beta, Im beta) of SU(1,1) matrices, on which the
-// face maps (left multiplications and fibre translations) are linear; the chart's phi is read back in
-// (-2 pi, 2 pi]. Faces are planes of (Klein(w), phi, 1): the lids c2 phi + c3 = 0 (c0 = c1 = 0), and
-// the octagon's sides c0 kx + c1 ky + c3 = 0 (c2 = 0), evaluated as (1 + |w|^2) times that,
-// 2 (c0 x + c1 y) + c3 (1 + |w|^2), a quadric of the chart.
+// vectors are the first rows (Re alpha, Im alpha, Re beta, Im beta) of SU(1,1) matrices, on which
+// the face maps (left multiplications and fibre translations) are linear; the chart's phi is read
+// back in
+// (-2 pi, 2 pi]. Faces are planes of (Klein(w), phi, 1): the lids c2 phi + c3 = 0 (c0 = c1 = 0),
+// and the octagon's sides c0 kx + c1 ky + c3 = 0 (c2 = 0), evaluated as (1 + |w|^2) times that, 2
+// (c0 x + c1 y) + c3 (1 + |w|^2), a quadric of the chart.
 #pragma once
 
 #include <algorithm>
@@ -59,24 +61,29 @@ struct SL2Flow : ClosedForm<SL2Flow> {
   // From the geodesic equation (the Christoffel symbols of geometries/sl2.py): with the conserved
   // body speeds a (horizontal) and c (fibre), |w'| = a q / 2 and |phi'| <= |c| + r a, so
   // |w''| <= 4 r |w'|^2 / q + |w'| |phi'| <= (a q / 2)(|c| + 3 r a) and
-  // |phi''| <= r^2 a^2 + 2 r |w'| |phi'| / q <= r a (|c| + 2 r a), r = |w| at most tanh((d0 + a h) / 2)
-  // over the step (d0 the hyperbolic distance of w from the centre). At least a^2, which bounds
-  // 4 |w'|^2 for the faces' own curvature (side_acceleration_bound).
+  // |phi''| <= r^2 a^2 + 2 r |w'| |phi'| / q <= r a (|c| + 2 r a), r = |w| at most tanh((d0 + a h)
+  // / 2) over the step (d0 the hyperbolic distance of w from the centre). At least a^2, which
+  // bounds 4 |w'|^2 for the faces' own curvature (side_acceleration_bound).
   double acceleration_bound(const Vec3& p, const Vec3& v, double h) const {
     const Complex w(p[0], p[1]), dw(v[0], v[1]);
     const double lam = 2.0 / (1.0 - std::norm(w));
     const double a = lam * std::abs(dw), c = std::abs(v[2] + lam * std::imag(std::conj(w) * dw));
-    const double r = std::tanh(std::min(std::atanh(std::min(std::abs(w), 1.0 - 1e-16)) + 0.5 * a * h, 20.0));
+    const double r =
+        std::tanh(std::min(std::atanh(std::min(std::abs(w), 1.0 - 1e-16)) + 0.5 * a * h, 20.0));
     return std::max(a * (0.5 * (c + 3.0 * r * a) + r * (c + 2.0 * r * a)), a * a);
   }
-  // Sectional curvatures lie in [-7/4, 1/4]: nearby geodesics separate at most like e^(sqrt(7/4) t).
+  // Sectional curvatures lie in [-7/4, 1/4]: nearby geodesics separate at most like e^(sqrt(7/4)
+  // t).
   double growth_rate() const { return 1.3228756555322954; }
   double max_step() const { return 1.0; }
-  static double chart_scale(const Vec3&) { return 1.0; }  // the chart is about isometric over the domain
+  static double chart_scale(const Vec3&) {
+    return 1.0;
+  }  // the chart is about isometric over the domain
 
   double dot(const Vec3& p, const Vec3& a, const Vec3& b) const {
     const double lam = 2.0 / (1.0 - p[0] * p[0] - p[1] * p[1]);
-    const double fa = a[2] + lam * (p[0] * a[1] - p[1] * a[0]), fb = b[2] + lam * (p[0] * b[1] - p[1] * b[0]);
+    const double fa = a[2] + lam * (p[0] * a[1] - p[1] * a[0]),
+                 fb = b[2] + lam * (p[0] * b[1] - p[1] * b[0]);
     return lam * lam * (a[0] * b[0] + a[1] * b[1]) + fa * fb;
   }
   // g = F^T F with F u = (lam u_x, lam u_y, u_phi + f . u), f = lam (-y, x): g^-1 = F^-1 F^-T.
@@ -87,16 +94,19 @@ struct SL2Flow : ClosedForm<SL2Flow> {
     return {mx / lam, my / lam, n[2] - (fx * mx + fy * my) / lam};
   }
 
-  // Light along every geodesic: every geodesic from h to the light's copies l + (0, 0, 4 pi k) (chart
-  // points; the model, SU(1,1), is SL2~ modulo the fibre translation by 4 pi) no longer than reach.
-  // Rotations of the disk about the origin are isometries, so seen from h (moved to the origin)
-  // the target is its hyperbolic distance d from the fibre through h and its fibre angle Phi, and
-  // a geodesic leaving with body velocity (a e^{i a0}, c) reaches them at arclength t where
+  // Light along every geodesic: every geodesic from h to the light's copies l + (0, 0, 4 pi k)
+  // (chart points; the model, SU(1,1), is SL2~ modulo the fibre translation by 4 pi) no longer than
+  // reach. Rotations of the disk about the origin are isometries, so seen from h (moved to the
+  // origin) the target is its hyperbolic distance d from the fibre through h and its fibre angle
+  // Phi, and a geodesic leaving with body velocity (a e^{i a0}, c) reaches them at arclength t
+  // where
   //   sinh(d / 2) = a |S| =: sigma,   Phi = phi(t, c)
   // (|w| = a |S| / |C + i c S| and 1 - |w|^2 = 1 / |C + i c S|^2), which a0 does not enter. With
   // k^2 = a^2 - c^2 = 1 - 2 c^2 the first gives t for each c: below |c| = 1/sqrt 2 one t,
-  // sinh(k t / 2) = k sigma / a; above it |sin u| = k' sigma / a for u = k' t / 2, k'^2 = -k^2, i.e.
-  //   c^2 = (sigma^2 + sin^2 u) / (2 sigma^2 + sin^2 u),   t = 2 u sqrt(2 sigma^2 + sin^2 u) / |sin u|.
+  // sinh(k t / 2) = k sigma / a; above it |sin u| = k' sigma / a for u = k' t / 2, k'^2 = -k^2,
+  // i.e.
+  //   c^2 = (sigma^2 + sin^2 u) / (2 sigma^2 + sin^2 u),   t = 2 u sqrt(2 sigma^2 + sin^2 u) / |sin
+  //   u|.
   // Along these curves phi (for c >= 0; c -> -c turns Phi to -Phi) rises monotonically from 0 at
   // c = 0 through the parabolic point to infinity as u -> pi (component 0: the one geodesic to each
   // Phi, the shortest), and on each u in (n pi, (n + 1) pi), n >= 1, falls from and returns to
@@ -107,15 +117,18 @@ struct SL2Flow : ClosedForm<SL2Flow> {
   //   r^2 |det d exp| = |d(2 sigma^2, phi) / d(t, c)|
   // (the sphere of directions has area da0 dc). Length bounds for the copies: t >= d, and
   // t >= |Phi| / sqrt 2, since phi' = c - lam Im(conj(w) w') has |phi'| <= |c| + |w| a < sqrt 2.
-  static void connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>& paths) {
+  static void connections(const Vec3& h, const Vec3& l, double reach,
+                          std::vector<LightPath>& paths) {
     const Complex wh(h[0], h[1]), wl(l[0], l[1]), along = 1.0 - std::conj(wh) * wl;
     const Complex w = (wl - wh) / along;  // the target seen from h
     const double r = std::abs(w);
     if (!(r < 1.0)) return;
-    const double sigma = r / std::sqrt((1.0 - r) * (1.0 + r)), phi0 = l[2] - h[2] - 2.0 * std::arg(along);
+    const double sigma = r / std::sqrt((1.0 - r) * (1.0 + r)),
+                 phi0 = l[2] - h[2] - 2.0 * std::arg(along);
     if (!(2.0 * std::asinh(sigma) <= reach)) return;
     const double widest = kSqrt2 * reach;  // of |Phi|
-    for (double k = std::ceil((-widest - phi0) / (4.0 * kPi)); phi0 + 4.0 * kPi * k <= widest; ++k) {
+    for (double k = std::ceil((-widest - phi0) / (4.0 * kPi)); phi0 + 4.0 * kPi * k <= widest;
+         ++k) {
       const double Phi = phi0 + 4.0 * kPi * k, up = Phi < 0.0 ? -1.0 : 1.0, P = std::abs(Phi);
       // the geodesic of fibre speed up * c and length t (c >= 0), if no longer than reach
       const auto add = [&](double c, double t) {
@@ -128,8 +141,10 @@ struct SL2Flow : ClosedForm<SL2Flow> {
       const double s2 = sigma * sigma, tolerance = 1e-15;
       // component 0, below the parabolic point: t from c in [0, 1/sqrt 2]
       const auto below = [&](double c) {
-        const double k = std::sqrt(std::max(1.0 - 2.0 * c * c, 0.0)), x = k * sigma / std::sqrt(1.0 - c * c);
-        return 2.0 * sigma / std::sqrt(1.0 - c * c) * (x > 1e-8 ? std::asinh(x) / x : 1.0 - x * x / 6.0);
+        const double k = std::sqrt(std::max(1.0 - 2.0 * c * c, 0.0)),
+                     x = k * sigma / std::sqrt(1.0 - c * c);
+        return 2.0 * sigma / std::sqrt(1.0 - c * c) *
+               (x > 1e-8 ? std::asinh(x) / x : 1.0 - x * x / 6.0);
       };
       const auto f_below = [&](double c) { return phase(c, below(c)) - P; };
       const double parabolic = kSqrt2 / 2.0, f_parabolic = f_below(parabolic);
@@ -149,18 +164,22 @@ struct SL2Flow : ClosedForm<SL2Flow> {
       const auto f_above = [&](double u) { return phase(c_of(u), t_of(u)) - P; };
       const auto add_above = [&](double u) { add(c_of(u), t_of(u)); };
       double u;
-      if (f_parabolic < 0.0 && root_towards(f_above, 0.0, f_parabolic, kPi, tolerance * (1.0 + kPi), u))
+      if (f_parabolic < 0.0 &&
+          root_towards(f_above, 0.0, f_parabolic, kPi, tolerance * (1.0 + kPi), u))
         add_above(u);
       for (int n = 1; 2.0 * kPi * n <= reach; ++n)
-        roots_about_minimum(f_above, kPi * n, kPi * (n + 1), tolerance * (1.0 + kPi * (n + 1)), add_above);
+        roots_about_minimum(f_above, kPi * n, kPi * (n + 1), tolerance * (1.0 + kPi * (n + 1)),
+                            add_above);
     }
   }
 
-  // A model point (Re alpha, Im alpha, Re beta, Im beta) and tangent vector as chart (x, 1), (v, 0).
+  // A model point (Re alpha, Im alpha, Re beta, Im beta) and tangent vector as chart (x, 1), (v,
+  // 0).
   static bool to_chart(Vec4& P, Vec4& V) {
     const Complex alpha(P[0], P[1]), beta(P[2], P[3]), da(V[0], V[1]), db(V[2], V[3]);
     if (!(std::norm(alpha) > std::norm(beta))) return false;
-    const Complex ca = std::conj(alpha), w = beta / ca, dw = db / ca - beta * std::conj(da) / (ca * ca);
+    const Complex ca = std::conj(alpha), w = beta / ca,
+                  dw = db / ca - beta * std::conj(da) / (ca * ca);
     P = {w.real(), w.imag(), 2.0 * std::arg(alpha), 1.0};
     V = {dw.real(), dw.imag(), 2.0 * std::imag(da / alpha), 0.0};
     return finite4(P) && finite4(V) && std::norm(w) < 1.0;
@@ -252,18 +271,22 @@ struct SL2Flow : ClosedForm<SL2Flow> {
     const Vec3 direction{dw_h.real(), dw_h.imag(), c - 2.0 * std::imag(std::conj(wh) * dw)};
     // derivatives along t and c
     const double Shat = 2.0 * S / t;
-    const double dShat = std::abs(q) < 0.1
-        ? 1.0 / 6.0 + q * (1.0 / 60.0 + q * (1.0 / 1680.0 + q * (1.0 / 90720.0 + q / 7983360.0)))
-        : (C - Shat) / (2.0 * q);
+    const double dShat =
+        std::abs(q) < 0.1
+            ? 1.0 / 6.0 +
+                  q * (1.0 / 60.0 + q * (1.0 / 1680.0 + q * (1.0 / 90720.0 + q / 7983360.0)))
+            : (C - Shat) / (2.0 * q);
     const double S_t = 0.5 * C, S_c = 0.5 * t * dShat * (-c * t * t);
     const double C_t = 0.5 * k2 * S, C_c = 0.5 * Shat * (-c * t * t);
-    const double area_t = 2.0 * a2 * 2.0 * S * S_t, area_c = 2.0 * (-2.0 * c * S * S + a2 * 2.0 * S * S_c);
+    const double area_t = 2.0 * a2 * 2.0 * S * S_t,
+                 area_c = 2.0 * (-2.0 * c * S * S + a2 * 2.0 * S * S_c);
     const double phi_t = 2.0 * c + 2.0 * std::imag(Complex(C_t, -c * S_t) / A);
     const double phi_c = 2.0 * t + 2.0 * std::imag(Complex(C_c, -S - c * S_c) / A);
     return {vector4(direction), t, floored_falloff(std::abs(area_t * phi_c - area_c * phi_t))};
   }
 
-  // The chart state as a model point and tangent: (alpha, beta) = (e^{i phi/2}, w e^{-i phi/2}) / sqrt(1 - |w|^2).
+  // The chart state as a model point and tangent: (alpha, beta) = (e^{i phi/2}, w e^{-i phi/2}) /
+  // sqrt(1 - |w|^2).
   static void to_model(const Vec3& x, const Vec3& v, Vec4& P, Vec4& V) {
     const Complex w(x[0], x[1]), dw(v[0], v[1]);
     const double q = 1.0 - std::norm(w);

@@ -141,7 +141,8 @@ struct SolFlow : AffineChart {
         power *= h;
       }
       if (N == Segment::kMaxOrder)  // Jorba and Zou: the step at which the last two terms reach eps
-        h = std::min({h, std::pow(eps / size(N - 1), 1.0 / (N - 1)), std::pow(eps / size(N), 1.0 / N)});
+        h = std::min(
+            {h, std::pow(eps / size(N - 1), 1.0 / (N - 1)), std::pow(eps / size(N), 1.0 / N)});
       c.order = N;
       if (!(h > 0.0) || !std::isfinite(h)) break;  // the series overflowed: no unit-speed geodesic
       done += h;
@@ -246,7 +247,8 @@ struct SolFlow : AffineChart {
     found.clear();
     table_->seeds(T, kSeedMargin, seeds);
     const auto near = [&](const Vec3& w, double within) {  // a geodesic found already
-      return std::any_of(found.begin(), found.end(), [&](const Vec3& f) { return norm3(sub3(f, w)) <= within; });
+      return std::any_of(found.begin(), found.end(),
+                         [&](const Vec3& f) { return norm3(sub3(f, w)) <= within; });
     };
     int missed = 0;
     for (const ExpTable::Seed& seed : seeds) {
@@ -300,7 +302,8 @@ struct SolFlow : AffineChart {
     flow({0.0, 0.0, 0.0}, scaled3(1.0 / r, w), r, kConnectionAccuracy, x, v, error);
     return std::isfinite(x[0] + x[1] + x[2]);
   }
-  // d exp_O at w (x = exp_O(w)) by forward differences, good to about 1e-5 (the falloff needs no more).
+  // d exp_O at w (x = exp_O(w)) by forward differences, good to about 1e-5 (the falloff needs no
+  // more).
   bool jacobian(const Vec3& w, const Vec3& x, std::array<Vec3, 3>& J) const {
     const double delta = 1e-5 * std::max(norm3(w), 1e-3);
     for (int j = 0; j < 3; ++j) {
@@ -313,7 +316,8 @@ struct SolFlow : AffineChart {
   }
   // exp_O(w) = T by Newton's method from the seed: its interpolation's inverse as the iteration
   // matrix while it converges fast, the Jacobian (forward differences) once the steps are small
-  // (and wherever they stop shrinking), which is then d exp_O at the solution to the falloff's need.
+  // (and wherever they stop shrinking), which is then d exp_O at the solution to the falloff's
+  // need.
   bool shoot(const Vec3& T, const ExpTable::Seed& seed, Vec3& w, std::array<Vec3, 3>& J) const {
     constexpr int kIterations = 16;
     const double tolerance = kConverged * (1.0 + norm3(T));

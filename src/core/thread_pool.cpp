@@ -11,8 +11,9 @@ ThreadPool::ThreadPool(unsigned threads) {
     // unwinding would destroy the condition variable under them (a deadlock) or a joinable thread.
     const std::size_t started = workers_.size();
     stop_workers();
-    throw ThreadStartError("cannot start " + std::to_string(threads) + " threads: the system refused thread " +
-                           std::to_string(started + 1) + " (" + error.what() + ")");
+    throw ThreadStartError("cannot start " + std::to_string(threads) +
+                           " threads: the system refused thread " + std::to_string(started + 1) +
+                           " (" + error.what() + ")");
   }
 }
 

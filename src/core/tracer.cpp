@@ -169,7 +169,8 @@ void Tracer::query_segments(std::size_t count, Strided2<double> starts, Strided2
         for (std::size_t i = begin; i < end; ++i) {
           const Vec3 x0{starts(i, 0), starts(i, 1), starts(i, 2)};
           const Vec3 x1{ends(i, 0), ends(i, 1), ends(i, 2)};
-          const embree::FirstHit hit = embree::intersect(scene_.get(), embree::chord_ray(x0, x1, 0.0f));
+          const embree::FirstHit hit =
+              embree::intersect(scene_.get(), embree::chord_ray(x0, x1, 0.0f));
           const bool found = hit.prim >= 0;
           prim[i] = found ? std::int32_t(triangle_of(hit)) : -1;
           instance[i] = found ? std::int32_t(hit.instance) : -1;

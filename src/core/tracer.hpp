@@ -30,7 +30,8 @@ struct Strided2 {
   const T* data;
   std::int64_t row_stride, col_stride;
   T operator()(std::size_t i, std::size_t j) const {
-    return data[static_cast<std::int64_t>(i) * row_stride + static_cast<std::int64_t>(j) * col_stride];
+    return data[static_cast<std::int64_t>(i) * row_stride +
+                static_cast<std::int64_t>(j) * col_stride];
   }
 };
 
@@ -48,26 +49,26 @@ struct TraceOptions {
   double tolerance;               // chord deviation at distance 0 (chart units) ...
   double tolerance_per_distance;  // ... and its growth per unit of distance
   bool skip_empty;                // empty-space steps and the occupancy grid (WalkContext)
-  double light_fog;               // distance over which light falls to 1/e along its path (inf: none)
-  int light_samples;              // points sampled on the emitters per shaded point
-  std::uint64_t seed;             // of the samples' random numbers (a ray's depend on it and its index)
-  int bounces;                    // bounces after the camera ray's hit (0: direct light only)
+  double light_fog;    // distance over which light falls to 1/e along its path (inf: none)
+  int light_samples;   // points sampled on the emitters per shaded point
+  std::uint64_t seed;  // of the samples' random numbers (a ray's depend on it and its index)
+  int bounces;         // bounces after the camera ray's hit (0: direct light only)
   EmitterSampling emitter_sampling = EmitterSampling::kMis;
 };
 
 // Caller-allocated per-ray outputs (N rows each).
 struct TraceOutputs {
-  float* color;       // (N,3)
-  double* depth;      // (N,)
-  double* position;   // (N,3)
-  float* normal;      // (N,3)
+  float* color;      // (N,3)
+  double* depth;     // (N,)
+  double* position;  // (N,3)
+  float* normal;     // (N,3)
   std::int32_t* object;
   std::int32_t* crossings;
   std::uint8_t* stop;
-  double* distance;   // geodesic length travelled: depth on a hit, max_distance at the limit
+  double* distance;      // geodesic length travelled: depth on a hit, max_distance at the limit
   std::int32_t* chords;  // Embree queries of the ray
-  double* error;      // bound of the hit's distance from the true geodesic (chart units)
-  double* end;        // (N,3) chart point where the ray stopped: the hit, or the end of its walk
+  double* error;         // bound of the hit's distance from the true geodesic (chart units)
+  double* end;           // (N,3) chart point where the ray stopped: the hit, or the end of its walk
 
   // The outputs of ray i that hit nothing.
   void write_miss(std::size_t i, Stop stop, int crossings, double distance, int chords,
@@ -151,10 +152,14 @@ class Tracer {
                            TraceStats& stats) const = 0;
 
   WalkContext context(const TraceOptions& options) const {
-    return {domain_,           hit_lo_,
-            hit_hi_,           occupancy_,
-            options.tolerance, options.tolerance_per_distance,
-            options.skip_empty, run_stop_};
+    return {domain_,
+            hit_lo_,
+            hit_hi_,
+            occupancy_,
+            options.tolerance,
+            options.tolerance_per_distance,
+            options.skip_empty,
+            run_stop_};
   }
 
   // An instance as the walk uses it: besides the placement, the inverse map, which pulls chart
@@ -187,8 +192,8 @@ class Tracer {
   Surfaces surfaces_;
   std::vector<std::vector<Vec4>> light_lifts_;  // per light
   std::vector<Rgb> light_radiance_;
-  std::vector<SpotCone> light_cone_;            // per light
-  std::vector<std::vector<Vec4>> light_axes_;   // per light and lift, where it has a cone
+  std::vector<SpotCone> light_cone_;           // per light
+  std::vector<std::vector<Vec4>> light_axes_;  // per light and lift, where it has a cone
   // The emitters: their triangles, a cumulative table of their chart areas (a triangle is picked
   // with probability its share), and each group's copies.
   Emitters emitters_;
@@ -205,8 +210,8 @@ class Tracer {
   }
   double light_reach_;
   double geodesic_loop_;
-  double scale_ = 0.0;              // largest extent or coordinate magnitude of the scene
-  Vec3 hit_lo_{}, hit_hi_{};        // the scene's bounds widened by a margin (empty: none)
+  double scale_ = 0.0;        // largest extent or coordinate magnitude of the scene
+  Vec3 hit_lo_{}, hit_hi_{};  // the scene's bounds widened by a margin (empty: none)
   Occupancy occupancy_;
 
   struct EmbreeDeleter {
@@ -224,7 +229,8 @@ class Tracer {
  private:
   // The chart bounds of the instances, the occupancy grid (marching kernels) and the scale.
   void bound_instances(bool occupancy);
-  // The Embree device, the shared vertex buffer and the scenes of all triangles and of the occluders.
+  // The Embree device, the shared vertex buffer and the scenes of all triangles and of the
+  // occluders.
   void build_scenes();
   // The two-level Embree scene of the instances: top-level geometry i is instance i (the mesh's
   // triangles attached directly where its map is the identity, else an instance of the mesh's

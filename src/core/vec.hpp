@@ -70,7 +70,8 @@ struct Affine {
 
   Vec3 point(const Vec3& x) const {
     Vec3 y;
-    for (int r = 0; r < 3; ++r) y[r] = m[4 * r] * x[0] + m[4 * r + 1] * x[1] + m[4 * r + 2] * x[2] + m[4 * r + 3];
+    for (int r = 0; r < 3; ++r)
+      y[r] = m[4 * r] * x[0] + m[4 * r + 1] * x[1] + m[4 * r + 2] * x[2] + m[4 * r + 3];
     return y;
   }
   // The covector c of the image of a chart plane: c . (x, 1) = plane . (A x, 1) for the plane's
@@ -88,8 +89,8 @@ struct Affine {
     const std::array<Vec3, 3> rows{{{m[0], m[1], m[2]}, {m[4], m[5], m[6]}, {m[8], m[9], m[10]}}};
     for (int c = 0; c < 4; ++c) {  // the columns of [L^-1 | -L^-1 t]
       Vec3 column;
-      const Vec3 rhs = c < 3 ? Vec3{double(c == 0), double(c == 1), double(c == 2)}
-                             : Vec3{-m[3], -m[7], -m[11]};
+      const Vec3 rhs =
+          c < 3 ? Vec3{double(c == 0), double(c == 1), double(c == 2)} : Vec3{-m[3], -m[7], -m[11]};
       if (!solve3(rows, rhs, column)) return false;
       for (int r = 0; r < 3; ++r) out.m[4 * r + c] = column[r];
     }

@@ -2,6 +2,7 @@
 engine, export from the depsgraph, the domain guide, the panorama, errors and background batch
 renders. Pixels are compared with independent truths: the core (`thurston render`) fed with mesh
 files written here from the Blender data, closed-form distances, and Blender's own conventions."""
+
 import functools
 import math
 import shutil
@@ -14,17 +15,19 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
+from support import blender_helpers as bh  # noqa: E402
+from support.presets import presets  # noqa: E402
+
 import thurston_addon  # noqa: E402
 from thurston_addon import cli, render, spaces  # noqa: E402
 from thurston_addon.blender import batch, domain_guide, export, properties  # noqa: E402
 from thurston_addon.blender.engine import ThurstonRenderEngine  # noqa: E402
 
-from support import blender_helpers as bh  # noqa: E402
-from support.presets import presets  # noqa: E402
-
 ROOT = Path(__file__).resolve().parents[2]
 THURSTON = Path(sys.executable).with_name("thurston")
-CURVED = presets(lambda space: not space.geometry.projective)  # geodesics bend in the chart: traced in chords within a tolerance
+CURVED = presets(
+    lambda space: not space.geometry.projective
+)  # geodesics bend in the chart: traced in chords within a tolerance
 
 
 def _registered():
@@ -51,8 +54,26 @@ def engine_ids():
 
 def cli_render(tmp_path, toml, space, name, size=(bh.W, bh.H), quality="draft", projection="perspective", extra=()):
     out = tmp_path / f"{name}.exr"
-    code = cli.main(["render", "--space", space, "--scene", str(toml), "--size", f"{size[0]}x{size[1]}",
-                     "--quality", quality, "--projection", projection, "--threads", "2", "--out", str(out), *extra])
+    code = cli.main(
+        [
+            "render",
+            "--space",
+            space,
+            "--scene",
+            str(toml),
+            "--size",
+            f"{size[0]}x{size[1]}",
+            "--quality",
+            quality,
+            "--projection",
+            projection,
+            "--threads",
+            "2",
+            "--out",
+            str(out),
+            *extra,
+        ]
+    )
     assert code == 0
     return bh.read_exr(out)
 
@@ -99,7 +120,14 @@ def build_scene(space="torus", scale=1.0, rotation=(1.45, 0.08, 0.25)):
     sc = bh.fresh_scene(space, scale)
     s = scale
     bh.box("Red", 0.12 * s, (0.04 * s, 0.22 * s, 0.03 * s), color=(0.9, 0.2, 0.1), rotation=(0.3, 0.2, 0.1))
-    bh.box("Lamp", (0.06 * s, 0.05 * s, 0.08 * s), (-0.1 * s, 0.2 * s, -0.05 * s), color=(0.1, 0.1, 0.1), emission=(0.2, 0.9, 0.4), strength=2.0)
+    bh.box(
+        "Lamp",
+        (0.06 * s, 0.05 * s, 0.08 * s),
+        (-0.1 * s, 0.2 * s, -0.05 * s),
+        color=(0.1, 0.1, 0.1),
+        emission=(0.2, 0.9, 0.4),
+        strength=2.0,
+    )
     bh.box("Floor", (0.5 * s, 0.5 * s, 0.02 * s), (0, 0.1 * s, -0.15 * s), color=(0.5, 0.5, 0.7))
     bh.point_light((0.05 * s, 0.05 * s, 0.1 * s), energy=3.0, color=(1.0, 0.9, 0.8))
     bh.camera((0, -0.05 * s, 0), rotation, lens=35.0)
@@ -110,8 +138,19 @@ def build_scene(space="torus", scale=1.0, rotation=(1.45, 0.08, 0.25)):
 
 
 # --- 2. renders through every path equal the core's render of the same scene as files ------------------
-@pytest.mark.parametrize("space,scale", [("torus", 1.0), ("poincare", 2.0), ("nil", 1.0), ("sol", 2.0),
-                                         ("genus2xs1", 1.0), ("s2xs1", 0.1), ("rp3_rp3", 0.1), ("sl2", 1.0)])
+@pytest.mark.parametrize(
+    "space,scale",
+    [
+        ("torus", 1.0),
+        ("poincare", 2.0),
+        ("nil", 1.0),
+        ("sol", 2.0),
+        ("genus2xs1", 1.0),
+        ("s2xs1", 0.1),
+        ("rp3_rp3", 0.1),
+        ("sl2", 1.0),
+    ],
+)
 def test_operators_and_f12_match_core(tmp_path, space, scale):
     """Every path renders what the core renders from the same scene written as files. The emissive
     box lights the others by sampled points whose shadow rays can graze edges that the two exports
@@ -142,8 +181,17 @@ def test_operators_and_f12_match_core(tmp_path, space, scale):
 
     # panorama: Blender's equirect image centre looks along world +X, up +Z
     sc.thurston.panorama_width = 32
-    pano = bh.rgb(cli_render(tmp_path, toml, space, "pano", size=(32, 16), projection="equirect",
-                             extra=["--camera-forward=1,0,0", "--camera-up=0,0,1"]))
+    pano = bh.rgb(
+        cli_render(
+            tmp_path,
+            toml,
+            space,
+            "pano",
+            size=(32, 16),
+            projection="equirect",
+            extra=["--camera-forward=1,0,0", "--camera-up=0,0,1"],
+        )
+    )
     assert bpy.ops.thurston.bake_panorama() == {"FINISHED"}
     near(bh.image_pixels(bpy.data.images["Thurston Panorama"])[..., :3], pano)
 
@@ -226,7 +274,7 @@ def test_export_instances_hidden_and_guide():
     assert "Hidden" not in objs and not any("Thurston" in n for n in objs)
     assert len(scene.objects) == 2  # the two instances share one mesh
     np.testing.assert_allclose(objs["Shown"].vertices.mean(axis=0), [0, 0, -0.15], atol=1e-9)  # world / scale
-    shared, = (o for n, o in objs.items() if n.startswith("Inst"))
+    (shared,) = (o for n, o in objs.items() if n.startswith("Inst"))
     inst = [shared.placed(A[None]) for A in shared.instances]
     assert len(inst) == 2
     box_local = np.array([(x, y, z) for x in (0.0, 0.1) for y in (-0.05, 0.05) for z in (-0.05, 0.05)])
@@ -314,7 +362,9 @@ def test_domain_guide_of_sl2_is_the_curved_octagonal_prism():
     obj, pts = guide_points()
     w = pts[:, 0] + 1j * pts[:, 1]
     k = 2 * w / (1 + np.abs(w) ** 2)
-    side = np.max(np.c_[k.real, k.imag] @ np.array([[math.cos(a), math.sin(a)] for a in np.arange(8) * math.pi / 4]).T, axis=1)
+    side = np.max(
+        np.c_[k.real, k.imag] @ np.array([[math.cos(a), math.sin(a)] for a in np.arange(8) * math.pi / 4]).T, axis=1
+    )
     on_side = np.abs(side - math.sqrt(2 * math.sqrt(2) - 2)) < 1e-5
     on_lid = np.abs(np.abs(pts[:, 2]) - math.pi) < 1e-5
     assert np.all(on_side | on_lid) and len(obj.data.polygons) > 1000
@@ -491,8 +541,10 @@ def test_baked_panorama_seen_by_cycles_matches_the_scene(tmp_path):
     sc.thurston.max_distance = 0.5
     sc.thurston.panorama_width = 128
     black = (0, 0, 0)
-    boxes = [bh.box("MinusX", 0.2, (-0.3, 0, 0), color=black, emission=(1, 0, 0)),
-             bh.box("PlusY", 0.2, (0, 0.3, 0), color=black, emission=(0, 1, 0))]
+    boxes = [
+        bh.box("MinusX", 0.2, (-0.3, 0, 0), color=black, emission=(1, 0, 0)),
+        bh.box("PlusY", 0.2, (0, 0.3, 0), color=black, emission=(0, 1, 0)),
+    ]
     cam = bh.camera((0, 0, 0), rotation=(0.3, 0.2, 1.0))
     assert bpy.ops.thurston.bake_panorama() == {"FINISHED"}
     for b in boxes:
@@ -566,8 +618,9 @@ def test_engine_depth_along_the_view_axis_and_geodesic_distance(tmp_path):
     cam = bh.camera((0, 0, 0), lens=35.0)
     ch = bh.f12(sc, tmp_path / "depth.exr")
     np.testing.assert_allclose(ch["ViewLayer.Depth.Z"], d * scale, rtol=1e-5)
-    np.testing.assert_allclose(ch["ViewLayer.Geodesic Distance.X"], d * scale / view_axis_cosines(cam, bh.W, bh.H),
-                               rtol=1e-5)
+    np.testing.assert_allclose(
+        ch["ViewLayer.Geodesic Distance.X"], d * scale / view_axis_cosines(cam, bh.W, bh.H), rtol=1e-5
+    )
 
 
 def test_engine_reports_errors():
@@ -657,9 +710,11 @@ def test_render_with_camera_outside_the_domain(tmp_path):
     assert bpy.ops.thurston.render_view() == {"FINISHED"}
 
 
-CAMERA_INSIDE_BUG = ("guide.THURSTON_OT_camera_inside.execute assigns cam.matrix_world = [list(r) for r in moved]; "
-                     "bpy reads nested sequences column by column, so the camera gets the transposed matrix "
-                     "(rotation transposed, translation lost: the camera lands at the world origin)")
+CAMERA_INSIDE_BUG = (
+    "guide.THURSTON_OT_camera_inside.execute assigns cam.matrix_world = [list(r) for r in moved]; "
+    "bpy reads nested sequences column by column, so the camera gets the transposed matrix "
+    "(rotation transposed, translation lost: the camera lands at the world origin)"
+)
 
 
 def test_camera_inside_keeps_the_view(tmp_path):
@@ -794,7 +849,10 @@ def test_render_blend_subprocess(tmp_path):
     assert sorted(out.iterdir()) == frames
     one, two = (bh.read_exr(f) for f in frames)
     # the passes saved in the file, as Blender's multilayer EXR names them
-    assert set(one) == {"ViewLayer.Combined." + c for c in "RGBA"} | {"ViewLayer.Depth.Z", "ViewLayer.Geodesic Distance.X"}
+    assert set(one) == {"ViewLayer.Combined." + c for c in "RGBA"} | {
+        "ViewLayer.Depth.Z",
+        "ViewLayer.Geodesic Distance.X",
+    }
     L = "ViewLayer.Combined."
     close(bh.rgb(one, L), truth)
     assert np.abs(bh.rgb(one, L) - bh.rgb(two, L)).max() > 0.05  # the camera moved
@@ -814,8 +872,12 @@ def test_render_blend_in_the_curved_geometries(tmp_path, space):
     blend = tmp_path / "walk.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
     truth = bh.rgb(cli_render(tmp_path, bh.write_scene_files(sc, tmp_path, 1.0), space, "truth"))
-    run = subprocess.run([str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr
     close(bh.rgb(bh.read_exr(tmp_path / "walk_0001.exr"), "ViewLayer.Combined."), truth)
     assert "chords/ray" in run.stdout and "pixel footprint" in run.stdout  # the frame's stats line
@@ -830,7 +892,8 @@ def test_settings_presets_round_trip(tmp_path, monkeypatch):
     s.tolerance = 0.004
     assert bpy.ops.thurston.add_preset(name="Night Walk") == {"FINISHED"}
     preset = next(tmp_path.glob("**/presets/thurston/Night_Walk.py"), None) or next(
-        Path(bpy.utils.resource_path("USER")).glob("**/presets/thurston/Night_Walk.py"))
+        Path(bpy.utils.resource_path("USER")).glob("**/presets/thurston/Night_Walk.py")
+    )
     assert "settings.space_id = 'nil'" in preset.read_text()  # the id, not the enum's position
     s.space, s.quality, s.scale, s.fog, s.passes, s.tolerance = "torus", "draft", 1.0, 0.0, {"NORMAL"}, 0.0
     assert bpy.ops.script.execute_preset(filepath=str(preset), menu_idname="THURSTON_MT_presets") == {"FINISHED"}
@@ -917,8 +980,12 @@ def test_render_blend_renders_what_blender_renders(tmp_path):
     sc.thurston.passes = {"COLOR", "DEPTH"}
     blend = tmp_path / "vis.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
-    run = subprocess.run([str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr
     z = bh.read_exr(tmp_path / "vis_0001.exr")["ViewLayer.Depth.Z"]
     assert z[4, 4] == pytest.approx(0.29, abs=1e-6)

@@ -2,6 +2,7 @@
 scene, render regions, what the render report says, view layers and collection instances, the
 camera's lens shift, sensor fit and clip distances (against Cycles rendering the scene tiled in the
 universal cover), Blender's own panels."""
+
 import math
 import subprocess
 import sys
@@ -14,12 +15,12 @@ import pytest
 bpy = pytest.importorskip("bpy")
 pytestmark = pytest.mark.usefixtures("registered_addon")
 
+from support import blender_helpers as bh  # noqa: E402
+from support.outputs import PREVIOUS, error_line, fill, listing, tmpfs  # noqa: E402
+
 import thurston_addon  # noqa: E402
 from thurston_addon import checks  # noqa: E402
 from thurston_addon.blender import engine  # noqa: E402
-
-from support import blender_helpers as bh  # noqa: E402
-from support.outputs import PREVIOUS, error_line, fill, listing, tmpfs  # noqa: E402
 
 THURSTON = Path(sys.executable).with_name("thurston")
 
@@ -111,8 +112,12 @@ def test_region_in_render_blend(tmp_path):
     r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = 0.25, 0.75, 0.25, 0.75
     blend = tmp_path / "region.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
-    run = subprocess.run([str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path),
-                          "--format", "exr"], capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path), "--format", "exr"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr
     image = bh.read_exr(tmp_path / "region_0001.exr")
     color = bh.rgb(image, "ViewLayer.Combined.")
@@ -170,8 +175,12 @@ def test_render_blend_prints_notes_and_fails_on_a_failed_frame(tmp_path):
     bh.camera((0, -0.1, 0), lens=30.0)
     blend = tmp_path / "dark.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
-    run = subprocess.run([str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr
     assert "warning: the scene has no lights" in run.stdout + run.stderr
 
@@ -180,8 +189,12 @@ def test_render_blend_prints_notes_and_fails_on_a_failed_frame(tmp_path):
     bh.camera((3, 0, 0))  # not a point of H3's chart
     blend = tmp_path / "broken.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
-    run = subprocess.run([str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode != 0
     assert "frame 1" in run.stderr and "camera" in run.stderr and "Traceback" not in run.stderr
     assert not (tmp_path / "broken_0001.exr").exists()
@@ -202,11 +215,28 @@ def test_render_blend_on_a_full_disk_keeps_the_previous_frame(tmp_path, suffix):
         frame = disk / f"full_0001.{suffix}"
         frame.write_bytes(PREVIOUS)
         fill(disk)
-        run = subprocess.run([str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(disk),
-                              "--format", suffix, "--overwrite"], capture_output=True, text=True, timeout=120)
+        run = subprocess.run(
+            [
+                str(THURSTON),
+                "render-blend",
+                str(blend),
+                "--frames",
+                "1",
+                "--out",
+                str(disk),
+                "--format",
+                suffix,
+                "--overwrite",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert run.returncode == 2, run.stderr
-        assert error_line(run.stderr).startswith(f"thurston: error: cannot write {str(frame)!r}: No space left on "
-                                                 "device: the written file does not read back whole")
+        assert error_line(run.stderr).startswith(
+            f"thurston: error: cannot write {str(frame)!r}: No space left on "
+            "device: the written file does not read back whole"
+        )
         assert frame.read_bytes() == PREVIOUS and listing(disk) == ["filler", frame.name]
 
 
@@ -294,6 +324,7 @@ def test_lens_shift_sensor_fit_and_clipping_match_cycles(tmp_path):
 
     bh.tile_torus_for_cycles(sc, 3)
     cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=16), "ViewLayer.Combined.")
+
     def seen(image):  # which box each pixel mostly shows: 0 red, 1 green, 2 blue, 3 none
         return np.where(image.max(axis=-1) > 0.5, np.argmax(image, axis=-1), 3)
 
@@ -307,16 +338,31 @@ def test_lens_shift_sensor_fit_and_clipping_match_cycles(tmp_path):
 
 
 # --- Blender's panels ------------------------------------------------------------------------------------
-NEEDED_PANELS = ("EEVEE_MATERIAL_PT_context_material", "EEVEE_MATERIAL_PT_surface", "DATA_PT_uv_texture",
-                 "DATA_PT_vertex_groups", "OBJECT_PT_visibility", "RENDER_PT_color_management", "RENDER_PT_output",
-                 "RENDER_PT_format", "RENDER_PT_stamp", "VIEWLAYER_PT_layer_passes", "EEVEE_WORLD_PT_surface",
-                 "DATA_PT_lens", "DATA_PT_camera", "DATA_PT_light", "RENDER_PT_frame_range")
+NEEDED_PANELS = (
+    "EEVEE_MATERIAL_PT_context_material",
+    "EEVEE_MATERIAL_PT_surface",
+    "DATA_PT_uv_texture",
+    "DATA_PT_vertex_groups",
+    "OBJECT_PT_visibility",
+    "RENDER_PT_color_management",
+    "RENDER_PT_output",
+    "RENDER_PT_format",
+    "RENDER_PT_stamp",
+    "VIEWLAYER_PT_layer_passes",
+    "EEVEE_WORLD_PT_surface",
+    "DATA_PT_lens",
+    "DATA_PT_camera",
+    "DATA_PT_light",
+    "RENDER_PT_frame_range",
+)
 
 
 def test_blender_panels_show_under_the_engine():
     for name in NEEDED_PANELS:
         assert "THURSTON" in getattr(bpy.types, name).COMPAT_ENGINES, name
-    assert not any("THURSTON" in p.COMPAT_ENGINES for p in engine.compatible_panels() if "freestyle" in p.__name__.lower())
+    assert not any(
+        "THURSTON" in p.COMPAT_ENGINES for p in engine.compatible_panels() if "freestyle" in p.__name__.lower()
+    )
 
 
 def test_the_settings_panel_only_under_thurston_and_the_tools_always():
@@ -420,6 +466,7 @@ def test_viewport_job_adds_the_panels_samples_with_its_bounces():
     from types import SimpleNamespace
 
     from mathutils import Matrix
+
     from thurston_addon import progressive, render, scenes
     from thurston_addon.blender import export
 
@@ -441,12 +488,28 @@ def test_viewport_job_adds_the_panels_samples_with_its_bounces():
     settings = render.Settings(width=24, height=16, quality="draft", samples=3, bounces=1, threads=2)
     direct = render.render(space, None, settings, camera=camera, tracer=tracer).passes["color"]
     assert np.mean(np.isclose(mean, direct, rtol=1e-4, atol=1e-5).all(axis=2)) > 0.99
-    assert render.render(space, None, replace(settings, bounces=0), camera=camera,  # the bounces count
-                         tracer=tracer).passes["color"].mean() < 0.9 * direct.mean()
-    frames = [progressive.Frame("k", 4, None), progressive.Frame("k", 1, None, 2, 0.0123),
-              progressive.Frame("k", 1, None, 3, 0.01)]
+    assert (
+        render.render(
+            space,
+            None,
+            replace(settings, bounces=0),
+            camera=camera,  # the bounces count
+            tracer=tracer,
+        )
+        .passes["color"]
+        .mean()
+        < 0.9 * direct.mean()
+    )
+    frames = [
+        progressive.Frame("k", 4, None),
+        progressive.Frame("k", 1, None, 2, 0.0123),
+        progressive.Frame("k", 1, None, 3, 0.01),
+    ]
     assert [engine.viewport_status(f, 3) for f in frames] == [
-        "viewport: 1/4 resolution", "viewport: sample 2/3, noise 1.2e-02", "viewport: sample 3/3, noise 1.0e-02 (done)"]
+        "viewport: 1/4 resolution",
+        "viewport: sample 2/3, noise 1.2e-02",
+        "viewport: sample 3/3, noise 1.0e-02 (done)",
+    ]
 
 
 # --- settings, operators' notes, layout --------------------------------------------------------------------
@@ -482,5 +545,8 @@ def test_only_registration_imports_the_ui_packages():
         if rel.parts[0] in ("operators", "panels") or rel == Path("blender", "registration.py"):
             continue
         text = path.read_text()
-        assert not re.search(r"from \.+\s*(operators|panels)\b|from \.+ import .*\b(operators|panels)\b|"
-                             r"thurston_addon\.(operators|panels)", text), rel
+        assert not re.search(
+            r"from \.+\s*(operators|panels)\b|from \.+ import .*\b(operators|panels)\b|"
+            r"thurston_addon\.(operators|panels)",
+            text,
+        ), rel

@@ -1,5 +1,6 @@
 """Instancing in real bpy: a collection instanced 1000 times by an array of empties renders in F12
 through one mesh in the core, and its depth straight ahead is the closed form."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,10 +9,10 @@ import pytest
 bpy = pytest.importorskip("bpy")
 pytestmark = pytest.mark.usefixtures("registered_addon")
 
+from support import blender_helpers as bh  # noqa: E402
+
 from thurston_addon import render  # noqa: E402
 from thurston_addon.blender import export  # noqa: E402
-
-from support import blender_helpers as bh  # noqa: E402
 
 RADIUS = 0.02
 SIZE = (33, 33)  # odd: the centre pixel's ray is the optical axis
@@ -53,7 +54,7 @@ def test_thousand_collection_instances_render_through_one_mesh(tmp_path):
 
     notes = []
     scene = export.export_scene(bpy.context.evaluated_depsgraph_get(), 1.0, notes)
-    shared, = scene.objects
+    (shared,) = scene.objects
     assert shared.instances.shape == (1000, 4, 4)
     tracer = render.make_tracer(export.load_space(sc.thurston), scene, threads=2)
     assert tracer.num_triangles == len(mesh.loop_triangles)  # the mesh once

@@ -3,6 +3,7 @@ an area light as an emissive one-sided quad or disc of its size and power), suns
 note; and a closed room lit by a spot and an area light, rendered by Thurston in the 3-torus and
 by Cycles (direct light only): the room's walls hide every copy outside it, so the two agree pixel
 by pixel."""
+
 from __future__ import annotations
 
 import math
@@ -12,7 +13,6 @@ import numpy as np
 
 def light_object(kind, name, location, rotation=(0.0, 0.0, 0.0), **props):
     import bpy
-
     from support import blender_helpers as bh
 
     data = bpy.data.lights.new(name, kind)
@@ -28,15 +28,23 @@ def test_spot_area_and_sun_lights_are_exported(registered_addon):
     rectangle (or disc) of its size in the chart facing -Z, radiance energy / (pi area) (Cycles'); a
     sun is left out, and the notes say why."""
     import bpy
-
     from support import blender_helpers as bh
+
     from thurston_addon import checks
     from thurston_addon.blender import export
 
-    sc = bh.fresh_scene("torus", scale=2.0)
+    bh.fresh_scene("torus", scale=2.0)
     light_object("SPOT", "Spot", (0.2, 0.0, 0.4), spot_size=math.radians(50), spot_blend=0.3, energy=8.0)
-    light_object("AREA", "Panel", (0.0, 0.4, 0.6), rotation=(math.pi / 2, 0, 0), shape="RECTANGLE", size=0.4,
-                 size_y=0.2, energy=12.0)
+    light_object(
+        "AREA",
+        "Panel",
+        (0.0, 0.4, 0.6),
+        rotation=(math.pi / 2, 0, 0),
+        shape="RECTANGLE",
+        size=0.4,
+        size_y=0.2,
+        energy=12.0,
+    )
     light_object("AREA", "Disc", (0.0, 0.0, -0.6), rotation=(math.pi, 0, 0), shape="DISK", size=0.3, energy=5.0)
     light_object("SUN", "Sun", (0.0, 0.0, 0.0))
     notes = []
@@ -51,7 +59,9 @@ def test_spot_area_and_sun_lights_are_exported(registered_addon):
     np.testing.assert_allclose(panel.emission, 12.0 / (math.pi * 0.4 * 0.2))
     P = panel.vertices[panel.triangles]
     normal = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
-    np.testing.assert_allclose(normal / np.linalg.norm(normal, axis=1)[:, None], [[0, 1, 0]] * 2, atol=1e-7)  # -Z rotated
+    np.testing.assert_allclose(
+        normal / np.linalg.norm(normal, axis=1)[:, None], [[0, 1, 0]] * 2, atol=1e-7
+    )  # -Z rotated
     np.testing.assert_allclose(np.ptp(panel.vertices, axis=0), [0.2, 0.0, 0.1], atol=1e-7)  # world / scale
     np.testing.assert_allclose(disc.emission, 5.0 / (math.pi * math.pi * 0.15**2), rtol=1e-6)
     np.testing.assert_allclose(np.ptp(disc.vertices, axis=0), [0.15, 0.15, 0.0], atol=1e-6)
@@ -69,12 +79,25 @@ def lit_room():
     sc.thurston.quality = "standard"
     sc.thurston.light_samples = 16
     t, h = 0.02, 0.39
-    for name, size, location in (("Floor", (0.8, 0.8, t), (0, 0, -h)), ("Ceiling", (0.8, 0.8, t), (0, 0, h)),
-                                 ("West", (t, 0.8, 0.8), (-h, 0, 0)), ("East", (t, 0.8, 0.8), (h, 0, 0)),
-                                 ("South", (0.8, t, 0.8), (0, -h, 0)), ("North", (0.8, t, 0.8), (0, h, 0))):
+    for name, size, location in (
+        ("Floor", (0.8, 0.8, t), (0, 0, -h)),
+        ("Ceiling", (0.8, 0.8, t), (0, 0, h)),
+        ("West", (t, 0.8, 0.8), (-h, 0, 0)),
+        ("East", (t, 0.8, 0.8), (h, 0, 0)),
+        ("South", (0.8, t, 0.8), (0, -h, 0)),
+        ("North", (0.8, t, 0.8), (0, h, 0)),
+    ):
         bh.lambert(bh.box(name, size, location, color=(0.7, 0.7, 0.7)).active_material)
-    light_object("SPOT", "Spot", (-0.12, 0.05, 0.3), rotation=(math.radians(15), 0, 0), energy=2.0,
-                 spot_size=math.radians(60), spot_blend=0.3, shadow_soft_size=0.0)
+    light_object(
+        "SPOT",
+        "Spot",
+        (-0.12, 0.05, 0.3),
+        rotation=(math.radians(15), 0, 0),
+        energy=2.0,
+        spot_size=math.radians(60),
+        spot_blend=0.3,
+        shadow_soft_size=0.0,
+    )
     light_object("AREA", "Panel", (0.15, 0.1, 0.36), shape="RECTANGLE", size=0.2, size_y=0.12, energy=3.0)
     bh.camera((0.0, -0.2, 0.05), rotation=(math.radians(25), 0, 0), lens=18)
     return sc

@@ -3,6 +3,7 @@ a plane with an Image Texture on its Base Color and a box with two material slot
 light within a light reach that holds only its copy in the point's own cell. The reference is
 Cycles rendering the 3x3x3 tiled scene (direct light only), each light copy linked to its own
 cell's objects."""
+
 from __future__ import annotations
 
 import math
@@ -19,8 +20,9 @@ from support import blender_helpers as bh  # noqa: E402
 SIZE = (64, 36)
 # The objects lie within 0.45 of the light and its other copies a cell (at least 0.55 from them) away.
 LIGHT_REACH = 0.5
-TEXELS = np.array([[[0.9, 0.1, 0.1, 1], [0.1, 0.8, 0.2, 1]],
-                   [[0.2, 0.3, 0.9, 1], [0.9, 0.9, 0.2, 1]]], np.float32)  # linear, top row first
+TEXELS = np.array(
+    [[[0.9, 0.1, 0.1, 1], [0.1, 0.8, 0.2, 1]], [[0.2, 0.3, 0.9, 1], [0.9, 0.9, 0.2, 1]]], np.float32
+)  # linear, top row first
 
 
 def build():
@@ -50,7 +52,6 @@ def build():
     return sc
 
 
-
 def test_smooth_textured_per_face_materials_match_cycles_tiled(tmp_path):
     sc = build()
     sc.view_layers[0].use_pass_z = sc.view_layers[0].use_pass_object_index = True
@@ -66,7 +67,9 @@ def test_smooth_textured_per_face_materials_match_cycles_tiled(tmp_path):
     bh.tile_torus_for_cycles(sc, 3, own_cell_light=True)
     cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=32), L + "Combined.")
     near = depth < 1.0  # hits within the 27 cells Cycles has
-    masks = {name: bh.interior(near & (np.abs(index - k) < 0.01)) for name, k in (("ball", 1), ("plane", 2), ("box", 3))}
+    masks = {
+        name: bh.interior(near & (np.abs(index - k) < 0.01)) for name, k in (("ball", 1), ("plane", 2), ("box", 3))
+    }
 
     def error(image, mask):  # the per-pixel differences from Cycles relative to its brightness
         return float(np.abs(image[mask] - cycles[mask]).sum() / cycles[mask].sum())
@@ -76,15 +79,18 @@ def test_smooth_textured_per_face_materials_match_cycles_tiled(tmp_path):
     print("mean relative per-pixel difference from Cycles:", report)
     for name, mask in masks.items():
         assert mask.sum() > 20, name
-        np.testing.assert_allclose(thurston[mask].mean(axis=0), cycles[mask].mean(axis=0), rtol=0.05, atol=0.005,
-                                   err_msg=name)
+        np.testing.assert_allclose(
+            thurston[mask].mean(axis=0), cycles[mask].mean(axis=0), rtol=0.05, atol=0.005, err_msg=name
+        )
         assert report[name] < 0.02, (name, report)
     assert report["ball shaded flat"] > 0.05, report
 
 
 # --- glossy: the Principled BSDF's roughness, metallic and specular layer --------------------------
-GLOSSY = {"Metal": dict(color=(0.9, 0.6, 0.3), roughness=0.35, metallic=1.0),
-          "Varnish": dict(color=(0.15, 0.2, 0.3), roughness=0.3, metallic=0.0)}  # specular level 0.5, IOR 1.5
+GLOSSY = {
+    "Metal": dict(color=(0.9, 0.6, 0.3), roughness=0.35, metallic=1.0),
+    "Varnish": dict(color=(0.15, 0.2, 0.3), roughness=0.3, metallic=0.0),
+}  # specular level 0.5, IOR 1.5
 
 
 def principled(name, color, roughness, metallic):
@@ -126,7 +132,9 @@ def test_principled_scattering_is_exported():
 
     for name, spec in GLOSSY.items():
         m = surfaces.material(sc.objects[name].active_material, name)
-        assert (m.roughness, m.metallic, m.specular, m.ior) == pytest.approx((spec["roughness"], spec["metallic"], 0.5, 1.5))
+        assert (m.roughness, m.metallic, m.specular, m.ior) == pytest.approx(
+            (spec["roughness"], spec["metallic"], 0.5, 1.5)
+        )
     p = sc.objects["Metal"].active_material.node_tree.nodes["Principled BSDF"]
     p.inputs["Roughness"].default_value = 7.0  # Cycles clamps it to 1, as the export does
     assert surfaces.material(sc.objects["Metal"].active_material, "Metal").roughness == 1.0
@@ -147,8 +155,9 @@ def test_glossy_ball_and_plate_match_cycles_tiled(tmp_path):
         p.inputs["Roughness"].default_value = math.sqrt(spec["roughness"])
     wrong = bh.rgb(bh.f12(sc, tmp_path / "wrong.exr"), L + "Combined.")
     for name, spec in GLOSSY.items():
-        sc.objects[name].active_material.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = \
-            spec["roughness"]
+        sc.objects[name].active_material.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = spec[
+            "roughness"
+        ]
     bh.tile_torus_for_cycles(sc, 3, own_cell_light=True)
     cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=32), L + "Combined.")
     near = depth < 1.0
@@ -161,7 +170,8 @@ def test_glossy_ball_and_plate_match_cycles_tiled(tmp_path):
     print("mean relative per-pixel difference from Cycles (roughness right, alpha = roughness):", report)
     for name, mask in masks.items():
         assert mask.sum() > 40, name
-        np.testing.assert_allclose(thurston[mask].mean(axis=0), cycles[mask].mean(axis=0), rtol=0.04, atol=0.002,
-                                   err_msg=name)
+        np.testing.assert_allclose(
+            thurston[mask].mean(axis=0), cycles[mask].mean(axis=0), rtol=0.04, atol=0.002, err_msg=name
+        )
         right, wrong_mapping = report[name]
         assert right < 0.04 and wrong_mapping > 3 * right, (name, report)

@@ -8,6 +8,7 @@ finder of scikit-build-core) and a folder holding only bpy and the packages Blen
 from the extension's wheels. Blender's user folders (config, scripts, extensions) and HOME are
 temporary.
 """
+
 from __future__ import annotations
 
 import glob
@@ -26,14 +27,25 @@ BUILD = ROOT / "scripts" / "build_extension.py"
 
 BPY_SPEC = importlib.util.find_spec("bpy")
 # slow: every test needs the extension built (about two minutes)
-pytestmark = [pytest.mark.skipif(BPY_SPEC is None, reason="bpy is not installed (pip install -r requirements.txt)"),
-              pytest.mark.slow]
+pytestmark = [
+    pytest.mark.skipif(BPY_SPEC is None, reason="bpy is not installed (pip install -r requirements.txt)"),
+    pytest.mark.slow,
+]
 
 # What Blender's bundled Python holds besides the standard library (and what the bpy wheel requires).
-BLENDER_BUNDLED = ["bpy", "numpy", "numpy.libs", "zstandard", "requests", "urllib3", "idna", "certifi",
-                   "charset_normalizer"]
+BLENDER_BUNDLED = [
+    "bpy",
+    "numpy",
+    "numpy.libs",
+    "zstandard",
+    "requests",
+    "urllib3",
+    "idna",
+    "certifi",
+    "charset_normalizer",
+]
 
-CHILD = r'''
+CHILD = r"""
 import json, math, os, sys
 zip_path, out_dir, site_dir = sys.argv[1:4]
 sys.path.insert(0, site_dir)
@@ -147,7 +159,7 @@ report["left_compat_engines"] = sorted(compat_engines())
 report["scene_attr_left"] = hasattr(bpy.types.Scene, "thurston")
 report["scene_rna_left"] = "thurston" in bpy.types.Scene.bl_rna.properties
 print("REPORT " + json.dumps(report))
-'''
+"""
 
 
 def blender_ext_cli() -> Path:
@@ -159,8 +171,7 @@ def blender_ext_cli() -> Path:
 @pytest.fixture(scope="session")
 def extension_zip(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("dist")
-    proc = subprocess.run([sys.executable, str(BUILD), "--out", str(out)], capture_output=True, text=True,
-                          timeout=900)
+    proc = subprocess.run([sys.executable, str(BUILD), "--out", str(out)], capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     zips = list(out.glob("thurston-*.zip"))
     assert len(zips) == 1, (zips, proc.stdout)
@@ -190,18 +201,25 @@ def installed(extension_zip, tmp_path_factory) -> dict:
         "BLENDER_USER_DATAFILES": str(tmp / "datafiles"),
         "TMPDIR": str(tmp),
     }
-    proc = subprocess.run([sys.executable, "-S", "-s", str(child), str(extension_zip), str(tmp / "out"), str(site)],
-                          cwd=tmp, env=env, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "-S", "-s", str(child), str(extension_zip), str(tmp / "out"), str(site)],
+        cwd=tmp,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     lines = [line for line in proc.stdout.splitlines() if line.startswith("REPORT ")]
     assert proc.returncode == 0 and lines, proc.stdout[-4000:] + proc.stderr[-4000:]
-    report = json.loads(lines[-1][len("REPORT "):])
+    report = json.loads(lines[-1][len("REPORT ") :])
     report["tmp"] = str(tmp)
     return report
 
 
 def test_validator_accepts_zip(extension_zip):
-    proc = subprocess.run([sys.executable, str(blender_ext_cli()), "validate", str(extension_zip)],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, str(blender_ext_cli()), "validate", str(extension_zip)], capture_output=True, text=True
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 

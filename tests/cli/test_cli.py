@@ -1,6 +1,7 @@
 """The command line, in process (thurston_addon.cli.main) and once through the installed entry point:
 listings, renders read back from disk, batch traces against closed forms, and errors (exit code 2
 with a one-line message naming the culprit)."""
+
 import json
 import math
 import subprocess
@@ -12,12 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from support.outputs import error_line
+from support.presets import BUILT_IN, presets
 
 from thurston_addon import cli, render, spaces
 from thurston_addon.scenes import default_scene
-
-from support.outputs import error_line
-from support.presets import BUILT_IN, presets
 
 
 @pytest.fixture(autouse=True)
@@ -85,8 +85,12 @@ def test_entry_point_subprocess():
     proc = subprocess.run([str(exe), "spaces", "--json"], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert {r["id"] for r in json.loads(proc.stdout)} == set(BUILT_IN)
-    proc = subprocess.run([str(exe), "render", "--space", "torus", "--passes", "bogus", "--out", "x.exr"],
-                          capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [str(exe), "render", "--space", "torus", "--passes", "bogus", "--out", "x.exr"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 2 and "bogus" in proc.stderr
 
 
@@ -117,8 +121,21 @@ def test_render_png_and_exr(tmp_path, capsys):
     code, out, err = run(["render", "--space", "torus", "--size", "64x36", "--quality", "draft", "--out", exr], capsys)
     assert code == 0, err
     names, pix, spec, meta = read_image(exr)
-    expected = ["R", "G", "B", "Z", "Normal.X", "Normal.Y", "Normal.Z", "Position.X", "Position.Y", "Position.Z",
-                "IndexOB", "Crossings", "Stop"]
+    expected = [
+        "R",
+        "G",
+        "B",
+        "Z",
+        "Normal.X",
+        "Normal.Y",
+        "Normal.Z",
+        "Position.X",
+        "Position.Y",
+        "Position.Z",
+        "IndexOB",
+        "Crossings",
+        "Stop",
+    ]
     assert sorted(names) == sorted(expected)
     assert meta.get("thurston:space") == "torus"
     ch = {n: pix[..., names.index(n)] for n in names}
@@ -140,14 +157,30 @@ def test_render_png_and_exr(tmp_path, capsys):
             assert np.isinf(ch["Z"][i, j])
     assert checked >= 2
     # the colour of the EXR is linear, the PNG's the sRGB encoding of the same render (draft: same rays)
-    srgb = np.clip(np.where(ch["R"] <= 0.0031308, 12.92 * ch["R"], 1.055 * np.clip(ch["R"], 0, None) ** (1 / 2.4) - 0.055), 0, 1)
+    srgb = np.clip(
+        np.where(ch["R"] <= 0.0031308, 12.92 * ch["R"], 1.055 * np.clip(ch["R"], 0, None) ** (1 / 2.4) - 0.055), 0, 1
+    )
     np.testing.assert_allclose(read_image(png)[1][..., 0], srgb, atol=1 / 255 + 1e-6)
 
 
 def test_render_passes_limit_channels(tmp_path, capsys):
     exr = tmp_path / "few.exr"
-    code, _, err = run(["render", "--space", "poincare", "--size", "16x9", "--quality", "draft",
-                        "--passes", "depth,object", "--out", exr], capsys)
+    code, _, err = run(
+        [
+            "render",
+            "--space",
+            "poincare",
+            "--size",
+            "16x9",
+            "--quality",
+            "draft",
+            "--passes",
+            "depth,object",
+            "--out",
+            exr,
+        ],
+        capsys,
+    )
     assert code == 0, err
     names, pix, _, _ = read_image(exr)
     assert sorted(names) == ["IndexOB", "Z"]
@@ -156,9 +189,30 @@ def test_render_passes_limit_channels(tmp_path, capsys):
 
 def test_render_equirect_and_camera_options(tmp_path, capsys):
     exr = tmp_path / "pano.exr"
-    code, out, err = run(["render", "--space", "seifert_weber", "--size", "32x16", "--quality", "draft",
-                          "--projection", "equirect", "--camera-position", "0.1,0,0", "--camera-forward", "0,1,0",
-                          "--camera-up", "0,0,1", "--passes", "depth,stop", "--out", exr], capsys)
+    code, out, err = run(
+        [
+            "render",
+            "--space",
+            "seifert_weber",
+            "--size",
+            "32x16",
+            "--quality",
+            "draft",
+            "--projection",
+            "equirect",
+            "--camera-position",
+            "0.1,0,0",
+            "--camera-forward",
+            "0,1,0",
+            "--camera-up",
+            "0,0,1",
+            "--passes",
+            "depth,stop",
+            "--out",
+            exr,
+        ],
+        capsys,
+    )
     assert code == 0, err
     names, pix, _, _ = read_image(exr)
     assert pix.shape == (16, 32, 2)
@@ -169,7 +223,8 @@ def test_render_equirect_and_camera_options(tmp_path, capsys):
 def user_space(tmp_path):
     """A flat torus from a box 1 x 1 x 2 (translations by 1, 1, 2)."""
     path = tmp_path / "my.toml"
-    path.write_text(textwrap.dedent("""
+    path.write_text(
+        textwrap.dedent("""
         name = "tall torus"
         geometry = "E3"
         [camera]
@@ -182,7 +237,8 @@ def user_space(tmp_path):
         matrix = [[1, 0, 0, 0], [0, 1, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1]]
         [[generator]]
         matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 2], [0, 0, 0, 1]]
-    """))
+    """)
+    )
     return path
 
 
@@ -190,14 +246,34 @@ def test_render_user_space_file(tmp_path, capsys):
     exr = tmp_path / "mine.exr"
     scene = tmp_path / "plate.toml"
     # a thin plate filling the box's cross-section at z = 0.7 (its copies repeat every 2 along z)
-    scene.write_text(textwrap.dedent("""
+    scene.write_text(
+        textwrap.dedent("""
         [[object]]
         primitive = "box"
         center = [0, 0, 0.7]
         size = [0.9, 0.9, 0.02]
-    """))
-    code, out, err = run(["render", "--space", user_space(tmp_path), "--scene", scene, "--size", "9x9",
-                          "--quality", "draft", "--fov", "30", "--passes", "depth,object", "--out", exr], capsys)
+    """)
+    )
+    code, out, err = run(
+        [
+            "render",
+            "--space",
+            user_space(tmp_path),
+            "--scene",
+            scene,
+            "--size",
+            "9x9",
+            "--quality",
+            "draft",
+            "--fov",
+            "30",
+            "--passes",
+            "depth,object",
+            "--out",
+            exr,
+        ],
+        capsys,
+    )
     assert code == 0, err
     assert "mine.exr: 9x9 my;" in out
     names, pix, _, _ = read_image(exr)
@@ -205,9 +281,28 @@ def test_render_user_space_file(tmp_path, capsys):
     assert z == pytest.approx(0.69, abs=1e-6)  # straight ahead along +z
     # with the camera turned round, the plate is met after going 2 - 0.71 = 1.29 through the z faces
     exr2 = tmp_path / "back.exr"
-    code, out, err = run(["render", "--space", user_space(tmp_path), "--scene", scene, "--size", "9x9",
-                          "--quality", "draft", "--fov", "30", "--camera-forward", "0,0,-1", "--passes", "depth",
-                          "--out", exr2], capsys)
+    code, out, err = run(
+        [
+            "render",
+            "--space",
+            user_space(tmp_path),
+            "--scene",
+            scene,
+            "--size",
+            "9x9",
+            "--quality",
+            "draft",
+            "--fov",
+            "30",
+            "--camera-forward",
+            "0,0,-1",
+            "--passes",
+            "depth",
+            "--out",
+            exr2,
+        ],
+        capsys,
+    )
     assert code == 0, err
     names, pix, _, _ = read_image(exr2)
     assert pix[4, 4, names.index("Z")] == pytest.approx(1.29, abs=1e-6)
@@ -218,13 +313,15 @@ def test_trace_against_closed_form(tmp_path, capsys):
     """The torus with one sphere: depths are the first entries into the balls about c + Z^3."""
     centre, rho = np.array([0.1, 0.15, -0.1]), 0.15
     scene = tmp_path / "ball.toml"
-    scene.write_text(textwrap.dedent(f"""
+    scene.write_text(
+        textwrap.dedent(f"""
         [[object]]
         primitive = "sphere"
         center = [{centre[0]}, {centre[1]}, {centre[2]}]
         radius = {rho}
         subdivisions = 5
-    """))
+    """)
+    )
     ico = trimesh.creation.icosphere(subdivisions=5, radius=rho)
     F, Vi = ico.faces, ico.vertices
     n = np.cross(Vi[F[:, 1]] - Vi[F[:, 0]], Vi[F[:, 2]] - Vi[F[:, 0]])
@@ -253,8 +350,24 @@ def test_trace_against_closed_form(tmp_path, capsys):
     first, cos = first[~inside], cos[~inside]
     np.save(tmp_path / "rays.npy", rays)
     out = tmp_path / "hits.npz"
-    code, stdout, err = run(["trace", "--space", "torus", "--scene", scene, "--rays", tmp_path / "rays.npy",
-                             "--out", out, "--max-distance", L, "--max-crossings", 200], capsys)
+    code, stdout, err = run(
+        [
+            "trace",
+            "--space",
+            "torus",
+            "--scene",
+            scene,
+            "--rays",
+            tmp_path / "rays.npy",
+            "--out",
+            out,
+            "--max-distance",
+            L,
+            "--max-crossings",
+            200,
+        ],
+        capsys,
+    )
     assert code == 0, err
     assert "hits.npz" in stdout and "rays" in stdout
     hits = np.load(out)
@@ -283,7 +396,9 @@ def test_output_exists_untouched(tmp_path, capsys):
     line = error_line(err)
     assert "keep.png" in line and "--overwrite" in line
     assert out.read_bytes() == b"precious bytes"
-    code, _, err = run(["render", "--space", "torus", "--size", "8x8", "--quality", "draft", "--out", out, "--overwrite"], capsys)
+    code, _, err = run(
+        ["render", "--space", "torus", "--size", "8x8", "--quality", "draft", "--out", out, "--overwrite"], capsys
+    )
     assert code == 0, err
     assert out.read_bytes() != b"precious bytes"
     # trace too
@@ -299,7 +414,8 @@ def bad_space(tmp_path):
     """p4 x Z: a quarter turn about the vertical line through (0.3, 0.1) with the unit lattice. The
     group is discrete but has fixed points: the edges around the axis sum to pi/2, not 2 pi."""
     path = tmp_path / "orbifold.toml"
-    path.write_text(textwrap.dedent("""
+    path.write_text(
+        textwrap.dedent("""
         geometry = "E3"
         [[generator]]
         matrix = [[1, 0, 0, 1], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
@@ -309,7 +425,8 @@ def bad_space(tmp_path):
         matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]]
         [[generator]]
         matrix = [[0, -1, 0, 0.4], [1, 0, 0, -0.2], [0, 0, 1, 0], [0, 0, 0, 1]]
-    """))
+    """)
+    )
     return path
 
 
@@ -320,8 +437,10 @@ def test_command_errors(tmp_path, capsys):
         (["render", "--space", tmp_path / "nospace.toml", "--out", out], ["nospace.toml", "does not exist"]),
         (["render", "--space", "no_such_preset", "--out", out], ["no_such_preset"]),
         (["render", "--space", bad_space(tmp_path), "--size", "8x8", "--out", out], ["orbifold.toml", "2 pi"]),
-        (["render", "--space", "seifert_weber", "--size", "8x8", "--camera-position", "2,0,0", "--out", out],
-         ["camera"]),
+        (
+            ["render", "--space", "seifert_weber", "--size", "8x8", "--camera-position", "2,0,0", "--out", out],
+            ["camera"],
+        ),
         (["render", "--space", "torus", "--size", "8x8", "--out", tmp_path / "x.bmpx"], ["x.bmpx"]),
         (["render", "--space", "torus", "--size", "8x8", "--out", tmp_path / "nodir" / "x.exr"], ["nodir"]),
     ]
@@ -331,12 +450,21 @@ def test_command_errors(tmp_path, capsys):
     np.save(tmp_path / "zero.npy", np.zeros((4, 6)))
     np.save(tmp_path / "h3.npy", np.array([[1.5, 0, 0, 1, 0, 0.0]]))
     (tmp_path / "junk.npy").write_bytes(b"not numpy")
-    for name, words in (("nan.npy", ["nan.npy", "ray 2"]), ("shape.npy", ["shape.npy", "(4, 3)"]),
-                        ("dtype.npy", ["dtype.npy", "float32"]), ("zero.npy", ["zero.npy", "zero direction"]),
-                        ("junk.npy", ["junk.npy"]), ("absent.npy", ["absent.npy"])):
+    for name, words in (
+        ("nan.npy", ["nan.npy", "ray 2"]),
+        ("shape.npy", ["shape.npy", "(4, 3)"]),
+        ("dtype.npy", ["dtype.npy", "float32"]),
+        ("zero.npy", ["zero.npy", "zero direction"]),
+        ("junk.npy", ["junk.npy"]),
+        ("absent.npy", ["absent.npy"]),
+    ):
         cases.append((["trace", "--space", "torus", "--rays", tmp_path / name, "--out", tmp_path / "h.npz"], words))
-    cases.append((["trace", "--space", "seifert_weber", "--rays", tmp_path / "h3.npy", "--out", tmp_path / "h.npz"],
-                  ["h3.npy", "ray 0", "outside the chart"]))
+    cases.append(
+        (
+            ["trace", "--space", "seifert_weber", "--rays", tmp_path / "h3.npy", "--out", tmp_path / "h.npz"],
+            ["h3.npy", "ray 0", "outside the chart"],
+        )
+    )
     for argv, words in cases:
         code, _, err = run(argv, capsys)
         assert code == 2, (argv, err)
@@ -347,13 +475,16 @@ def test_command_errors(tmp_path, capsys):
     assert not list(tmp_path.glob(".*partial*"))
 
 
-@pytest.mark.parametrize("argv", [
-    ["render", "--space", "torus", "--passes", "depth,bogus", "--out", "x.exr"],
-    ["render", "--space", "torus", "--size", "0x5", "--out", "x.exr"],
-    ["render", "--space", "torus", "--camera-position", "1,2", "--out", "x.exr"],
-    ["render", "--space", "torus", "--quality", "ultra", "--out", "x.exr"],
-    ["frobnicate"],
-])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["render", "--space", "torus", "--passes", "depth,bogus", "--out", "x.exr"],
+        ["render", "--space", "torus", "--size", "0x5", "--out", "x.exr"],
+        ["render", "--space", "torus", "--camera-position", "1,2", "--out", "x.exr"],
+        ["render", "--space", "torus", "--quality", "ultra", "--out", "x.exr"],
+        ["frobnicate"],
+    ],
+)
 def test_argument_errors_exit_2(argv, capsys):
     with pytest.raises(SystemExit) as info:
         cli.main(argv)
@@ -369,13 +500,15 @@ def test_render_bad_limits_exit_2(tmp_path, capsys, option):
     assert "max" in error_line(err)
 
 
-@pytest.mark.parametrize("option", [["--max-distance", "-1"], ["--max-distance", "nan"], ["--max-distance", "0"],
-                                    ["--max-crossings", "-3"]])
+@pytest.mark.parametrize(
+    "option", [["--max-distance", "-1"], ["--max-distance", "nan"], ["--max-distance", "0"], ["--max-crossings", "-3"]]
+)
 def test_trace_bad_limits_exit_2(tmp_path, capsys, option):
     np.save(tmp_path / "rays.npy", np.array([[0, 0, 0, 1, 0, 0.0]]))
     try:
-        code, _, err = run(["trace", "--space", "torus", "--rays", tmp_path / "rays.npy", "--out", tmp_path / "h.npz",
-                            *option], capsys)
+        code, _, err = run(
+            ["trace", "--space", "torus", "--rays", tmp_path / "rays.npy", "--out", tmp_path / "h.npz", *option], capsys
+        )
     except ValueError:
         code, err = 1, ""
     assert code == 2
@@ -394,15 +527,18 @@ matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]]
 """
 
 
-@pytest.mark.parametrize("head,tail,word", [
-    ('geometry = "E3"\ngenerator = [1, 2]\n', "", "generator"),
-    ('geometry = "E3"\ncamera = 5\n', TORUS_GENERATORS, "camera"),
-    ('geometry = "E3"\nmax_crossings = "many"\n', TORUS_GENERATORS, "max_crossings"),
-    ('geometry = "E3"\nmax_crossings = 2.7\n', TORUS_GENERATORS, "max_crossings"),
-    ('geometry = "E3"\nmax_crossings = -5\n', TORUS_GENERATORS, "max_crossings"),
-    ('geometry = "E3"\nmax_distance = -3\n', TORUS_GENERATORS, "max_distance"),
-    ('geometry = "E3"\n[camera]\nforward = [0, 1, 0]\nup = [0, -3, 0]\n', TORUS_GENERATORS, "parallel"),
-])
+@pytest.mark.parametrize(
+    "head,tail,word",
+    [
+        ('geometry = "E3"\ngenerator = [1, 2]\n', "", "generator"),
+        ('geometry = "E3"\ncamera = 5\n', TORUS_GENERATORS, "camera"),
+        ('geometry = "E3"\nmax_crossings = "many"\n', TORUS_GENERATORS, "max_crossings"),
+        ('geometry = "E3"\nmax_crossings = 2.7\n', TORUS_GENERATORS, "max_crossings"),
+        ('geometry = "E3"\nmax_crossings = -5\n', TORUS_GENERATORS, "max_crossings"),
+        ('geometry = "E3"\nmax_distance = -3\n', TORUS_GENERATORS, "max_distance"),
+        ('geometry = "E3"\n[camera]\nforward = [0, 1, 0]\nup = [0, -3, 0]\n', TORUS_GENERATORS, "parallel"),
+    ],
+)
 @pytest.mark.parametrize("command", ["render", "trace"])
 def test_bad_space_file_fields_exit_2(tmp_path, capsys, head, tail, word, command):
     space = tmp_path / "odd.toml"
@@ -461,8 +597,11 @@ def test_trace_wrapper_passes_progress_errors_through():
     assert not isinstance(info.value, render.RenderError)
 
 
-@pytest.mark.parametrize("option, value, named", [("--fog", v, "fog") for v in ("nan", "-0.5", "0", "inf")]
-                         + [("--light-reach", v, "light reach") for v in ("nan", "-0.5")])
+@pytest.mark.parametrize(
+    "option, value, named",
+    [("--fog", v, "fog") for v in ("nan", "-0.5", "0", "inf")]
+    + [("--light-reach", v, "light reach") for v in ("nan", "-0.5")],
+)
 def test_render_bad_fog_or_light_reach_exit_2(tmp_path, capsys, option, value, named):
     out = tmp_path / "x.png"
     code, _, err = run(["render", "--space", "torus", "--size", "4x4", option, value, "--out", out], capsys)
@@ -473,7 +612,9 @@ def test_render_bad_fog_or_light_reach_exit_2(tmp_path, capsys, option, value, n
 
 def test_render_light_reach_is_in_the_summary(tmp_path, capsys):
     out = tmp_path / "x.png"
-    code, printed, err = run(["render", "--space", "torus", "--size", "8x6", "--light-reach", "1.5", "--out", out], capsys)
+    code, printed, err = run(
+        ["render", "--space", "torus", "--size", "8x6", "--light-reach", "1.5", "--out", out], capsys
+    )
     assert code == 0, err
     assert "copies within reach 1.5" in printed
 
@@ -490,11 +631,41 @@ def test_render_warns_what_makes_the_image_dark(tmp_path, capsys):
     """A scene without lights, and one whose light is shut in a box: the render says so."""
     box = tmp_path / "scene.toml"
     box.write_text('[[object]]\nprimitive = "box"\ncenter = [0, 0.3, 0]\nsize = [0.2, 0.2, 0.2]\n')
-    code, _, err = run(["render", "--space", "torus", "--scene", str(box), "--size", "16x9", "--quality", "draft",
-                        "--out", str(tmp_path / "a.png")], capsys)
+    code, _, err = run(
+        [
+            "render",
+            "--space",
+            "torus",
+            "--scene",
+            str(box),
+            "--size",
+            "16x9",
+            "--quality",
+            "draft",
+            "--out",
+            str(tmp_path / "a.png"),
+        ],
+        capsys,
+    )
     assert code == 0 and "warning: the scene has no lights" in err
-    box.write_text(box.read_text() + '[[object]]\nprimitive = "box"\ncenter = [0.3, -0.3, 0.3]\nsize = [0.1, 0.1, 0.1]\n'
-                                      '[[light]]\nposition = [0.3, -0.3, 0.3]\n')
-    code, _, err = run(["render", "--space", "torus", "--scene", str(box), "--size", "16x9", "--quality", "draft",
-                        "--out", str(tmp_path / "b.png")], capsys)
+    box.write_text(
+        box.read_text() + '[[object]]\nprimitive = "box"\ncenter = [0.3, -0.3, 0.3]\nsize = [0.1, 0.1, 0.1]\n'
+        "[[light]]\nposition = [0.3, -0.3, 0.3]\n"
+    )
+    code, _, err = run(
+        [
+            "render",
+            "--space",
+            "torus",
+            "--scene",
+            str(box),
+            "--size",
+            "16x9",
+            "--quality",
+            "draft",
+            "--out",
+            str(tmp_path / "b.png"),
+        ],
+        capsys,
+    )
     assert code == 0 and "warning: no light reaches any surface the camera sees" in err

@@ -1,12 +1,13 @@
 """Tests of the C++ core (thurston_core) against closed-form answers, with real Embree."""
+
 import math
 import threading
 import time
 
 import numpy as np
 import pytest
-
 import thurston_core as _core
+
 from thurston_addon.render import core_scene
 
 HALF = 0.5  # the E3 torus domain is the cube [-HALF, HALF]^3
@@ -14,6 +15,7 @@ GEOMETRY = {0: "E3", 1: "S3", -1: "H3"}  # the projective geometries by curvatur
 
 
 # --- scene construction -------------------------------------------------------------------------
+
 
 def translation(v):
     m = np.eye(4)
@@ -65,8 +67,8 @@ def s3_cube_maps():
     x_i = -1 by the quarter rotation in the (i, 3) plane taking the neighbouring cell onto it."""
     maps = []
     for axis in range(3):
-        maps.append(rotation(axis, 3, np.pi / 2))    # (X_i, X_3) -> (-X_3, X_i)
-        maps.append(rotation(axis, 3, -np.pi / 2))   # its inverse, for the face x_i = -1
+        maps.append(rotation(axis, 3, np.pi / 2))  # (X_i, X_3) -> (-X_3, X_i)
+        maps.append(rotation(axis, 3, -np.pi / 2))  # its inverse, for the face x_i = -1
     return np.array(maps)
 
 
@@ -102,8 +104,9 @@ def square_z(z, half_size):
     return v, np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int32)
 
 
-def make_tracer(curvature, faces, maps, meshes=(), colors=None, emissions=None, lights=(),
-                threads=0, light_reach=math.inf):
+def make_tracer(
+    curvature, faces, maps, meshes=(), colors=None, emissions=None, lights=(), threads=0, light_reach=math.inf
+):
     """meshes: list of (vertices, triangles), one object each; lights: list of (lifts, radiance)."""
     vertices, triangles, objects = [np.zeros((0, 3))], [np.zeros((0, 3), np.int32)], [np.zeros(0, np.int32)]
     offset = 0
@@ -118,12 +121,13 @@ def make_tracer(curvature, faces, maps, meshes=(), colors=None, emissions=None, 
     lifts = [np.zeros((0, 4))] + [np.asarray(l, float).reshape(-1, 4) for l, _ in lights]
     of_lift = [np.zeros(0, np.int32)] + [np.full(len(l), i, np.int32) for i, l in enumerate(lifts[1:])]
     radiance = np.array([r for _, r in lights], np.float32).reshape(-1, 3)
-    scene = _core.Scene(GEOMETRY[curvature],
-                        _core.Domain(np.asarray(faces, float).reshape(-1, 4), np.asarray(maps, float).reshape(-1, 4, 4)),
-                        _core.Meshes(np.concatenate(vertices), np.concatenate(triangles).astype(np.int32),
-                                     np.concatenate(objects)),
-                        _core.Surfaces(colors, emissions),
-                        _core.Lights(np.concatenate(lifts), np.concatenate(of_lift), radiance, light_reach=light_reach))
+    scene = _core.Scene(
+        GEOMETRY[curvature],
+        _core.Domain(np.asarray(faces, float).reshape(-1, 4), np.asarray(maps, float).reshape(-1, 4, 4)),
+        _core.Meshes(np.concatenate(vertices), np.concatenate(triangles).astype(np.int32), np.concatenate(objects)),
+        _core.Surfaces(colors, emissions),
+        _core.Lights(np.concatenate(lifts), np.concatenate(of_lift), radiance, light_reach=light_reach),
+    )
     return _core.Tracer(scene, threads=threads)
 
 
@@ -155,6 +159,7 @@ def origin_rays(curvature, directions):
 
 
 # --- closed-form truth in the E3 universal cover ---------------------------------------------------
+
 
 def planes_crossed(o, p):
     """Number of torus face planes (x_i = HALF + k) strictly between chart points o and p."""
@@ -279,8 +284,7 @@ def test_lambert_plane_closed_form():
     # No faces: plain E3. A floor z = 0 lit by a point light; rays straight down onto it.
     floor = square_z(0.0, 5.0)
     light, radiance = np.array([0.3, 0.2, 2.0]), np.array([2.0, 1.0, 0.5])
-    tracer = make_tracer(0, [], [], [floor], colors=[[0.5, 0.25, 1.0]],
-                         lights=[([*light, 1.0], radiance)])
+    tracer = make_tracer(0, [], [], [floor], colors=[[0.5, 0.25, 1.0]], lights=[([*light, 1.0], radiance)])
     xs = np.linspace(-2, 2, 9)
     o, d = e3_rays(np.stack([xs, np.zeros(9), np.ones(9)], 1), [0, 0, -1])
     r = tracer.trace(o, d, max_distance=np.inf, max_crossings=0)
@@ -300,12 +304,17 @@ def test_lambert_plane_closed_form():
 
 def test_shadows_emission_and_lamps():
     floor = square_z(0.0, 5.0)
-    blocker = box_mesh([0.9, -0.1, 0.9], [1.1, 0.1, 1.1])    # halfway between (2,0,0) and the light
+    blocker = box_mesh([0.9, -0.1, 0.9], [1.1, 0.1, 1.1])  # halfway between (2,0,0) and the light
     lamp = box_mesh([-0.05, -0.05, 1.95], [0.05, 0.05, 2.05])  # emissive, around the light
-    tracer = make_tracer(0, [], [], [floor, blocker, lamp],
-                         colors=[[1, 1, 1], [1, 1, 1], [0, 0, 0]],
-                         emissions=[[0, 0, 0], [0, 0, 0], [3, 2, 1]],
-                         lights=[([0, 0, 2, 1], [1, 1, 1])])
+    tracer = make_tracer(
+        0,
+        [],
+        [],
+        [floor, blocker, lamp],
+        colors=[[1, 1, 1], [1, 1, 1], [0, 0, 0]],
+        emissions=[[0, 0, 0], [0, 0, 0], [3, 2, 1]],
+        lights=[([0, 0, 2, 1], [1, 1, 1])],
+    )
     o, d = e3_rays([[2, 0, 1], [-2, 0, 1], [0, 0, 3]], [0, 0, -1])
     r = tracer.trace(o, d, max_distance=np.inf, max_crossings=0)
     np.testing.assert_array_equal(r["object"], [0, 0, 2])
@@ -336,23 +345,31 @@ def test_light_through_a_face_sums_the_lifts_and_shadow_crosses():
     np.testing.assert_allclose(every.trace(o, d, 10.0, 10)["color"][0], total, rtol=1e-5)
     # A blocker just inside x = -0.5 sits on that path in the neighbouring copy.
     blocker = box_mesh([-0.495, -0.05, -0.21], [-0.485, 0.05, -0.15])
-    dark = make_tracer(0, cube_faces(HALF), torus_maps(), [floor, blocker],
-                       lights=[(lifts, [1, 1, 1])], light_reach=0.5)
+    dark = make_tracer(
+        0, cube_faces(HALF), torus_maps(), [floor, blocker], lights=[(lifts, [1, 1, 1])], light_reach=0.5
+    )
     np.testing.assert_array_equal(dark.trace(o, d, 10.0, 10)["color"][0], 0)
 
 
 def test_thread_count_does_not_change_results():
-    meshes = [box_mesh(BOX_LO, BOX_HI), box_mesh([-0.3, 0.2, -0.4], [-0.1, 0.45, 0.3]),
-              square_z(-0.45, HALF)]
-    lights = [([[0.1, 0.1, 0.1, 1.0], [1.1, 0.1, 0.1, 1.0]], [1, 0.5, 0.2]),
-              ([[-0.2, -0.3, 0.2, 1.0]], [0.3, 0.3, 1.0])]
+    meshes = [box_mesh(BOX_LO, BOX_HI), box_mesh([-0.3, 0.2, -0.4], [-0.1, 0.45, 0.3]), square_z(-0.45, HALF)]
+    lights = [
+        ([[0.1, 0.1, 0.1, 1.0], [1.1, 0.1, 0.1, 1.0]], [1, 0.5, 0.2]),
+        ([[-0.2, -0.3, 0.2, 1.0]], [0.3, 0.3, 1.0]),
+    ]
     d = random_directions(50_000, 5)
     o, dm = e3_rays([0.05, -0.1, 0.0], d)
     results = []
     for threads in (1, 2):
-        tracer = make_tracer(0, cube_faces(HALF), torus_maps(), meshes,
-                             colors=[[1, 0, 0], [0, 1, 0], [0.5, 0.5, 0.5]], lights=lights,
-                             threads=threads)
+        tracer = make_tracer(
+            0,
+            cube_faces(HALF),
+            torus_maps(),
+            meshes,
+            colors=[[1, 0, 0], [0, 1, 0], [0.5, 0.5, 0.5]],
+            lights=lights,
+            threads=threads,
+        )
         assert tracer.num_threads == threads
         results.append(tracer.trace(o, dm, 8.0, 20, record_segments=True))
     one, two = results
@@ -385,6 +402,7 @@ def test_query_segments_against_a_box():
 
 
 # --- S3 and H3 ------------------------------------------------------------------------------------
+
 
 def test_s3_depth_to_a_plane_and_through_a_face():
     d = 0.5  # the chart plane x = tan(d) lies at geodesic distance d from the origin
@@ -433,15 +451,20 @@ def test_curved_lambert_at_the_foot_point(curvature, falloff):
     # the axis meets the plane at the light's foot point, cos = 1 and r = 0.4.
     d, ell = 0.5, 0.1
     chart = np.tan if curvature > 0 else np.tanh
-    light = np.array([np.sin(ell), 0, 0, np.cos(ell)]) if curvature > 0 else \
-        np.array([np.sinh(ell), 0, 0, np.cosh(ell)])
-    tracer = make_tracer(curvature, cube_faces(0.9), np.array([np.eye(4)] * 6),
-                         [square_x(chart(d), 0.5)], colors=[[0.5, 1, 1]],
-                         lights=[(light, [1, 2, 3])])
+    light = (
+        np.array([np.sin(ell), 0, 0, np.cos(ell)]) if curvature > 0 else np.array([np.sinh(ell), 0, 0, np.cosh(ell)])
+    )
+    tracer = make_tracer(
+        curvature,
+        cube_faces(0.9),
+        np.array([np.eye(4)] * 6),
+        [square_x(chart(d), 0.5)],
+        colors=[[0.5, 1, 1]],
+        lights=[(light, [1, 2, 3])],
+    )
     o, v = origin_rays(curvature, [[1, 0, 0]])
     r = tracer.trace(o, v, 10.0, 5)
-    np.testing.assert_allclose(r["color"][0], np.array([0.5, 2, 3]) / falloff(d - ell) ** 2,
-                               rtol=1e-6)
+    np.testing.assert_allclose(r["color"][0], np.array([0.5, 2, 3]) / falloff(d - ell) ** 2, rtol=1e-6)
 
 
 @pytest.mark.parametrize("curvature", [1, -1])
@@ -456,6 +479,7 @@ def test_curved_spaces_without_faces_stop_cleanly(curvature):
 
 
 # --- degenerate input, progress, cancel, errors ------------------------------------------------
+
 
 def test_degenerate_rays_do_not_produce_nan():
     tracer = make_tracer(0, cube_faces(HALF), torus_maps(), [box_mesh(BOX_LO, BOX_HI)])
@@ -555,29 +579,43 @@ def test_tracer_cannot_be_reentered_from_its_callback():
 
 def scene_arrays():
     v, t = box_mesh(BOX_LO, BOX_HI)
-    return dict(geometry="E3", face_covectors=cube_faces(HALF), face_maps=torus_maps(), vertices=v,
-                triangles=t, triangle_object=np.zeros(len(t), np.int32),
-                object_color=np.ones((1, 3), np.float32),
-                object_emission=np.zeros((1, 3), np.float32),
-                light_lifts=np.array([[0, 0, 0, 1.0]]), light_of_lift=np.zeros(1, np.int32),
-                light_radiance=np.ones((1, 3), np.float32))
+    return dict(
+        geometry="E3",
+        face_covectors=cube_faces(HALF),
+        face_maps=torus_maps(),
+        vertices=v,
+        triangles=t,
+        triangle_object=np.zeros(len(t), np.int32),
+        object_color=np.ones((1, 3), np.float32),
+        object_emission=np.zeros((1, 3), np.float32),
+        light_lifts=np.array([[0, 0, 0, 1.0]]),
+        light_of_lift=np.zeros(1, np.int32),
+        light_radiance=np.ones((1, 3), np.float32),
+    )
 
 
-@pytest.mark.parametrize("change, message", [
-    (dict(geometry="Flat"), r"unknown geometry 'Flat' \(known: E3, S3, H3, Nil, Sol, H2xR, S2xR, SL2\)"),
-    (dict(face_covectors=cube_faces(HALF).astype(np.float32)),
-     r"face_covectors must have dtype float64, got float32"),
-    (dict(face_maps=torus_maps()[:5]), r"face_maps must have shape \(F,4,4\) with F = len"),
-    (dict(vertices=np.ones((8, 2))), r"vertices must have shape \(NV,3\), got \(8, 2\)"),
-    (dict(vertices=np.where(np.arange(24).reshape(8, 3) == 4, np.nan, 0.1)),
-     "vertices contain NaN or inf at row 1"),
-    (dict(triangles=np.full((12, 3), 8, np.int32)), "triangles has vertex index 8"),
-    (dict(triangles=np.zeros((12, 3), np.int64)), "triangles must have dtype int32, got int64"),
-    (dict(triangle_object=np.ones(12, np.int32)), "triangle_object has index 1 at row 0"),
-    (dict(object_emission=np.zeros((2, 3), np.float32)), r"object_emission must have shape"),
-    (dict(light_of_lift=np.array([3], np.int32)), "light_of_lift has index 3"),
-    (dict(light_lifts=np.array([[0, 0, 0, 0.0]])), "light_lifts row 0 is not a point"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(geometry="Flat"), r"unknown geometry 'Flat' \(known: E3, S3, H3, Nil, Sol, H2xR, S2xR, SL2\)"),
+        (
+            dict(face_covectors=cube_faces(HALF).astype(np.float32)),
+            r"face_covectors must have dtype float64, got float32",
+        ),
+        (dict(face_maps=torus_maps()[:5]), r"face_maps must have shape \(F,4,4\) with F = len"),
+        (dict(vertices=np.ones((8, 2))), r"vertices must have shape \(NV,3\), got \(8, 2\)"),
+        (
+            dict(vertices=np.where(np.arange(24).reshape(8, 3) == 4, np.nan, 0.1)),
+            "vertices contain NaN or inf at row 1",
+        ),
+        (dict(triangles=np.full((12, 3), 8, np.int32)), "triangles has vertex index 8"),
+        (dict(triangles=np.zeros((12, 3), np.int64)), "triangles must have dtype int32, got int64"),
+        (dict(triangle_object=np.ones(12, np.int32)), "triangle_object has index 1 at row 0"),
+        (dict(object_emission=np.zeros((2, 3), np.float32)), r"object_emission must have shape"),
+        (dict(light_of_lift=np.array([3], np.int32)), "light_of_lift has index 3"),
+        (dict(light_lifts=np.array([[0, 0, 0, 0.0]])), "light_lifts row 0 is not a point"),
+    ],
+)
 def test_constructor_errors(change, message):
     args = scene_arrays() | change
     with pytest.raises(ValueError, match=message):
@@ -591,8 +629,9 @@ def test_hyperbolic_vertices_must_be_in_the_ball():
 
 
 def test_zero_triangles_allowed_and_lists_rejected():
-    args = scene_arrays() | dict(vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3), np.int32),
-                                 triangle_object=np.zeros(0, np.int32))
+    args = scene_arrays() | dict(
+        vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3), np.int32), triangle_object=np.zeros(0, np.int32)
+    )
     assert _core.Tracer(core_scene(args)).num_triangles == 0
     with pytest.raises(TypeError):
         _core.Tracer(core_scene(args | dict(vertices=[[0.0, 0.0, 0.0]])))
@@ -620,5 +659,4 @@ def test_trace_errors():
     # Strided (non-contiguous) input is read in place.
     wide = np.zeros((5, 8))
     wide[:, ::2] = o
-    np.testing.assert_array_equal(tracer.trace(wide[:, ::2], d, 1.0, 1)["depth"],
-                                  tracer.trace(o, d, 1.0, 1)["depth"])
+    np.testing.assert_array_equal(tracer.trace(wide[:, ::2], d, 1.0, 1)["depth"], tracer.trace(o, d, 1.0, 1)["depth"])

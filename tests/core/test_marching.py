@@ -17,20 +17,22 @@ that this file builds on its own:
 Nothing is compared with output of the code saved earlier. Errors are chart units unless said.
 Tables of the measured errors are printed (run with -s to see them).
 """
+
 import math
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
-
 import thurston_core
 import trimesh
-from thurston_addon import cli, render, scenes, spaces
-from thurston_addon.geometries import get
-from thurston_addon.scenes import PointLight, Scene, SceneObject, default_scene
+from scipy.integrate import solve_ivp
 from support.lattice import SOL_PERIOD, SOL_U1, SOL_U2, into_domain, ld
 from support.report import report
-from support.truth import CURVED_METRICS as METRIC, christoffel_from
+from support.truth import CURVED_METRICS as METRIC
+from support.truth import christoffel_from
+
+from thurston_addon import cli, render, scenes
+from thurston_addon.geometries import get
+from thurston_addon.scenes import PointLight, Scene, SceneObject, default_scene
 
 TOLERANCE = 1e-6  # the fine tracing tolerance (chart units)
 
@@ -52,12 +54,19 @@ def christoffel(name, x):
 def dop853(name, x0, v0, length, scale=(1.0, 1.0, 1.0)):
     """Position and velocity after `length` along x'' = -Gamma(x)(x', x'), DOP853 at
     rtol = atol = 1e-12 (atol times `scale` per coordinate)."""
+
     def rhs(_t, y):
         return np.concatenate([y[3:], -np.einsum("kij,i,j->k", christoffel(name, y[:3]), y[3:], y[3:])])
 
     scale = np.asarray(scale, float)
-    sol = solve_ivp(rhs, (0.0, float(length)), np.concatenate([x0, v0]), method="DOP853", rtol=1e-12,
-                    atol=1e-12 * np.concatenate([scale, scale]))
+    sol = solve_ivp(
+        rhs,
+        (0.0, float(length)),
+        np.concatenate([x0, v0]),
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-12 * np.concatenate([scale, scale]),
+    )
     assert sol.success
     return sol.y[:3, -1], sol.y[3:, -1]
 
@@ -116,8 +125,14 @@ def empty_tracer(space):
 
 
 def trace(tracer, P, V, length, tolerance=TOLERANCE, shade=False, max_crossings=100000):
-    out = tracer.trace(np.ascontiguousarray(P, float), np.ascontiguousarray(V, float), float(length),
-                       max_crossings, shade=shade, tolerance=tolerance)
+    out = tracer.trace(
+        np.ascontiguousarray(P, float),
+        np.ascontiguousarray(V, float),
+        float(length),
+        max_crossings,
+        shade=shade,
+        tolerance=tolerance,
+    )
     return out
 
 
@@ -182,9 +197,11 @@ def test_cpp_flow_matches_python_reference(name):
     verr = metric_norm(name, X[:, :3], vc - V[:, :3])
     speed = metric_norm(name, xc, vc)
     bound = 1e-11 + 8 * floor
-    report(f"{name}: C++ flow vs Python reference, 1000 rays", ["max err", "median", "max err/bnd", "max verr",
-                                                                    "max |1-|v||"],
-           [[err.max(), float(np.median(err)), (err / bound).max(), verr.max(), np.abs(speed - 1).max()]])
+    report(
+        f"{name}: C++ flow vs Python reference, 1000 rays",
+        ["max err", "median", "max err/bnd", "max verr", "max |1-|v||"],
+        [[err.max(), float(np.median(err)), (err / bound).max(), verr.max(), np.abs(speed - 1).max()]],
+    )
     worst = int(np.argmax(err / bound))
     assert np.all(err <= bound), (p[worst], v[worst], L[worst], err[worst], floor[worst])
     assert np.all(verr <= 1e-11 + 8 * floor), verr.max()
@@ -239,12 +256,22 @@ def test_flows_match_dop853_of_the_geodesic_equation(name):
             assert verr[0] <= 1e-9 + 1e3 * floor[0], (label, p, v, L, u, vt)
     rows = np.array([r[1:] for r in rows]).reshape(-1, 2, 3)  # ray, (C++, Python), (err, floor, verr)
     resolved = rows[:, 0, 1] < 1e-12  # where float64 resolves 1e-12 in the metric
-    report(f"{name}: flows vs DOP853 (1e-12), {len(rows)} rays (err: metric distance; floor: the coordinates' "
-           "rounding)", ["C++ max", "Python max", "C++ max/flr", "Py max/flr", "C++ vmax", "Python vmax"],
-           [[rows[resolved, 0, 0].max(), rows[resolved, 1, 0].max(), (rows[~resolved, 0, 0] / rows[~resolved, 0, 1]).max(),
-             (rows[~resolved, 1, 0] / rows[~resolved, 1, 1]).max(), rows[:, 0, 2].max(), rows[:, 1, 2].max()]]
-           if (~resolved).any() else
-           [[rows[:, 0, 0].max(), rows[:, 1, 0].max(), 0.0, 0.0, rows[:, 0, 2].max(), rows[:, 1, 2].max()]])
+    report(
+        f"{name}: flows vs DOP853 (1e-12), {len(rows)} rays (err: metric distance; floor: the coordinates' rounding)",
+        ["C++ max", "Python max", "C++ max/flr", "Py max/flr", "C++ vmax", "Python vmax"],
+        [
+            [
+                rows[resolved, 0, 0].max(),
+                rows[resolved, 1, 0].max(),
+                (rows[~resolved, 0, 0] / rows[~resolved, 0, 1]).max(),
+                (rows[~resolved, 1, 0] / rows[~resolved, 1, 1]).max(),
+                rows[:, 0, 2].max(),
+                rows[:, 1, 2].max(),
+            ]
+        ]
+        if (~resolved).any()
+        else [[rows[:, 0, 0].max(), rows[:, 1, 0].max(), 0.0, 0.0, rows[:, 0, 2].max(), rows[:, 1, 2].max()]],
+    )
 
 
 # --- 2. across many crossings: the traced end against the cover geodesic reduced ----------------
@@ -331,17 +358,44 @@ def test_empty_space_ends_where_the_cover_geodesic_ends(space_of, sid):
         assert np.all(np.isfinite(out["end"]))
         assert np.all(space.domain.contains(space.geometry.to_model(out["end"]), tol=1e-9))
         ratio = err / conditioned_bound(sid, kappa, c)
-        rows.append([L, int(c.min()), float(c.mean()), int(c.max()), err.max(), float(np.median(err)),
-                     float(np.quantile(err, 0.9)), float(np.median(kappa)), kappa.max(), ratio.max()])
+        rows.append(
+            [
+                L,
+                int(c.min()),
+                float(c.mean()),
+                int(c.max()),
+                err.max(),
+                float(np.median(err)),
+                float(np.quantile(err, 0.9)),
+                float(np.median(kappa)),
+                kappa.max(),
+                ratio.max(),
+            ]
+        )
         worst = int(np.argmax(ratio))
         assert np.all(ratio <= 1), (L, err[worst], kappa[worst], c[worst])
-    report(f"{sid}: traced end vs reduced cover geodesic (empty scene, tolerance {TOLERANCE:g})",
-           ["length", "min cross", "mean cross", "max cross", "max err", "median err", "p90 err", "median kappa",
-            "max kappa", "max err/bnd"], rows)
+    report(
+        f"{sid}: traced end vs reduced cover geodesic (empty scene, tolerance {TOLERANCE:g})",
+        [
+            "length",
+            "min cross",
+            "mean cross",
+            "max cross",
+            "max err",
+            "median err",
+            "p90 err",
+            "median kappa",
+            "max kappa",
+            "max err/bnd",
+        ],
+        rows,
+    )
     assert rows[-1][1] >= 500 and rows[-1][2] >= 900, "the last level makes about 1000 crossings"
 
 
-@pytest.mark.parametrize("sid, L", [("nil", 0.7), ("nil", 6.0), ("nil", 60.0), ("nil", 650.0), ("sol", 0.7), ("sol", 6.0)])
+@pytest.mark.parametrize(
+    "sid, L", [("nil", 0.7), ("nil", 6.0), ("nil", 60.0), ("nil", 650.0), ("sol", 0.7), ("sol", 6.0)]
+)
 def test_empty_space_ends_within_the_tolerance(space_of, sid, L):
     """The end of a miss is within the tolerance of the reference end, however many crossings,
     where the geodesics do not amplify the flow's errors beyond it. (Sol's do: nearby geodesics
@@ -359,8 +413,10 @@ SPHERE_RADIUS = 0.1
 SPHERE_SUBDIVISIONS = 4
 # sphere centres: Nil in chart coordinates, Sol as (s, t, z) with (x, y) = s u1 + t u2; each at
 # least 0.12 inside every face
-SPHERE_CENTRES = {"nil": [(0.25, 0.2, 0.1), (-0.22, -0.25, -0.2), (0.1, -0.26, 0.26)],
-                  "sol": [(0.25, 0.2, 0.1), (-0.22, -0.25, -0.2), (0.1, -0.26, 0.24)]}
+SPHERE_CENTRES = {
+    "nil": [(0.25, 0.2, 0.1), (-0.22, -0.25, -0.2), (0.1, -0.26, 0.26)],
+    "sol": [(0.25, 0.2, 0.1), (-0.22, -0.25, -0.2), (0.1, -0.26, 0.24)],
+}
 HIT_LENGTH = 6.0
 HIT_RAYS = 400
 COARSE_STEP = 0.01  # pieces of the reference curve: sagitta ~ K h^2 / 8 ~ 1e-5
@@ -412,8 +468,9 @@ class SphereWorld:
         g = self.g = space.geometry
         mesh = trimesh.creation.icosphere(subdivisions=SPHERE_SUBDIVISIONS, radius=SPHERE_RADIUS)
         self.centres = sphere_centres(space.id)
-        self.objects = [SceneObject(f"ball{i}", mesh.vertices + c, mesh.faces, (0.5, 0.6, 0.7))
-                        for i, c in enumerate(self.centres)]
+        self.objects = [
+            SceneObject(f"ball{i}", mesh.vertices + c, mesh.faces, (0.5, 0.6, 0.7)) for i, c in enumerate(self.centres)
+        ]
         # copies g(sphere), g around the domain, that reach near it
         lo, hi = space.domain.vertices.min(0) - 0.05, space.domain.vertices.max(0) + 0.05
         self.copies = []  # (object, centre, inner radius, outer radius, triangles (K, 3, 3))
@@ -484,7 +541,8 @@ class SphereWorld:
         outer = np.array([c[3] for c in self.copies])
         pieces = np.arange(m)
         before = pieces[None, :, None] < first[:, None, None] - np.where(
-            np.arange(len(self.copies))[None, None, :] == first_copy[:, None, None], APPROACH, 0)
+            np.arange(len(self.copies))[None, None, :] == first_copy[:, None, None], APPROACH, 0
+        )
         close = dist <= outer[None, None, :] + GRAZE
         self.grazing = np.any(close & before, axis=(1, 2))
         # fine pass over the hit piece
@@ -519,8 +577,9 @@ class SphereWorld:
             normal = np.cross(near[which, 1] - near[which, 0], near[which, 2] - near[which, 0])
             v = Vf[j, piece] + uu * (Vf[j, piece + 1] - Vf[j, piece])
             ginv = np.linalg.inv(METRIC[self.g.name](x))
-            self.cosine[ray] = abs(normal @ v) / math.sqrt(normal @ ginv @ normal) / math.sqrt(
-                v @ METRIC[self.g.name](x) @ v)
+            self.cosine[ray] = (
+                abs(normal @ v) / math.sqrt(normal @ ginv @ normal) / math.sqrt(v @ METRIC[self.g.name](x) @ v)
+            )
 
     def compared(self):
         """Rays whose true first hit is well inside a sphere's silhouette (cosine of incidence
@@ -550,8 +609,15 @@ def stopped_at_chord_end(tracer, P, V, rows, length, tolerance):
     test_hit_refinement_finds_the_plane_on_straight_rays)."""
     flags = np.zeros(len(rows), bool)
     for k, i in enumerate(rows):
-        out = tracer.trace(np.ascontiguousarray(P[i:i + 1]), np.ascontiguousarray(V[i:i + 1]), float(length), 100000,
-                           shade=False, tolerance=tolerance, record_segments=True)
+        out = tracer.trace(
+            np.ascontiguousarray(P[i : i + 1]),
+            np.ascontiguousarray(V[i : i + 1]),
+            float(length),
+            100000,
+            shade=False,
+            tolerance=tolerance,
+            record_segments=True,
+        )
         ends = np.concatenate([out["segment_starts"], out["segment_ends"]])
         flags[k] = out["stop"][0] == 0 and np.min(np.linalg.norm(ends - out["position"][0], axis=1)) < 1e-9
     return flags
@@ -565,8 +631,10 @@ def assert_within(world, rows, err, bound, tolerance, label):
     if len(failing):
         at_end = stopped_at_chord_end(world.tracer, world.P, world.V, rows[failing], HIT_LENGTH, tolerance)
         worst = failing[np.argmax(err[failing] / bound[failing])]
-        raise AssertionError(f"{label}: {len(failing)} rays beyond the bound ({int(at_end.sum())} of them hit at an "
-                             f"end of their own chord), worst ray {rows[worst]}: {err[worst]:.3g} > {bound[worst]:.3g}")
+        raise AssertionError(
+            f"{label}: {len(failing)} rays beyond the bound ({int(at_end.sum())} of them hit at an "
+            f"end of their own chord), worst ray {rows[worst]}: {err[worst]:.3g} > {bound[worst]:.3g}"
+        )
 
 
 @pytest.mark.slow
@@ -593,10 +661,22 @@ def test_depth_matches_first_hit_of_the_reference_geodesic(space_of, sid):
     for lo, hi in ((0, 1), (1, 5), (5, 100)):
         sel = (c >= lo) & (c < hi)
         if sel.any():
-            table.append([f"{lo}-{hi - 1}", int(sel.sum()), depth_err[sel].max(), float(np.median(depth_err[sel])),
-                          pos_err[sel].max(), (depth_err[sel] / bound[sel]).max()])
-    report(f"{sid}: depth vs first hit of the reference, tolerance {TOLERANCE:g} ({hits.sum()} hits, {misses.sum()} "
-           "misses)", ["crossings", "rays", "max depth err", "median", "max pos err", "max err/bnd"], table)
+            table.append(
+                [
+                    f"{lo}-{hi - 1}",
+                    int(sel.sum()),
+                    depth_err[sel].max(),
+                    float(np.median(depth_err[sel])),
+                    pos_err[sel].max(),
+                    (depth_err[sel] / bound[sel]).max(),
+                ]
+            )
+    report(
+        f"{sid}: depth vs first hit of the reference, tolerance {TOLERANCE:g} ({hits.sum()} hits, {misses.sum()} "
+        "misses)",
+        ["crossings", "rays", "max depth err", "median", "max pos err", "max err/bnd"],
+        table,
+    )
     assert_within(world, rows, depth_err, bound, TOLERANCE, "depth")
     assert_within(world, rows, pos_err, bound, TOLERANCE, "position")
 
@@ -624,12 +704,24 @@ def test_tolerance_trades_chords_for_error(space_of, sid):
         estimate = out["error"][rows]
         assert np.all(np.isfinite(estimate)) and np.all(estimate > 0)
         measured[t] = err
-        table.append([t, int(out["ray_chords"].sum()), float(np.median(err)), float(np.quantile(err, 0.9)),
-                      err.max(), float(np.median(estimate)), (err / estimate).max()])
+        table.append(
+            [
+                t,
+                int(out["ray_chords"].sum()),
+                float(np.median(err)),
+                float(np.quantile(err, 0.9)),
+                err.max(),
+                float(np.median(estimate)),
+                (err / estimate).max(),
+            ]
+        )
         assert_within(world, rows, err, estimate, t, f"tolerance {t:g}: measured error vs the estimate")
         assert_within(world, rows, err, (2 * t + 1e-8) / world.cosine[rows], t, f"tolerance {t:g}: 2 tol / cos")
-    report(f"{sid}: tolerance vs error ({len(rows)} rays hitting the same object)",
-           ["tolerance", "chords", "median err", "p90 err", "max err", "median est", "max err/est"], table)
+    report(
+        f"{sid}: tolerance vs error ({len(rows)} rays hitting the same object)",
+        ["tolerance", "chords", "median err", "p90 err", "max err", "median est", "max err/est"],
+        table,
+    )
     coarse, fine = runs[1e-2], runs[1e-6]
     assert fine["ray_chords"].sum() > 3 * coarse["ray_chords"].sum()
     assert np.all(fine["ray_chords"][rows] >= coarse["ray_chords"][rows] - 2)
@@ -649,11 +741,17 @@ def test_hit_refinement_finds_the_plane_on_straight_rays(geometry):
     for size in (1e-2, 1e-3, 1e-4):
         for winding in (1, -1):
             tri = np.array([[-size, -size, 0.2], [size, -size, 0.2], [0.0, size, 0.2]])[::winding]
-            tracer = thurston_core.Tracer(thurston_core.Scene(
-                geometry, thurston_core.Domain(np.zeros((0, 4)), np.zeros((0, 4, 4))),
-                thurston_core.Meshes(np.ascontiguousarray(tri), np.array([[0, 1, 2]], np.int32), np.zeros(1, np.int32)),
-                thurston_core.Surfaces(np.ones((1, 3), np.float32), np.zeros((1, 3), np.float32)),
-                thurston_core.Lights(np.zeros((0, 4)), np.zeros(0, np.int32), np.zeros((0, 3), np.float32))))
+            tracer = thurston_core.Tracer(
+                thurston_core.Scene(
+                    geometry,
+                    thurston_core.Domain(np.zeros((0, 4)), np.zeros((0, 4, 4))),
+                    thurston_core.Meshes(
+                        np.ascontiguousarray(tri), np.array([[0, 1, 2]], np.int32), np.zeros(1, np.int32)
+                    ),
+                    thurston_core.Surfaces(np.ones((1, 3), np.float32), np.zeros((1, 3), np.float32)),
+                    thurston_core.Lights(np.zeros((0, 4)), np.zeros(0, np.int32), np.zeros((0, 3), np.float32)),
+                )
+            )
             z0 = np.linspace(0.0, 0.15, 200)
             O = np.c_[np.zeros((200, 2)), z0, np.ones(200)]
             D = np.tile([0.0, 0.0, 1.0, 0.0], (200, 1))
@@ -661,12 +759,16 @@ def test_hit_refinement_finds_the_plane_on_straight_rays(geometry):
             assert np.all(out["stop"] == 0)
             err = np.abs(out["depth"] - (0.2 - z0))
             worst.append((size, winding, int((err > TOLERANCE).sum()), err.max()))
-    report(f"{geometry}: vertical rays to a triangle at z = 0.2 (200 rays each)", ["size", "winding", "off > tol",
-                                                                                   "max err"], worst)
+    report(
+        f"{geometry}: vertical rays to a triangle at z = 0.2 (200 rays each)",
+        ["size", "winding", "off > tol", "max err"],
+        worst,
+    )
     assert all(w[3] <= 1e-12 for w in worst), worst
 
 
 # --- 5. extremes: Nil's vertical components, Sol's axes, planes and far starts -----------------
+
 
 def traced_against_reference(space, X, V, L, tolerance=TOLERANCE, rng=None):
     """(out, err, kappa, ratio to the conditioned bound) for rays (X, V) traced for L through the
@@ -706,15 +808,28 @@ def test_nil_vertical_components_through_the_space(space_of, w):
     bound after ~1000 (horizontal rays are the worst conditioned: kappa ~ 5e7 at L = 650)."""
     space = space_of("nil")
     rows = []
-    for L in ((100.0, 1000.0) if w == 1 else (70.0, 650.0)):
+    for L in (100.0, 1000.0) if w == 1 else (70.0, 650.0):
         out, err, kappa, ratio = nil_w_run(space, w, L)
-        rows.append([w, L, int(out["crossings"].min()), int(out["crossings"].max()), err.max(), float(np.median(err)),
-                     kappa.max(), ratio.max()])
+        rows.append(
+            [
+                w,
+                L,
+                int(out["crossings"].min()),
+                int(out["crossings"].max()),
+                err.max(),
+                float(np.median(err)),
+                kappa.max(),
+                ratio.max(),
+            ]
+        )
         assert np.all(ratio <= 1), ratio.max()
         if L < 200:
             assert err.max() <= TOLERANCE
-    report("nil: rays with vertical component w", ["w", "length", "min cross", "max cross", "max err", "median err",
-                                                   "max kappa", "max err/bnd"], rows)
+    report(
+        "nil: rays with vertical component w",
+        ["w", "length", "min cross", "max cross", "max err", "median err", "max kappa", "max err/bnd"],
+        rows,
+    )
 
 
 def test_nil_horizontal_rays_within_the_tolerance_after_1000_crossings(space_of):
@@ -734,8 +849,12 @@ def sol_cases(rng):
                 d = unit_rows(space_rng, 1)[0]
                 d[k] = tiny * np.sign(d[k])
                 near.append(d / np.linalg.norm(d))
-    return [("axes", axes, 3.0, 1e-9), ("axes", axes, 10.0, TOLERANCE), ("near planes", np.array(near), 10.0, TOLERANCE),
-            ("starts near x=0, y=0", None, 60.0, TOLERANCE)]
+    return [
+        ("axes", axes, 3.0, 1e-9),
+        ("axes", axes, 10.0, TOLERANCE),
+        ("near planes", np.array(near), 10.0, TOLERANCE),
+        ("starts near x=0, y=0", None, 60.0, TOLERANCE),
+    ]
 
 
 def test_sol_axes_and_planes_through_the_space(space_of):
@@ -759,13 +878,26 @@ def test_sol_axes_and_planes_through_the_space(space_of):
         X = g.to_model(x)
         V = g.normalize_tangent(X, np.c_[chart_velocity("Sol", x, e), np.zeros(len(x))])
         out, err, kappa, ratio = traced_against_reference(space, X, V, L, tolerance, rng)
-        rows.append([label, L, tolerance, int(out["crossings"].max()), err.max(), float(np.median(err)), kappa.max(),
-                     ratio.max()])
+        rows.append(
+            [
+                label,
+                L,
+                tolerance,
+                int(out["crossings"].max()),
+                err.max(),
+                float(np.median(err)),
+                kappa.max(),
+                ratio.max(),
+            ]
+        )
         assert np.all(ratio <= 1), (label, ratio.max())
         if L <= 3:
             assert err.max() <= tolerance, (label, err.max())
-    report("sol: axes, planes", ["rays", "length", "tolerance", "max cross", "max err", "median err", "max kappa",
-                                 "max err/bnd"], rows)
+    report(
+        "sol: axes, planes",
+        ["rays", "length", "tolerance", "max cross", "max err", "median err", "max kappa", "max err/bnd"],
+        rows,
+    )
 
 
 def test_sol_vertical_ray_on_the_axis_makes_1000_crossings_exactly(space_of):
@@ -816,11 +948,23 @@ def test_sol_far_starts_moved_inside(space_of):
             assert np.all(np.isfinite(out["end"])) and np.all(out["stop"] == 1)
             err = image_distance(space, out["end"], end)
             bound = conditioned_bound("sol", kappa, out["crossings"]) + 4 * kappa * start
-            rows.append([label, L, int(out["crossings"].max()), err.max(), float(np.median(err)), lost.max(),
-                         (err / bound).max()])
+            rows.append(
+                [
+                    label,
+                    L,
+                    int(out["crossings"].max()),
+                    err.max(),
+                    float(np.median(err)),
+                    lost.max(),
+                    (err / bound).max(),
+                ]
+            )
             assert np.all(err <= bound), (label, L, err.max())
-    report("sol: starts at |z| = 20 moved inside", ["reduction", "length", "max cross", "max err", "median err",
-                                                    "start lost", "max err/bnd"], rows)
+    report(
+        "sol: starts at |z| = 20 moved inside",
+        ["reduction", "length", "max cross", "max err", "median err", "start lost", "max err/bnd"],
+        rows,
+    )
 
 
 @pytest.mark.parametrize("flow", ["python", "cpp"])
@@ -866,6 +1010,7 @@ class LitPlane:
     """A plane s = 0.3 (|t|, |z| <= 0.45), a point light at s = -0.05 and, in between at s = 0.12,
     a rectangular occluder; rays from the light's side. The light reaches 0.6: the hits compared
     are lit by its nearest copy alone (all others of theirs lie beyond)."""
+
     OCCLUDER = (0.12, (0.05, 0.2), (-0.1, 0.1))
     LIGHT_REACH = 0.6
 
@@ -936,8 +1081,13 @@ class LitPlane:
         r = rc[np.arange(len(rows)), best]
         r2 = rc[np.arange(len(rows)), order[:, 1]]
         Vl = Vc.reshape(-1, 4, 4)[np.arange(len(rows)), best]
-        keep = (np.isfinite(r) & (r2 > 1.5 * r) & (r < self.LIGHT_REACH) & (r2 > 1.05 * self.LIGHT_REACH)
-                & (nearest4[np.arange(len(rows)), best] == 0))
+        keep = (
+            np.isfinite(r)
+            & (r2 > 1.5 * r)
+            & (r < self.LIGHT_REACH)
+            & (r2 > 1.05 * self.LIGHT_REACH)
+            & (nearest4[np.arange(len(rows)), best] == 0)
+        )
         Vl = np.where(keep[:, None], Vl, np.array([1.0, 0, 0, 0]))
         r = np.where(keep, r, 0.5)
         cos = np.einsum("ni,nij,nj->n", N, np.array([METRIC[g.name](h) for h in H[:, :3]]), Vl[:, :3])
@@ -962,8 +1112,9 @@ class LitPlane:
                     if abs(margin) < 2e-3:
                         keep[i] = False
                     occluded[i] |= margin > 0
-        colour = (PLANE_COLOR * LIGHT_COLOR * LIGHT_POWER)[None, :] * (
-            np.maximum(cos, 0.0) * falloff * ~occluded)[:, None]
+        colour = (PLANE_COLOR * LIGHT_COLOR * LIGHT_POWER)[None, :] * (np.maximum(cos, 0.0) * falloff * ~occluded)[
+            :, None
+        ]
         return colour, keep, occluded, cos, r, falloff
 
 
@@ -994,14 +1145,28 @@ def test_lambert_colour_is_base_power_cos_falloff(space_of, sid):
     lit = keep & ~occluded & (cos > 0)
     dark = keep & (occluded | (cos <= 0))
     assert lit.sum() >= 100 and (keep & occluded).sum() >= 20 and (keep & (cos <= 0)).sum() >= 20, (
-        lit.sum(), (keep & occluded).sum(), (keep & (cos <= 0)).sum())
+        lit.sum(),
+        (keep & occluded).sum(),
+        (keep & (cos <= 0)).sum(),
+    )
     rel = np.abs(got[lit] - colour[lit]).max(axis=1) / colour[lit].max(axis=1)
     crossed = out["crossings"][rows][lit] > 0
-    report(f"{sid}: Lambert colour vs base * power * cos * falloff ({len(rows)} hits on the plane, at most "
-           f"{off:.1g} off it)",
-           ["lit", "of which crossed", "shadowed", "back-facing", "max rel err", "median", "r range"],
-           [[int(lit.sum()), int(crossed.sum()), int((keep & occluded).sum()), int((keep & (cos <= 0)).sum()),
-             rel.max(), float(np.median(rel)), f"{r[lit].min():.2f}-{r[lit].max():.2f}"]])
+    report(
+        f"{sid}: Lambert colour vs base * power * cos * falloff ({len(rows)} hits on the plane, at most "
+        f"{off:.1g} off it)",
+        ["lit", "of which crossed", "shadowed", "back-facing", "max rel err", "median", "r range"],
+        [
+            [
+                int(lit.sum()),
+                int(crossed.sum()),
+                int((keep & occluded).sum()),
+                int((keep & (cos <= 0)).sum()),
+                rel.max(),
+                float(np.median(rel)),
+                f"{r[lit].min():.2f}-{r[lit].max():.2f}",
+            ]
+        ],
+    )
     assert crossed.sum() >= 10
     assert np.all(rel <= (2e-5 if sid == "nil" else 3e-4)), rel.max()
     assert np.all(got[dark] == 0.0), got[dark].max()
@@ -1031,7 +1196,7 @@ def test_falloff_tends_to_inverse_square_near_the_light(space_of, sid):
     close = keep & (r < 0.03) & (cos > 0)
     assert close.sum() >= 50, close.sum()
     base = PLANE_COLOR * LIGHT_COLOR * LIGHT_POWER
-    inverse_square = base[None, :] * (cos / r ** 2)[:, None]
+    inverse_square = base[None, :] * (cos / r**2)[:, None]
     got = out["color"][hit].astype(float)
     dev = np.abs(got[close] / inverse_square[close] - 1).max()
     rows.append(["traced", float(r[close].max()), dev])
@@ -1042,12 +1207,14 @@ def test_falloff_tends_to_inverse_square_near_the_light(space_of, sid):
 
 # --- 7. `thurston trace --tolerance T` writes chords and error estimates ------------------------
 
+
 @pytest.mark.parametrize("sid", ["nil", "sol"])
 def test_cli_trace_writes_chords_and_error_estimates(space_of, sid, tmp_path, monkeypatch, capsys):
     """HITS.npz holds chords (N,) (Embree queries per ray) and error_estimate (N,) (finite and
     positive for hits, NaN for misses); as --tolerance falls from 1e-2 to 1e-6 the chords rise and
     the estimates of the rays that hit the same object at both fall."""
     import warnings
+
     monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # cli.main replaces it
     space = space_of(sid)
     rng = np.random.default_rng(71)
@@ -1058,8 +1225,23 @@ def test_cli_trace_writes_chords_and_error_estimates(space_of, sid, tmp_path, mo
     runs = {}
     for T in (1e-2, 1e-4, 1e-6):
         out = tmp_path / f"hits_{T:g}.npz"
-        code = cli.main(["trace", "--space", sid, "--rays", str(tmp_path / "rays.npy"), "--out", str(out),
-                         "--tolerance", f"{T:g}", "--max-distance", "6", "--threads", "2"])
+        code = cli.main(
+            [
+                "trace",
+                "--space",
+                sid,
+                "--rays",
+                str(tmp_path / "rays.npy"),
+                "--out",
+                str(out),
+                "--tolerance",
+                f"{T:g}",
+                "--max-distance",
+                "6",
+                "--threads",
+                "2",
+            ]
+        )
         assert code == 0, capsys.readouterr().err
         with np.load(out) as data:
             runs[T] = {k: data[k] for k in data.files}
@@ -1073,8 +1255,15 @@ def test_cli_trace_writes_chords_and_error_estimates(space_of, sid, tmp_path, mo
         assert np.all(np.isfinite(r["error_estimate"][hit])) and np.all(r["error_estimate"][hit] > 0)
         assert np.all(np.isnan(r["error_estimate"][~hit]))
         assert np.all(r["chords"] >= 0) and np.all(r["chords"][hit] >= 1)
-        rows.append([T, int(hit.sum()), int(r["chords"].sum()), float(np.median(r["error_estimate"][hit])),
-                     float(np.nanmax(r["error_estimate"]))])
+        rows.append(
+            [
+                T,
+                int(hit.sum()),
+                int(r["chords"].sum()),
+                float(np.median(r["error_estimate"][hit])),
+                float(np.nanmax(r["error_estimate"])),
+            ]
+        )
     report(f"{sid}: thurston trace --tolerance T ({n} rays)", ["T", "hits", "chords", "median est", "max est"], rows)
     coarse, fine = runs[1e-2], runs[1e-6]
     assert coarse["chords"].sum() < runs[1e-4]["chords"].sum() < fine["chords"].sum()
@@ -1085,6 +1274,7 @@ def test_cli_trace_writes_chords_and_error_estimates(space_of, sid, tmp_path, mo
 
 
 # --- threads, progress and cancel, as for the projective kernel --------------------------------
+
 
 @pytest.mark.slow
 @pytest.mark.parametrize("sid", ["nil", "sol"])

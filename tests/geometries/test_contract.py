@@ -5,23 +5,23 @@ back onto itself, the C++ flow against the Python one, and the C++ and Python re
 same geometries. A test-only geometry, registered here, fulfils the contract and renders through the
 whole pipeline (space -> scene -> render) with no product file changed.
 """
+
 from __future__ import annotations
 
 import tomllib
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pytest
-
-from thurston_addon import geometries, render, spaces
-from thurston_addon import scenes
-from thurston_addon.geometries.euclidean import Euclidean
 from support.truth import christoffel_from, dop853
+
+from thurston_addon import geometries, render, scenes, spaces
+from thurston_addon.geometries.euclidean import Euclidean
 
 NAMES = list(geometries.GEOMETRIES)
 
 
-@lru_cache(maxsize=None)
+@cache
 def presets_of(name: str) -> tuple:
     """The built-in presets of the geometry `name`."""
     found = (spaces.load(s) for s in spaces.preset_ids() if spaces.preset_path(s).parent == spaces.PRESET_DIR)
@@ -55,6 +55,7 @@ def point_jacobian(f, x, h=1e-6):
 
 
 # --- the checks, for a geometry and a space of it ---------------------------------------------------
+
 
 def check_christoffel(g, space, rng):
     """Gamma^k_ij = 1/2 g^kl (d_i g_lj + d_j g_li - d_l g_ij) from the metric's numerical derivatives."""
@@ -119,6 +120,7 @@ CHECKS = [check_christoffel, check_geodesics, check_isometries, check_core_flow]
 
 # --- every geometry of the registry -------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("check", CHECKS, ids=lambda c: c.__name__)
 @pytest.mark.parametrize("name", NAMES)
 def test_contract(name, check):
@@ -148,6 +150,7 @@ def test_the_core_and_python_registries_name_the_same_geometries():
 
 
 # --- a test-only geometry -------------------------------------------------------------------------------
+
 
 class RenamedEuclidean(Euclidean):
     """E3 under another name: a geometry only this test registers, which the core's E3 kernel serves."""

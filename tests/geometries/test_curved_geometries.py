@@ -8,24 +8,26 @@ with DOP853 at 1e-12, Nil's closed form is also evaluated in the paper's plain f
 with enough digits to absorb its cancellation, and geodesic-sphere areas come from fans of
 integrated geodesics.
 """
+
 import math
 from decimal import Decimal, getcontext, localcontext
 
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+from support.truth import CURVED_METRICS, nil_sol_christoffel, nil_sol_metric_derivative
 
 from thurston_addon.geometries import nil as nil_module
 from thurston_addon.geometries import sol as sol_module
 from thurston_addon.geometries.nil import Nil
 from thurston_addon.geometries.sol import Sol
-from support.truth import CURVED_METRICS, nil_sol_christoffel, nil_sol_metric_derivative
 
 NAMES = ["Nil", "Sol"]
 GEOMETRY = {"Nil": Nil(), "Sol": Sol()}
 
 
 # --- the geodesic equation (the metrics' derivatives and Christoffel symbols: support/truth.py) ---
+
 
 def integrate_geodesic(name, x0, v0, ts, scale=None):
     """DOP853 of x'' = -Gamma(x)(x', x') at rtol = atol = 1e-12 (atol times `scale` per
@@ -36,8 +38,15 @@ def integrate_geodesic(name, x0, v0, ts, scale=None):
         return np.concatenate([y[3:], -np.einsum("kij,i,j->k", nil_sol_christoffel(name, y[:3]), y[3:], y[3:])])
 
     ts = np.atleast_1d(ts)
-    sol = solve_ivp(rhs, (0.0, ts[-1]), np.concatenate([x0, v0]), method="DOP853", rtol=1e-12,
-                    atol=1e-12 * np.concatenate([scale, scale]), t_eval=ts)
+    sol = solve_ivp(
+        rhs,
+        (0.0, ts[-1]),
+        np.concatenate([x0, v0]),
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-12 * np.concatenate([scale, scale]),
+        t_eval=ts,
+    )
     assert sol.success
     return sol.y[:3].T, sol.y[3:].T
 
@@ -80,6 +89,7 @@ def random_points(rng, n, radius=1.5):
 
 # --- attributes, metric, Christoffel symbols -------------------------------------------------------
 
+
 def test_attributes(name, geom):
     assert geom.name == name and geom.kernel == name and geom.projective is False
 
@@ -108,16 +118,21 @@ def test_christoffel_symbols_from_the_metric(name, geom, rng):
 
 def test_volume_density_is_sqrt_det_metric(name, geom, rng):
     for x in random_points(rng, 6):
-        assert float(geom.volume_density(x)) == pytest.approx(math.sqrt(np.linalg.det(CURVED_METRICS[name](x))), rel=1e-12)
+        assert float(geom.volume_density(x)) == pytest.approx(
+            math.sqrt(np.linalg.det(CURVED_METRICS[name](x))), rel=1e-12
+        )
 
 
 def test_dot_is_the_metric(name, geom, rng):
     for x in random_points(rng, 4):
         a, b = rng.normal(size=(2, 3))
-        assert float(geom.dot(model(x), model(a, 0.0), model(b, 0.0))) == pytest.approx(a @ CURVED_METRICS[name](x) @ b, rel=1e-13)
+        assert float(geom.dot(model(x), model(a, 0.0), model(b, 0.0))) == pytest.approx(
+            a @ CURVED_METRICS[name](x) @ b, rel=1e-13
+        )
 
 
 # --- geodesics against DOP853 ----------------------------------------------------------------------
+
 
 def check_geodesic_against_integration(name, geom, x0, v0, ts, tol=1e-9, scale=None):
     """Geodesic from chart point x0 with unit chart velocity v0 against DOP853, all times at once;
@@ -198,6 +213,7 @@ def test_sol_first_integrals_are_conserved():
 
 # --- Nil: the closed form for every vertical component ---------------------------------------------
 
+
 def paper_closed_form(v, t):
     """The paper's Nil geodesic from the origin, velocity (c cos a, c sin a, w), in decimals with
     enough digits to absorb its 1/w^2 cancellation; w = 0 is the limit x + iy = c t e^{ia},
@@ -219,8 +235,11 @@ def paper_closed_form(v, t):
             sin_ta, cos_ta = st * ca + ct * sa, ct * ca - st * sa
             x = c / w * (sin_ta - sa)
             y = -c / w * (cos_ta - ca)
-            z = (t * (w + c * c / (2 * w)) - c * c / (4 * w * w) * (s2t * c2a + c2t * s2a - s2a)
-                 + c * c / (2 * w * w) * (st * c2a + ct * s2a - s2a - st))
+            z = (
+                t * (w + c * c / (2 * w))
+                - c * c / (4 * w * w) * (s2t * c2a + c2t * s2a - s2a)
+                + c * c / (2 * w * w) * (st * c2a + ct * s2a - s2a - st)
+            )
             ux, uy = c * cos_ta, c * sin_ta
         return np.array([float(x), float(y), float(z)]), np.array([float(ux), float(uy), float(w + x * uy)])
 
@@ -282,8 +301,19 @@ def paper_f(theta):
 # --- Sol: axes, near-degenerate directions, far starts, the elliptic form ---------------------------
 
 SOL_DIRECTIONS = [
-    [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
-    [0, 0.6, 0.8], [0.6, 0, -0.8], [1e-9, 0.6, 0.8], [0.6, -1e-9, 0.8], [1e-12, 1, 0], [1, 1, 0], [1, -1, 1e-7],
+    [1, 0, 0],
+    [-1, 0, 0],
+    [0, 1, 0],
+    [0, -1, 0],
+    [0, 0, 1],
+    [0, 0, -1],
+    [0, 0.6, 0.8],
+    [0.6, 0, -0.8],
+    [1e-9, 0.6, 0.8],
+    [0.6, -1e-9, 0.8],
+    [1e-12, 1, 0],
+    [1, 1, 0],
+    [1, -1, 1e-7],
 ]
 
 
@@ -326,13 +356,26 @@ def test_sol_elliptic_form_matches_integration_away_from_the_guards():
 def test_sol_elliptic_form_falls_back_at_the_guards():
     geom = GEOMETRY["Sol"]
     h = 1 / math.sqrt(2)
-    near_guards = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [0.6, 0, 0.8], [1e-5, 0.6, 0.8],
-                            [h, h, 0], [h, -h, 0], [h, h * (1 - 1e-10), 1e-5]])
+    near_guards = np.array(
+        [
+            [1, 0, 0],
+            [0, 1, 0],
+            [0, 0, 1],
+            [0.6, 0, 0.8],
+            [1e-5, 0.6, 0.8],
+            [h, h, 0],
+            [h, -h, 0],
+            [h, h * (1 - 1e-10), 1e-5],
+        ]
+    )
     ts = np.array([2.0, 7.0])
     for p in near_guards:
         v0 = p / np.linalg.norm(p)
         q = abs(v0[0] * v0[1])
-        assert q < sol_module.ELLIPTIC_MIN_PRODUCT or math.sqrt(max(0.0, 1 - 4 * q * q)) < sol_module.ELLIPTIC_MIN_MODULUS_GAP
+        assert (
+            q < sol_module.ELLIPTIC_MIN_PRODUCT
+            or math.sqrt(max(0.0, 1 - 4 * q * q)) < sol_module.ELLIPTIC_MIN_MODULUS_GAP
+        )
         X, W = geom.geodesic_elliptic(model([0, 0, 0]), model(v0, 0.0), ts)
         Xi, Wi = geom.geodesic(model([0, 0, 0]), model(v0, 0.0), ts)
         np.testing.assert_allclose(X, Xi, rtol=1e-14, atol=1e-15)
@@ -342,6 +385,7 @@ def test_sol_elliptic_form_falls_back_at_the_guards():
 
 
 # --- isometries ------------------------------------------------------------------------------------
+
 
 def nil_product(p, q):
     return np.array([p[0] + q[0], p[1] + q[1], p[2] + q[2] + p[0] * q[1]])
@@ -372,8 +416,12 @@ def test_nil_group_laws():
     for p, q, r in random_points(rng, 9, radius=3.0).reshape(3, 3, 3):
         np.testing.assert_allclose(nil_module.multiply(p, q), nil_product(p, q), rtol=1e-15)
         np.testing.assert_allclose(nil_product(nil_product(p, q), r), nil_product(p, nil_product(q, r)), rtol=1e-14)
-        np.testing.assert_allclose(geom.left_multiplication(p) @ geom.left_multiplication(q),
-                                   geom.left_multiplication(nil_product(p, q)), rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(
+            geom.left_multiplication(p) @ geom.left_multiplication(q),
+            geom.left_multiplication(nil_product(p, q)),
+            rtol=1e-14,
+            atol=1e-14,
+        )
         np.testing.assert_allclose(geom.transform_points(geom.left_multiplication(p), q), nil_product(p, q), rtol=1e-14)
         np.testing.assert_allclose(nil_product(p, nil_module.inverse(p)), 0.0, atol=1e-14)
 
@@ -383,10 +431,15 @@ def test_sol_translations_compose():
     rng = np.random.default_rng(10)
     for (a, b, c), (d, e, f) in random_points(rng, 6, radius=2.0).reshape(3, 2, 3):
         expected = geom.translation(math.exp(-c) * d + a, math.exp(c) * e + b, c + f)
-        np.testing.assert_allclose(geom.translation(a, b, c) @ geom.translation(d, e, f), expected, rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(
+            geom.translation(a, b, c) @ geom.translation(d, e, f), expected, rtol=1e-14, atol=1e-14
+        )
         x = rng.normal(size=3)
-        np.testing.assert_allclose(geom.transform_points(geom.translation(a, b, c), x),
-                                   [math.exp(-c) * x[0] + a, math.exp(c) * x[1] + b, x[2] + c], rtol=1e-14)
+        np.testing.assert_allclose(
+            geom.transform_points(geom.translation(a, b, c), x),
+            [math.exp(-c) * x[0] + a, math.exp(c) * x[1] + b, x[2] + c],
+            rtol=1e-14,
+        )
     np.testing.assert_allclose(geom.transform_points(geom.swap(), [1.0, 2.0, 3.0]), [2.0, 1.0, -3.0])
     np.testing.assert_allclose(geom.transform_points(geom.flip(-1, 1), [1.0, 2.0, 3.0]), [-1.0, 2.0, 3.0])
 
@@ -442,6 +495,7 @@ def test_nil_reorthonormalize_leaves_other_isometries_unchanged():
 
 # --- connect, distance -----------------------------------------------------------------------------
 
+
 def test_connect_reaches_nearby_points(name, geom, rng):
     a = random_points(rng, 12)
     b = a + rng.uniform(-1.0, 1.0, a.shape)
@@ -478,6 +532,7 @@ def test_connect_same_point_and_failure(name, geom):
 
 # --- point-light falloff ---------------------------------------------------------------------------
 
+
 def orthonormal_frame(name, x, v):
     """v and two unit vectors completing it to an orthonormal frame of the metric at x."""
     g = CURVED_METRICS[name](x)
@@ -495,7 +550,9 @@ def fan_area_density(name, x0, v0, r, eps=1e-4):
     _, e1, e2 = orthonormal_frame(name, x0, v0)
     spread = []
     for e in (e1, e2):
-        ends = [integrate_geodesic(name, x0, math.cos(eps) * v0 + sign * math.sin(eps) * e, [r])[0][0] for sign in (1, -1)]
+        ends = [
+            integrate_geodesic(name, x0, math.cos(eps) * v0 + sign * math.sin(eps) * e, [r])[0][0] for sign in (1, -1)
+        ]
         spread.append((ends[0] - ends[1]) / (2 * math.sin(eps)))
     end = integrate_geodesic(name, x0, v0, [r])[0][0]
     gram = np.array([[a @ CURVED_METRICS[name](end) @ b for b in spread] for a in spread])
@@ -521,6 +578,7 @@ def test_falloff_tends_to_inverse_square_and_is_the_same_from_both_ends(name, ge
 
 
 # --- charts and tangent vectors --------------------------------------------------------------------
+
 
 def test_chart_model_round_trip(name, geom, rng):
     xs = random_points(rng, 10, radius=5.0)

@@ -6,15 +6,16 @@ H3 Klein: I/(1-r^2) + x x^T/(1-r^2)^2), their Christoffel symbols are derived he
 integrated numerically with a tight DOP853, distances are arclengths by quadrature, and sphere
 areas come from integrating the volume density.
 """
+
 import math
 
 import numpy as np
 import pytest
 from scipy.integrate import quad, solve_ivp
 from scipy.optimize import brentq
+from support.truth import AMBIENT, chart_metric
 
 from thurston_addon import geometries
-from support.truth import AMBIENT, chart_metric
 
 NAMES = ["E3", "S3", "H3"]
 ORIGIN = np.array([0.0, 0.0, 0.0, 1.0])
@@ -22,7 +23,6 @@ SIGN = {"E3": 0, "S3": 1, "H3": -1}
 
 
 # --- the chart metrics, written from the textbook formulas ---------------------------------------
-
 
 
 def chart_metric_derivative(name, x):
@@ -36,8 +36,11 @@ def chart_metric_derivative(name, x):
     dA = -k / (1 + k * s) ** 2
     dB = 2 * k * k / (1 + k * s) ** 3
     eye = np.eye(3)
-    return (2 * dA * np.einsum("l,ij->lij", x, eye) + 2 * dB * np.einsum("l,i,j->lij", x, x, x)
-            + B * (np.einsum("il,j->lij", eye, x) + np.einsum("i,jl->lij", x, eye)))
+    return (
+        2 * dA * np.einsum("l,ij->lij", x, eye)
+        + 2 * dB * np.einsum("l,i,j->lij", x, x, x)
+        + B * (np.einsum("il,j->lij", eye, x) + np.einsum("i,jl->lij", x, eye))
+    )
 
 
 def geodesic_rhs(name):
@@ -48,13 +51,22 @@ def geodesic_rhs(name):
         # lowered Christoffel symbols contracted with v v: dg[i,l,j] v_i v_j - 1/2 dg[l,i,j] v_i v_j
         gam = np.einsum("ilj,i,j->l", dg, v, v) - 0.5 * np.einsum("lij,i,j->l", dg, v, v)
         return np.concatenate([v, -np.linalg.solve(g, gam)])
+
     return rhs
 
 
 def integrate_geodesic(name, x0, u0, ts):
     v0 = u0 / math.sqrt(u0 @ chart_metric(name, x0) @ u0)
-    sol = solve_ivp(geodesic_rhs(name), (0.0, ts[-1]), np.concatenate([x0, v0]), method="DOP853",
-                    rtol=1e-12, atol=1e-12, t_eval=ts, dense_output=True)
+    sol = solve_ivp(
+        geodesic_rhs(name),
+        (0.0, ts[-1]),
+        np.concatenate([x0, v0]),
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-12,
+        t_eval=ts,
+        dense_output=True,
+    )
     assert sol.success
     return sol
 
@@ -107,10 +119,10 @@ def rng(name):
 
 # --- sanity of the test's own derivative formula ----------------------------------------------------
 
+
 def test_metric_derivative_helper_matches_finite_differences(name, rng):
     for x in random_chart_points(rng, 5, name, radius=0.8):
-        fd = np.stack([(chart_metric(name, x + h) - chart_metric(name, x - h)) / 2e-6
-                       for h in 1e-6 * np.eye(3)])
+        fd = np.stack([(chart_metric(name, x + h) - chart_metric(name, x - h)) / 2e-6 for h in 1e-6 * np.eye(3)])
         np.testing.assert_allclose(chart_metric_derivative(name, x), fd, atol=1e-7)
 
 
@@ -120,6 +132,7 @@ def test_get_unknown_geometry():
 
 
 # --- metric -----------------------------------------------------------------------------------------
+
 
 def test_metric_is_pullback_of_ambient_form(name, geom, rng):
     J = AMBIENT[name]
@@ -145,6 +158,7 @@ def test_volume_density_is_sqrt_det_metric(name, geom, rng):
 
 
 # --- geodesic flow ----------------------------------------------------------------------------------
+
 
 def test_chart_geodesic_matches_numerical_integration(name, geom, rng):
     ts = np.array([0.25, 0.6, 1.0] + ([2.0] if name == "E3" else []))
@@ -194,10 +208,13 @@ def test_geodesic_model_closed_form_stays_on_model(name, geom, rng):
 
 # --- distance ---------------------------------------------------------------------------------------
 
+
 def chord_arclength(name, a, b):
     """Length of the straight chart segment a -> b (a geodesic in these projective charts)."""
     d = b - a
-    val, err = quad(lambda s: math.sqrt(d @ chart_metric(name, a + s * d) @ d), 0.0, 1.0, epsabs=0.0, epsrel=1e-13, limit=200)
+    val, err = quad(
+        lambda s: math.sqrt(d @ chart_metric(name, a + s * d) @ d), 0.0, 1.0, epsabs=0.0, epsrel=1e-13, limit=200
+    )
     return val
 
 
@@ -259,6 +276,7 @@ def test_distance_is_zero_on_the_diagonal(name, geom, rng):
 
 # --- isometries -------------------------------------------------------------------------------------
 
+
 def ambient_isometry_check(name, M, tol=1e-12):
     M = np.asarray(M)
     if name == "E3":
@@ -305,7 +323,9 @@ def test_translation_moves_origin_by_exactly_d(name, geom, rng, d):
 
 def test_translations_form_a_one_parameter_group(name, geom):
     n = np.array([0.3, -0.4, 1.2])
-    np.testing.assert_allclose(geom.translation(n, 0.3) @ geom.translation(n, 0.5), geom.translation(n, 0.8), atol=1e-13)
+    np.testing.assert_allclose(
+        geom.translation(n, 0.3) @ geom.translation(n, 0.5), geom.translation(n, 0.8), atol=1e-13
+    )
     np.testing.assert_allclose(geom.translation(n, 0.7) @ geom.translation(n, -0.7), np.eye(4), atol=1e-13)
 
 
@@ -386,6 +406,7 @@ def test_bisector_is_the_equidistant_plane(name, geom, rng):
 
 # --- charts and tangent vectors --------------------------------------------------------------------
 
+
 def test_chart_model_round_trip(name, geom, rng):
     J = AMBIENT[name]
     xs = random_chart_points(rng, 10, name)
@@ -441,6 +462,7 @@ def test_normalize_tangent_gives_unit_metric_length(name, geom, rng):
 
 # --- point-light falloff ---------------------------------------------------------------------------
 
+
 def sphere_area_from_density(name, geom, r):
     """Area of the geodesic sphere of radius r about the origin, as d/dr of the volume of the ball,
     with the volume integrated from the chart's volume density and the chart radius of the sphere
@@ -452,7 +474,14 @@ def sphere_area_from_density(name, geom, r):
 
     def ball_volume(R):
         rho = brentq(lambda p: geodesic_radius(p) - R, 0.0, top, xtol=1e-15, rtol=1e-15)
-        return quad(lambda s: 4 * math.pi * s * s * float(geom.volume_density(s * e)), 0.0, rho, epsabs=0.0, epsrel=1e-13, limit=200)[0]
+        return quad(
+            lambda s: 4 * math.pi * s * s * float(geom.volume_density(s * e)),
+            0.0,
+            rho,
+            epsabs=0.0,
+            epsrel=1e-13,
+            limit=200,
+        )[0]
 
     h = 1e-4 * r
     return (ball_volume(r + h) - ball_volume(r - h)) / (2 * h)
@@ -471,6 +500,7 @@ def test_falloff_h3_far():
 
 
 # --- dihedral angles --------------------------------------------------------------------------------
+
 
 def chart_dihedral(name, c1, c2, p):
     """Interior angle at chart point p (on both planes) between the half-spaces c.(x,1) <= 0:
@@ -515,4 +545,6 @@ def test_plane_distance(name, geom, rng):
         h = rng.uniform(0.05, 0.9)
         c = np.append(n, -h) * 3.0
         # foot of the perpendicular from the origin is the chart point h n
-        assert float(geom.plane_distance(c)) == pytest.approx(model_distance(name, ORIGIN, geom.to_model(h * n)), rel=1e-12)
+        assert float(geom.plane_distance(c)) == pytest.approx(
+            model_distance(name, ORIGIN, geom.to_model(h * n)), rel=1e-12
+        )

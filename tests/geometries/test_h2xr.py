@@ -6,17 +6,18 @@ and integrated with DOP853 at 1e-12. Depth is checked against the first entry of
 geodesic, followed in the universal cover and carried into the domain by the group, into chart
 spheres inside the domain (the mesh lies between its inscribed and circumscribed spheres).
 """
+
 import math
 
 import numpy as np
 import pytest
 import trimesh
+from support.cover import assert_no_leak_at_the_prism_edges, check_depths
+from support.truth import check_flows_against_dop853, christoffel_from, h2xr_metric, unit_in
 
 from thurston_addon import render, spaces
 from thurston_addon.geometries import get
 from thurston_addon.scenes import Scene, SceneObject
-from support.cover import assert_no_leak_at_the_prism_edges, check_depths
-from support.truth import check_flows_against_dop853, christoffel_from, h2xr_metric, unit_in
 
 G = get("H2xR")
 SQ2 = math.sqrt(2.0)
@@ -70,8 +71,11 @@ def geodesic_cases(rng):
     """(start, unit chart velocity, length): random, near the disk's boundary, purely vertical and
     purely horizontal."""
     cases = [(x, unit(x, rng.normal(size=3)), rng.uniform(0.5, 4)) for x in disk_points(rng, 12)]
-    cases += [(x, unit(x, rng.normal(size=3)), 2.0) for x in disk_points(rng, 4, radius=0.999)[:, :] * [1, 1, 1]
-              if np.hypot(x[0], x[1]) > 0.5]
+    cases += [
+        (x, unit(x, rng.normal(size=3)), 2.0)
+        for x in disk_points(rng, 4, radius=0.999)[:, :] * [1, 1, 1]
+        if np.hypot(x[0], x[1]) > 0.5
+    ]
     cases += [(x, np.array([0.0, 0.0, 1.0]), 3.0) for x in disk_points(rng, 3)]
     cases += [(x, unit(x, np.r_[rng.normal(size=2), 0.0]), 3.0) for x in disk_points(rng, 3)]
     return cases
@@ -111,7 +115,9 @@ def test_isometries_pull_back_the_metric(space):
         for x in disk_points(rng, 4, radius=0.6):
             y, J = chart_map(M, x)
             np.testing.assert_allclose(G.transform_points(M, x), y, atol=1e-12)
-            np.testing.assert_allclose(J.T @ h2xr_metric(y) @ J, h2xr_metric(x), rtol=1e-6, atol=1e-7)  # words: entries ~1e3
+            np.testing.assert_allclose(
+                J.T @ h2xr_metric(y) @ J, h2xr_metric(x), rtol=1e-6, atol=1e-7
+            )  # words: entries ~1e3
     assert not G.is_isometry(np.diag([2.0, 1.0, 1.0, 1.0]))
     coupled = np.eye(4)
     coupled[2, 0] = 0.1
@@ -133,7 +139,9 @@ def test_the_preset_is_the_octagon_times_the_period(space):
     for k in range(4):
         a = (k + 4) * math.pi / 4
         p = G.transform_points(A[k], np.array([SIDE * math.cos(a), SIDE * math.sin(a), 0.3]))
-        np.testing.assert_allclose(p, [SIDE * math.cos(k * math.pi / 4), SIDE * math.sin(k * math.pi / 4), 0.3], atol=1e-12)
+        np.testing.assert_allclose(
+            p, [SIDE * math.cos(k * math.pi / 4), SIDE * math.sin(k * math.pi / 4), 0.3], atol=1e-12
+        )
     # unique reduction: points and their images under words reduce to one point
     rng = np.random.default_rng(4)
     x = space._interior_points(rng, 50)
@@ -176,7 +184,9 @@ OUTER = RADIUS
 
 
 def test_depth_matches_the_cover_geodesic_first_hit(space):
-    scene = Scene(objects=[SceneObject(f"ball{i}", MESH.vertices + c, MESH.faces, (0.6, 0.6, 0.6)) for i, c in enumerate(CENTRES)])
+    scene = Scene(
+        objects=[SceneObject(f"ball{i}", MESH.vertices + c, MESH.faces, (0.6, 0.6, 0.6)) for i, c in enumerate(CENTRES)]
+    )
     tracer = render.make_tracer(space, scene)
     rng = np.random.default_rng(6)
     n, length = 120, 6.0
@@ -188,7 +198,9 @@ def test_depth_matches_the_cover_geodesic_first_hit(space):
     u[5:10, 2] = 0  # purely horizontal
     P = G.to_model(x)
     V = G.normalize_tangent(P, G.tangent_to_model(x, u))
-    out = tracer.trace(np.ascontiguousarray(P), np.ascontiguousarray(V), length, 10000, shade=False, tolerance=TOLERANCE)
+    out = tracer.trace(
+        np.ascontiguousarray(P), np.ascontiguousarray(V), length, 10000, shade=False, tolerance=TOLERANCE
+    )
     compared, hits = check_depths(G, space, out, P, V, length, CENTRES, [OUTER] * len(CENTRES), [INNER] * len(CENTRES))
     assert compared >= 80 and hits >= 20, (compared, hits)
     assert np.all(np.isfinite(out["end"])) and not np.isnan(out["depth"][out["stop"] == 0]).any()
@@ -208,7 +220,9 @@ def test_long_rays_end_where_the_cover_geodesic_ends(space):
     P = G.to_model(x)
     V = G.normalize_tangent(P, G.tangent_to_model(x, np.array([frame_direction(x[i], u[i]) for i in range(n)])))
     length = 100 * PERIOD
-    out = tracer.trace(np.ascontiguousarray(P), np.ascontiguousarray(V), length, 100000, shade=False, tolerance=TOLERANCE)
+    out = tracer.trace(
+        np.ascontiguousarray(P), np.ascontiguousarray(V), length, 100000, shade=False, tolerance=TOLERANCE
+    )
     assert np.all(out["stop"] == 1) and np.all(out["crossings"] >= 99)
     Y, _ = G.geodesic(np.asarray(P, np.longdouble), np.asarray(V, np.longdouble), np.longdouble(length))
     X, _, _ = space.move_inside(Y)

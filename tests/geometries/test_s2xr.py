@@ -6,17 +6,18 @@ and integrated with DOP853 at 1e-12. Isometries are checked by pulling the metri
 closed-form geodesic, followed in the universal cover and carried into the shell by the group, into
 chart spheres (the mesh lies between its inscribed and circumscribed spheres).
 """
+
 import math
 
 import numpy as np
 import pytest
 import trimesh
+from support.cover import check_depths, first_hits
+from support.truth import check_flows_against_dop853, christoffel_from, s2xr_metric, unit_in
 
 from thurston_addon import render, spaces
 from thurston_addon.geometries import get
 from thurston_addon.scenes import Scene, SceneObject
-from support.cover import check_depths, first_hits
-from support.truth import check_flows_against_dop853, christoffel_from, s2xr_metric, unit_in
 
 G = get("S2xR")
 
@@ -60,8 +61,9 @@ def geodesic_cases(rng):
 
 
 def test_closed_forms_match_dop853_of_the_geodesic_equation():
-    check_flows_against_dop853(G, christoffel_truth, s2xr_metric, geodesic_cases(np.random.default_rng(2)),
-                               speed_tol=1e-12)
+    check_flows_against_dop853(
+        G, christoffel_truth, s2xr_metric, geodesic_cases(np.random.default_rng(2)), speed_tol=1e-12
+    )
 
 
 def test_radial_and_tangential_geodesics_are_the_product_s_lines_and_great_circles():
@@ -86,7 +88,9 @@ def test_isometries_pull_the_metric_back_onto_itself():
         assert G.is_isometry(M)
         for x in shell_points(rng, 5):
             A = M[:3, :3]
-            np.testing.assert_allclose(A.T @ s2xr_metric(A @ x) @ A, s2xr_metric(x), rtol=1e-12, atol=1e-14 * s2xr_metric(x)[0, 0])
+            np.testing.assert_allclose(
+                A.T @ s2xr_metric(A @ x) @ A, s2xr_metric(x), rtol=1e-12, atol=1e-14 * s2xr_metric(x)[0, 0]
+            )
     shear = np.eye(4)
     shear[0, 1] = 0.5
     translation = np.eye(4)
@@ -104,8 +108,9 @@ def test_connect_distance_and_falloff_in_closed_form():
     np.testing.assert_allclose(G.dot(G.to_model(A), V, V), 1.0, rtol=1e-13)
     # the product distance: the angle of the directions and the difference of log|x|
     angle = np.arccos(np.clip(np.sum(A * B, 1) / np.linalg.norm(A, axis=1) / np.linalg.norm(B, axis=1), -1, 1))
-    np.testing.assert_allclose(r, np.hypot(angle, np.log(np.linalg.norm(B, axis=1) / np.linalg.norm(A, axis=1))),
-                               rtol=1e-9)
+    np.testing.assert_allclose(
+        r, np.hypot(angle, np.log(np.linalg.norm(B, axis=1) / np.linalg.norm(A, axis=1))), rtol=1e-9
+    )
     # the falloff is 1 / the wavefront's area per unit solid angle (finite differences of the closed form)
     P = G.to_model(A[:5])
     for p, v, d in zip(P, V[:5], r[:5]):
@@ -148,8 +153,10 @@ def test_the_preset_is_the_shell_glued_by_the_dilation(space):
 
 def test_shell_faces_that_are_not_spheres_are_refused(tmp_path):
     path = tmp_path / "bad.toml"
-    path.write_text('geometry = "S2xR"\n[[generator]]\nmatrix = [[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 0], [0, 0, 0, 1]]\n'
-                    'face = [1, 0, 0, -1]\n[camera]\nposition = [1.5, 0, 0]\n')
+    path.write_text(
+        'geometry = "S2xR"\n[[generator]]\nmatrix = [[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 0], [0, 0, 0, 1]]\n'
+        "face = [1, 0, 0, -1]\n[camera]\nposition = [1.5, 0, 0]\n"
+    )
     with pytest.raises(spaces.SpaceError, match="is not a sphere"):
         spaces.load(path)
 
@@ -163,21 +170,29 @@ SIZES = 0.2 * np.linalg.norm(CENTRES, axis=1)
 
 def test_depth_matches_the_cover_geodesic_first_hit(space):
     """Copies e^{kL} x of the balls in the cover are what the reduction of the cover geodesic meets."""
-    scene = Scene(objects=[SceneObject(f"ball{i}", s * MESH.vertices + c, MESH.faces, (0.6, 0.6, 0.6))
-                           for i, (c, s) in enumerate(zip(CENTRES, SIZES))])
+    scene = Scene(
+        objects=[
+            SceneObject(f"ball{i}", s * MESH.vertices + c, MESH.faces, (0.6, 0.6, 0.6))
+            for i, (c, s) in enumerate(zip(CENTRES, SIZES))
+        ]
+    )
     tracer = render.make_tracer(space, scene)
     rng = np.random.default_rng(6)
     n, length = 100, 8.0
     x = space._interior_points(rng, 8 * n)
-    x = x[np.min(np.linalg.norm(x[:, None] - CENTRES[None], axis=-1) - SIZES, axis=1) > 0.05 * np.linalg.norm(x, axis=1)][:n]
+    x = x[
+        np.min(np.linalg.norm(x[:, None] - CENTRES[None], axis=-1) - SIZES, axis=1) > 0.05 * np.linalg.norm(x, axis=1)
+    ][:n]
     u = rng.normal(size=(n, 3))
     u[:5] = x[:5]  # purely radial (a = 0)
     u[5:10] = np.cross(x[5:10], u[5:10])  # purely tangential (b = 0)
     P = G.to_model(x)
     V = G.normalize_tangent(P, G.tangent_to_model(x, u))
     # half of them along the connecting geodesic to a ball's centre (in the domain), turned a little
-    aim = G.connect(P[n // 2:], G.to_model(CENTRES[rng.integers(len(CENTRES), size=n - n // 2)]))[0]
-    V[n // 2:] = G.normalize_tangent(P[n // 2:], aim + 0.1 * np.c_[x[n // 2:] * rng.normal(size=(n - n // 2, 3)), np.zeros(n - n // 2)])
+    aim = G.connect(P[n // 2 :], G.to_model(CENTRES[rng.integers(len(CENTRES), size=n - n // 2)]))[0]
+    V[n // 2 :] = G.normalize_tangent(
+        P[n // 2 :], aim + 0.1 * np.c_[x[n // 2 :] * rng.normal(size=(n - n // 2, 3)), np.zeros(n - n // 2)]
+    )
     out = tracer.trace(np.ascontiguousarray(P), np.ascontiguousarray(V), length, 10000, shade=False, tolerance=1e-6)
     compared, hits = check_depths(G, space, out, P, V, length, CENTRES, SIZES, MESH_INNER * SIZES)
     assert compared >= 70 and hits >= 20, (compared, hits)
@@ -197,8 +212,14 @@ def test_long_rays_end_where_the_cover_geodesic_ends(space):
     b = np.sum(G.tangent_to_chart(P, V) * x, axis=1) / np.sum(x * x, axis=1)  # the speed of w
     length = 100 * L / np.abs(b)  # about 100 crossings each
     for i in range(n):
-        out = tracer.trace(np.ascontiguousarray(P[i:i + 1]), np.ascontiguousarray(V[i:i + 1]), float(length[i]), 100000,
-                           shade=False, tolerance=1e-6)
+        out = tracer.trace(
+            np.ascontiguousarray(P[i : i + 1]),
+            np.ascontiguousarray(V[i : i + 1]),
+            float(length[i]),
+            100000,
+            shade=False,
+            tolerance=1e-6,
+        )
         assert out["stop"][0] == 1 and out["crossings"][0] >= 99
         Y, _ = G.geodesic(np.asarray(P[i], np.longdouble), np.asarray(V[i], np.longdouble), np.longdouble(length[i]))
         X, _, _ = space.move_inside(Y[None])
@@ -215,21 +236,22 @@ def test_radial_and_tangential_rays_stay_finite_and_inside(space):
     n = 20000
     x = space._interior_points(rng, n)
     u = np.where(rng.random(n)[:, None] < 0.5, 1.0, -1.0) * x
-    u[n // 2:] = np.cross(x[n // 2:], rng.normal(size=(n - n // 2, 3)))
+    u[n // 2 :] = np.cross(x[n // 2 :], rng.normal(size=(n - n // 2, 3)))
     P = G.to_model(x)
     V = G.normalize_tangent(P, G.tangent_to_model(x, u))
     ball = trimesh.creation.icosphere(subdivisions=2, radius=5.0)
     for scene in (Scene(), Scene(objects=[SceneObject("ball", ball.vertices + [0, 0, 20.0], ball.faces, (1, 1, 1))])):
-        out = render.make_tracer(space, scene).trace(np.ascontiguousarray(P), np.ascontiguousarray(V), 30.0, 1000,
-                                                    shade=False, tolerance=1e-3)
+        out = render.make_tracer(space, scene).trace(
+            np.ascontiguousarray(P), np.ascontiguousarray(V), 30.0, 1000, shade=False, tolerance=1e-3
+        )
         assert np.all((out["stop"] == 0) | (out["stop"] == 1)), np.bincount(out["stop"])
         assert np.all(np.isfinite(out["end"]))
         assert space.domain.contains(G.to_model(out["end"]), tol=1e-9).all()
         assert np.all(out["crossings"][: n // 2][out["stop"][: n // 2] == 1] >= 4)
-        assert np.all(out["crossings"][n // 2:] == 0)
-        r = np.linalg.norm(out["end"][n // 2:], axis=1)
-        free = out["stop"][n // 2:] == 1
-        np.testing.assert_allclose(r[free], np.linalg.norm(x[n // 2:], axis=1)[free], rtol=1e-9)  # |x| kept
+        assert np.all(out["crossings"][n // 2 :] == 0)
+        r = np.linalg.norm(out["end"][n // 2 :], axis=1)
+        free = out["stop"][n // 2 :] == 1
+        np.testing.assert_allclose(r[free], np.linalg.norm(x[n // 2 :], axis=1)[free], rtol=1e-9)  # |x| kept
 
 
 def test_the_default_scene_is_shown_whole():
@@ -246,6 +268,7 @@ def test_the_default_scene_is_shown_whole():
 
 
 # --- RP^3 # RP^3: the shell with each sphere glued to itself antipodally ------------------------------
+
 
 @pytest.fixture(scope="module")
 def folded():
@@ -288,14 +311,28 @@ def test_rp3_rp3_is_the_shell_glued_to_itself(folded):
     np.testing.assert_allclose(back, x, rtol=1e-12)
 
 
-@pytest.mark.parametrize("change, message", [
-    (("antipodal = true\nface = [0, 0, 1, \"-2*pi\"]", "matrix = [[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 0], [0, 0, 0, 1]]\n"
-      "face = [0, 0, 1, \"-2*pi\"]"), "every generator is 'antipodal = true'"),
-    (("face = [0, 0, -1, 0]", "face = [1, 0, 0, -1]"), "is not a sphere"),
-    (("face = [0, 0, -1, 0]", "face = [0, 0, 1, -1]"), "do not bound a shell"),
-    (("antipodal = true\nface = [0, 0, -1, 0]", "antipodal = true\nmatrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], "
-      "[0, 0, 0, 1]]\nface = [0, 0, -1, 0]"), "has no matrix"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (
+            (
+                'antipodal = true\nface = [0, 0, 1, "-2*pi"]',
+                'matrix = [[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 0], [0, 0, 0, 1]]\nface = [0, 0, 1, "-2*pi"]',
+            ),
+            "every generator is 'antipodal = true'",
+        ),
+        (("face = [0, 0, -1, 0]", "face = [1, 0, 0, -1]"), "is not a sphere"),
+        (("face = [0, 0, -1, 0]", "face = [0, 0, 1, -1]"), "do not bound a shell"),
+        (
+            (
+                "antipodal = true\nface = [0, 0, -1, 0]",
+                "antipodal = true\nmatrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], "
+                "[0, 0, 0, 1]]\nface = [0, 0, -1, 0]",
+            ),
+            "has no matrix",
+        ),
+    ],
+)
 def test_bad_folded_shells_are_one_clear_error(tmp_path, change, message):
     text = spaces.preset_path("rp3_rp3").read_text()
     assert change[0] in text
@@ -310,15 +347,21 @@ def test_rp3_rp3_depth_matches_the_cover_geodesic_first_hit(folded):
     dilations by e^{4 pi k} and the inner sphere's antipodal reflection of those, written out here):
     the traced depth is the first entry of the closed-form geodesic into one of them."""
     sizes = 0.1 * np.linalg.norm(CENTRES, axis=1)
-    scene = Scene(objects=[SceneObject(f"ball{i}", s * MESH.vertices + c, MESH.faces, (0.6, 0.6, 0.6))
-                           for i, (c, s) in enumerate(zip(CENTRES, sizes))])
+    scene = Scene(
+        objects=[
+            SceneObject(f"ball{i}", s * MESH.vertices + c, MESH.faces, (0.6, 0.6, 0.6))
+            for i, (c, s) in enumerate(zip(CENTRES, sizes))
+        ]
+    )
     inner_ratio = 1 - 2 * (1 - MESH_INNER)  # the reflected flat triangles dip a little deeper
     centres, outer, inner = rp3_cover_balls(CENTRES, sizes, inner_ratio)
     tracer = render.make_tracer(folded, scene)
     rng = np.random.default_rng(16)
     n, length, step = 100, 8.0, 0.01
     x = shell_points(rng, 8 * n, 0.2, L - 0.2)
-    x = x[np.min(np.linalg.norm(x[:, None] - CENTRES[None], axis=-1) - sizes, axis=1) > 0.05 * np.linalg.norm(x, axis=1)][:n]
+    x = x[
+        np.min(np.linalg.norm(x[:, None] - CENTRES[None], axis=-1) - sizes, axis=1) > 0.05 * np.linalg.norm(x, axis=1)
+    ][:n]
     P = G.to_model(x)
     # a third along the connecting geodesic to a ball's centre, a third to a reflected one's (beyond
     # the inner sphere), turned a little; the rest at random
@@ -326,7 +369,7 @@ def test_rp3_rp3_depth_matches_the_cover_geodesic_first_hit(folded):
     aim = rng.integers(len(CENTRES), size=n) + np.where(np.arange(n) < n // 3, 0, len(CENTRES))
     V = G.connect(P, G.to_model(targets[aim]))[0]
     V = V + 0.05 * np.c_[x * rng.normal(size=(n, 3)), np.zeros(n)]
-    V[2 * n // 3:] = G.tangent_to_model(x[2 * n // 3:], rng.normal(size=(n - 2 * n // 3, 3)))
+    V[2 * n // 3 :] = G.tangent_to_model(x[2 * n // 3 :], rng.normal(size=(n - 2 * n // 3, 3)))
     V = G.normalize_tangent(P, V)
     u = G.tangent_to_chart(P, V)
     out = tracer.trace(np.ascontiguousarray(P), np.ascontiguousarray(V), length, 10000, shade=False, tolerance=1e-6)
@@ -368,8 +411,14 @@ def test_rp3_rp3_long_rays_end_where_the_cover_geodesic_ends(folded):
     b = np.sum(G.tangent_to_chart(P, V) * x, axis=1) / np.sum(x * x, axis=1)
     length = 100 * 2 * L / np.abs(b)
     for i in range(n):
-        out = tracer.trace(np.ascontiguousarray(P[i:i + 1]), np.ascontiguousarray(V[i:i + 1]), float(length[i]), 100000,
-                           shade=False, tolerance=1e-6)
+        out = tracer.trace(
+            np.ascontiguousarray(P[i : i + 1]),
+            np.ascontiguousarray(V[i : i + 1]),
+            float(length[i]),
+            100000,
+            shade=False,
+            tolerance=1e-6,
+        )
         assert out["stop"][0] == 1 and out["crossings"][0] >= 99
         Y, _ = G.geodesic(np.asarray(P[i], np.longdouble), np.asarray(V[i], np.longdouble), np.longdouble(length[i]))
         want = np.asarray(reduce_rp3(np.asarray(G.to_chart(Y), np.longdouble)), float)

@@ -4,18 +4,26 @@ The metric is written in support/truth.py from lam^2 (dx^2 + dy^2) + (dphi + lam
 its derivatives by hand there, checked against finite differences; the Christoffel symbols and the geodesic
 equation are built from them (truth.christoffel_from) and integrated with DOP853 at 1e-12.
 """
+
 import math
 import tomllib
 
 import numpy as np
 import pytest
 import trimesh
+from support.cover import assert_no_leak_at_the_prism_edges, check_depths, first_hits
+from support.truth import (
+    assert_sl2_flow,
+    sl2_body_direction,
+    sl2_christoffel,
+    sl2_metric,
+    sl2_metric_derivative,
+    unit_in,
+)
 
 from thurston_addon import render, spaces
 from thurston_addon.geometries import sl2
 from thurston_addon.scenes import PointLight, Scene, SceneObject
-from support.cover import assert_no_leak_at_the_prism_edges, check_depths, first_hits
-from support.truth import assert_sl2_flow, sl2_body_direction, sl2_christoffel, sl2_metric, sl2_metric_derivative, unit_in
 
 G = sl2.SL2()
 
@@ -131,7 +139,9 @@ def side_normals():
 
 def lifted(k):
     """A_k in SL2~, the canonical lift (alpha real: phi_g = 0); A_k^-1 = A_{k+4}."""
-    return sl2.Element(np.array(1 + SQ2 + 0j), np.array(math.sqrt(2 + 2 * SQ2) * np.exp(1j * k * math.pi / 4)), np.array(0.0))
+    return sl2.Element(
+        np.array(1 + SQ2 + 0j), np.array(math.sqrt(2 + 2 * SQ2) * np.exp(1j * k * math.pi / 4)), np.array(0.0)
+    )
 
 
 def identity(n):
@@ -200,7 +210,9 @@ def test_the_model_carries_the_cover_elements(space):
     phi, and the matrices' chart maps pull the metric back onto itself."""
     rng = np.random.default_rng(11)
     x = np.array([random_point(rng) for _ in range(20)])
-    np.testing.assert_allclose(G.to_chart(G.to_model(x)), x - [0, 0, 4 * math.pi] * (x[:, 2:] > 2 * math.pi), atol=1e-12)
+    np.testing.assert_allclose(
+        G.to_chart(G.to_model(x)), x - [0, 0, 4 * math.pi] * (x[:, 2:] > 2 * math.pi), atol=1e-12
+    )
     for k in range(4):
         M = space.generators[k]
         for sign, element in ((1, lifted(k)), (-1, lifted(k + 4))):
@@ -211,7 +223,9 @@ def test_the_model_carries_the_cover_elements(space):
             np.testing.assert_allclose(d, 0, atol=1e-10)
         for p in x[:4] * [1, 1, 0]:
             J = jacobian(lambda q: G.transform_points(M, q), p)
-            np.testing.assert_allclose(J.T @ sl2_metric(G.transform_points(M, p)) @ J, sl2_metric(p), rtol=1e-6, atol=1e-6)
+            np.testing.assert_allclose(
+                J.T @ sl2_metric(G.transform_points(M, p)) @ J, sl2_metric(p), rtol=1e-6, atol=1e-6
+            )
     fibre = space.generators[4]
     y = np.c_[x[:, :2], np.ones(20)]  # phi = 1 + 2 pi is read back as 1 - 2 pi
     np.testing.assert_allclose(G.transform_points(fibre, y), y - [0, 0, TAU], atol=1e-12)
@@ -244,10 +258,12 @@ def test_the_preset_is_the_octagon_times_the_fibre(space):
 
 def fibre_space(tau, covolume=None):
     path = spaces.preset_path("sl2")
-    text = path.read_text().replace('face = [0, 0, 1, "-pi"]', f'face = [0, 0, 1, {-tau / 2!r}]')
+    text = path.read_text().replace('face = [0, 0, 1, "-pi"]', f"face = [0, 0, 1, {-tau / 2!r}]")
     c, s = math.cos(tau / 2), math.sin(tau / 2)
-    text = text.replace("matrix = [[-1, 0, 0, 0], [0, -1, 0, 0], [0, 0, -1, 0], [0, 0, 0, -1]]",
-                        f"matrix = [[{c!r}, {-s!r}, 0, 0], [{s!r}, {c!r}, 0, 0], [0, 0, {c!r}, {s!r}], [0, 0, {-s!r}, {c!r}]]")
+    text = text.replace(
+        "matrix = [[-1, 0, 0, 0], [0, -1, 0, 0], [0, 0, -1, 0], [0, 0, 0, -1]]",
+        f"matrix = [[{c!r}, {-s!r}, 0, 0], [{s!r}, {c!r}, 0, 0], [0, 0, {c!r}, {s!r}], [0, 0, {-s!r}, {c!r}]]",
+    )
     text = text.replace('covolume = "8*pi**2"', f"covolume = {4 * math.pi * tau!r}")
     return spaces.from_data(tomllib.loads(text), "fibre.toml")
 
@@ -280,13 +296,16 @@ def rays(space, rng, n, aim=0.5):
 def trace(space, scene, x, u, length, tolerance=TOLERANCE):
     P = G.to_model(x)
     V = G.normalize_tangent(P, G.tangent_to_model(x, u))
-    out = render.make_tracer(space, scene, light_reach=2.0).trace(np.ascontiguousarray(P), np.ascontiguousarray(V), length, 100000,
-                                                shade=False, tolerance=tolerance)
+    out = render.make_tracer(space, scene, light_reach=2.0).trace(
+        np.ascontiguousarray(P), np.ascontiguousarray(V), length, 100000, shade=False, tolerance=tolerance
+    )
     return P, V, out
 
 
 def test_depth_matches_the_cover_geodesic_first_hit(space):
-    scene = Scene(objects=[SceneObject(f"ball{i}", MESH.vertices + c, MESH.faces, (0.6, 0.6, 0.6)) for i, c in enumerate(CENTRES)])
+    scene = Scene(
+        objects=[SceneObject(f"ball{i}", MESH.vertices + c, MESH.faces, (0.6, 0.6, 0.6)) for i, c in enumerate(CENTRES)]
+    )
     rng = np.random.default_rng(13)
     x, u = rays(space, rng, 150, aim=0.8)
     u[:4] = [unit(p, sl2.act_tangent(sl2.from_origin(p), np.zeros(3), [0, 0, 1])) for p in x[:4]]  # fibre rays (a = 0)
@@ -319,7 +338,9 @@ def test_long_rays_end_where_the_cover_geodesic_ends(space):
         c[i] = np.sign(c[i]) * (math.sqrt(2 - offset**2) - offset) / 2
         a[i] = abs(c[i]) + offset
     angle = rng.uniform(0, 2 * math.pi, n)
-    u = np.array([sl2_body_direction(x[i], [a[i] * math.cos(angle[i]), a[i] * math.sin(angle[i]), c[i]]) for i in range(n)])
+    u = np.array(
+        [sl2_body_direction(x[i], [a[i] * math.cos(angle[i]), a[i] * math.sin(angle[i]), c[i]]) for i in range(n)]
+    )
     length = 100 * TAU
     length_at = np.where(a > 0.5, 12.0, length)  # the balanced rays cross the sides: far fewer lids per length
     ends = []
@@ -376,20 +397,25 @@ def test_lambert_colour_is_base_power_cos_falloff(space):
     colour, power = np.array([0.8, 0.6, 0.4]), 0.7
     grid = np.linspace(-0.35, 0.35, 8)
     X, Y = np.meshgrid(grid, grid)
-    square = trimesh.Trimesh(np.c_[X.ravel(), Y.ravel(), np.full(64, 0.4)],
-                             [[i * 8 + j, i * 8 + j + 1, i * 8 + j + 9] for i in range(7) for j in range(7)]
-                             + [[i * 8 + j, i * 8 + j + 9, i * 8 + j + 8] for i in range(7) for j in range(7)])
+    square = trimesh.Trimesh(
+        np.c_[X.ravel(), Y.ravel(), np.full(64, 0.4)],
+        [[i * 8 + j, i * 8 + j + 1, i * 8 + j + 9] for i in range(7) for j in range(7)]
+        + [[i * 8 + j, i * 8 + j + 9, i * 8 + j + 8] for i in range(7) for j in range(7)],
+    )
     light = np.array([0.05, -0.05, 1.0])
-    scene = Scene(objects=[SceneObject("square", square.vertices, square.faces, colour)],
-                  lights=[PointLight(light, np.ones(3), power)])
+    scene = Scene(
+        objects=[SceneObject("square", square.vertices, square.faces, colour)],
+        lights=[PointLight(light, np.ones(3), power)],
+    )
     rng = np.random.default_rng(17)
     n = 300
     x = np.c_[rng.uniform(-0.3, 0.3, (n, 2)), rng.uniform(1.2, 1.6, n)]
     u = np.array([unit(p, [rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), -1.0]) for p in x])
     P = G.to_model(x)
     V = G.normalize_tangent(P, G.tangent_to_model(x, u))
-    out = render.make_tracer(space, scene, light_reach=2.0).trace(np.ascontiguousarray(P), np.ascontiguousarray(V), 3.0, 100,
-                                                shade=True, tolerance=1e-7)
+    out = render.make_tracer(space, scene, light_reach=2.0).trace(
+        np.ascontiguousarray(P), np.ascontiguousarray(V), 3.0, 100, shade=True, tolerance=1e-7
+    )
     rows = np.flatnonzero(out["stop"] == 0)
     assert len(rows) >= 100 and int(out["light_failures"]) == 0
     checked = 0

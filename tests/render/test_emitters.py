@@ -6,6 +6,7 @@ light reach (J the area density of the geodesic sphere, r^2 in E3, sin^2 r in S3
 estimates it from random points on the emitters (next-event estimation); the tests trace one pixel
 many times (each ray its own random numbers), and compare the mean with the truth within four
 standard errors measured from the spread of the estimates."""
+
 from __future__ import annotations
 
 import itertools
@@ -27,8 +28,15 @@ def one_pixel(space, scene, origin, direction, reach, rays, light_samples, max_c
     o = np.repeat(np.array([origin], float), rays, axis=0)
     P = g.to_model(o)
     D = g.normalize_tangent(P, g.tangent_to_model(o, np.repeat(np.array([direction], float), rays, axis=0)))
-    out = tracer.trace(np.ascontiguousarray(P), np.ascontiguousarray(D), 5.0, max_crossings, shade=True,
-                       light_samples=light_samples, seed=7)
+    out = tracer.trace(
+        np.ascontiguousarray(P),
+        np.ascontiguousarray(D),
+        5.0,
+        max_crossings,
+        shade=True,
+        light_samples=light_samples,
+        seed=7,
+    )
     assert np.all(out["stop"] == 0)
     return out
 
@@ -64,8 +72,12 @@ def test_emissive_square_lights_a_plane_of_the_torus_from_every_copy_within_the_
     that no copy straddles it."""
     space = spaces.load("torus")
     half = 0.05
-    floor = SceneObject("floor", [[-0.5, -0.5, -0.3], [0.5, -0.5, -0.3], [0.5, 0.5, -0.3], [-0.5, 0.5, -0.3]],
-                        [[0, 1, 2], [0, 2, 3]], (RHO,) * 3)
+    floor = SceneObject(
+        "floor",
+        [[-0.5, -0.5, -0.3], [0.5, -0.5, -0.3], [0.5, 0.5, -0.3], [-0.5, 0.5, -0.3]],
+        [[0, 1, 2], [0, 2, 3]],
+        (RHO,) * 3,
+    )
     centre = np.array([0.1, 0.05, 0.2])
     lamp = flat_light("lamp", centre, [half, 0, 0], [0, -half, 0], (LE,) * 3)  # facing down
     p, n = np.array([0.35, 0.3, -0.3]), np.array([0.0, 0.0, 1.0])
@@ -75,8 +87,13 @@ def test_emissive_square_lights_a_plane_of_the_torus_from_every_copy_within_the_
         corners = centre + [i, j, 0] + square
         horizontal = corners[:, :2] - p[:2]
         nearest = np.clip(p[:2], corners[:, :2].min(axis=0), corners[:, :2].max(axis=0)) - p[:2]
-        ranges.append((math.hypot(0.5, np.linalg.norm(nearest)), max(math.hypot(0.5, np.linalg.norm(h))
-                                                                        for h in horizontal), corners))
+        ranges.append(
+            (
+                math.hypot(0.5, np.linalg.norm(nearest)),
+                max(math.hypot(0.5, np.linalg.norm(h)) for h in horizontal),
+                corners,
+            )
+        )
     reach = 2.12
     assert all(far < reach - 0.003 or near > reach + 0.003 for near, far, _ in ranges)  # no copy straddles the reach
     within = [corners for _, far, corners in ranges if far < reach]
@@ -93,6 +110,7 @@ def gnomonic_area_density(y, e1, e2):
     """Metric area per chart area of the gnomonic chart's plane spanned by the orthonormal chart
     vectors e1, e2 at chart points y (rows): the Gram determinant of the unit sphere point's
     derivatives along them (R^4, central differences)."""
+
     def point(q):
         Y = np.concatenate([q, np.ones((len(q), 1))], axis=1)
         return Y / np.linalg.norm(Y, axis=1)[:, None]
@@ -122,6 +140,7 @@ def test_emissive_square_in_the_poincare_sphere_against_integration_over_its_120
     p = np.array([0.0, -0.08, 0.0])
     tri = np.array([[-1, 0, -1], [1, 0, -1], [0, 0, 1.5]]) * 0.002 + p  # shaded on the side the ray meets
     receiver = SceneObject("receiver", tri, [[0, 1, 2]], (RHO,) * 3)
+
     def normal(X, covector):  # the unit normal of the plane covector . X = 0 at X: its gradient on the sphere
         t = covector - (X @ covector)[..., None] * X
         return t / np.linalg.norm(t, axis=-1, keepdims=True)
@@ -166,10 +185,11 @@ def test_spot_cone_and_blend_against_the_closed_form():
     centre = np.array([0.1, 0.2, -0.15])
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.02)
     glow = 1e-4
-    scene = Scene(objects=[SceneObject("ball", ball.vertices + centre, ball.faces, (RHO,) * 3, emission=(glow,) * 3)],
-                  lights=[PointLight(light, np.ones(3), power, spot_direction=axis, spot_size=size, spot_blend=blend)])
+    scene = Scene(
+        objects=[SceneObject("ball", ball.vertices + centre, ball.faces, (RHO,) * 3, emission=(glow,) * 3)],
+        lights=[PointLight(light, np.ones(3), power, spot_direction=axis, spot_size=size, spot_blend=blend)],
+    )
     out = one_pixel(space, scene, centre + [0, -0.4, 0.1], centre - (centre + [0, -0.4, 0.1]), reach, 1, 1)
-    g = space.geometry
     x, n = out["position"][0], out["normal"][0].astype(float)
     cos_half = math.cos(size / 2)
     total, copies, cone, blending = 0.0, 0, 0, 0
@@ -189,14 +209,17 @@ def test_spot_cone_and_blend_against_the_closed_form():
     np.testing.assert_allclose(out["color"][0], glow + RHO * total, rtol=1e-4)
 
 
-@pytest.mark.parametrize("spec, message", [
-    ('type = "sun"', "unknown light type 'sun'"),
-    ('type = "spot"\ndirection = [0, 0, 0]', "direction must be a non-zero vector"),
-    ('type = "spot"\ndirection = [0, 0, -1]\nspot_blend = 2', "spot blend must be in"),
-    ('type = "spot"\ndirection = [0, 0, -1]\nspot_size = 200', "spot size must be an angle"),
-    ('type = "area"\ndirection = [0, 0, -1]\nx_axis = [0, 0, 1]', "x_axis not along it"),
-    ('type = "area"\nsize = [0.1, 0]', "positive size"),
-])
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ('type = "sun"', "unknown light type 'sun'"),
+        ('type = "spot"\ndirection = [0, 0, 0]', "direction must be a non-zero vector"),
+        ('type = "spot"\ndirection = [0, 0, -1]\nspot_blend = 2', "spot blend must be in"),
+        ('type = "spot"\ndirection = [0, 0, -1]\nspot_size = 200', "spot size must be an angle"),
+        ('type = "area"\ndirection = [0, 0, -1]\nx_axis = [0, 0, 1]', "x_axis not along it"),
+        ('type = "area"\nsize = [0.1, 0]', "positive size"),
+    ],
+)
 def test_bad_lights_in_a_scene_file_are_one_clear_error(tmp_path, spec, message):
     from thurston_addon.scenes import SceneError, load_scene_file
 
@@ -210,8 +233,10 @@ def test_an_area_light_in_a_scene_file_is_a_one_sided_emitter_facing_its_directi
     from thurston_addon.scenes import load_scene_file
 
     path = tmp_path / "scene.toml"
-    path.write_text('[[light]]\ntype = "area"\nposition = [0.1, 0, 0.2]\ndirection = [0, 0, -2]\n'
-                    'size = [0.2, 0.1]\nemission = [3, 3, 3]\n')
+    path.write_text(
+        '[[light]]\ntype = "area"\nposition = [0.1, 0, 0.2]\ndirection = [0, 0, -2]\n'
+        "size = [0.2, 0.1]\nemission = [3, 3, 3]\n"
+    )
     (lamp,) = load_scene_file(path).objects
     P = lamp.vertices[lamp.triangles]
     normals = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])

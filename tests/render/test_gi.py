@@ -16,6 +16,7 @@ gains or loses light.
 Multiple importance sampling against its parts: a small bright emitter over a matte and a shiny
 floor, lit by the emitters' samples alone, by the emission the bounces meet alone, and by both
 weighed: the same mean, and the weighed one less noisy than the worse of the two."""
+
 from __future__ import annotations
 
 import math
@@ -23,8 +24,8 @@ import math
 import numpy as np
 import pytest
 import trimesh
-
 from support.presets import simplest_per_geometry
+
 from thurston_addon import cli, render, spaces
 from thurston_addon.scenes import Camera, Material, PointLight, Scene, SceneObject, default_scene
 
@@ -78,9 +79,11 @@ def test_white_furnace_gives_the_geometric_series_of_the_albedo(space_id, rho, b
     # every emissive triangle is known among the emitters' copies, and bounces meet them
     assert tracer.num_unmatched_emitters == 0 and (int(out["emitter_hits"]) > 0) == (bounces > 0)
     mean, error = mean_and_error(out["color"][:, 0])
-    truth = LE * sum(rho ** k for k in range(bounces + 2))
-    print(f"{space_id} rho {rho} bounces {bounces}: mean {mean:.5f} truth {truth:.5f} "
-          f"({mean / truth - 1:+.1e}), standard error {error / truth:.1e}")
+    truth = LE * sum(rho**k for k in range(bounces + 2))
+    print(
+        f"{space_id} rho {rho} bounces {bounces}: mean {mean:.5f} truth {truth:.5f} "
+        f"({mean / truth - 1:+.1e}), standard error {error / truth:.1e}"
+    )
     assert 4 * error < LE * rho ** (bounces + 1)  # a missing last bounce would show
     assert abs(mean - truth) < 4 * error
 
@@ -106,10 +109,16 @@ def test_albedo_one_with_a_point_light_converges_as_the_bounce_limit_grows():
     space = spaces.load("torus")
     ball = trimesh.creation.icosphere(subdivisions=2, radius=0.15)
     slab = trimesh.creation.box([0.6, 0.6, 0.05])
-    objects = [SceneObject("ball", ball.vertices + [0.2, 0.1, 0.0], ball.faces, (1.0, 1.0, 1.0)),
-               SceneObject("slab", slab.vertices + [0.0, 0.0, -0.3], slab.faces, (1.0, 1.0, 1.0))]
-    tracer = render.make_tracer(space, Scene(objects=objects, lights=[PointLight([-0.2, -0.2, 0.2], (1, 1, 1), 0.05)]),
-                                threads=2, light_reach=1.0)
+    objects = [
+        SceneObject("ball", ball.vertices + [0.2, 0.1, 0.0], ball.faces, (1.0, 1.0, 1.0)),
+        SceneObject("slab", slab.vertices + [0.0, 0.0, -0.3], slab.faces, (1.0, 1.0, 1.0)),
+    ]
+    tracer = render.make_tracer(
+        space,
+        Scene(objects=objects, lights=[PointLight([-0.2, -0.2, 0.2], (1, 1, 1), 0.05)]),
+        threads=2,
+        light_reach=1.0,
+    )
     P, D = random_rays(space, [-0.3, 0.3, 0.1], 20000, seed=4)
     limits = [0, 1, 2, 4, 8, 16]
     means, errors = [], []
@@ -118,7 +127,14 @@ def test_albedo_one_with_a_point_light_converges_as_the_bounce_limit_grows():
         m, e = mean_and_error(out["color"].mean(axis=1))
         means.append(m)
         errors.append(e)
-    print("bounce limits", limits, "means", np.round(means, 5), "standard errors", np.format_float_scientific(max(errors), 1))
+    print(
+        "bounce limits",
+        limits,
+        "means",
+        np.round(means, 5),
+        "standard errors",
+        np.format_float_scientific(max(errors), 1),
+    )
     means, errors = np.array(means), np.array(errors)
     steps = np.diff(means)
     step_errors = np.hypot(errors[1:], errors[:-1])
@@ -136,11 +152,16 @@ def test_render_noise_estimate_matches_the_error_against_the_furnace_truth():
     rho, bounces, samples = 0.5, 2, 16
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.2)
     walls = SceneObject("walls", ball.vertices, ball.faces, (rho,) * 3, (LE,) * 3)
-    settings = render.Settings(width=40, height=30, samples=samples, bounces=bounces, light_samples=1,
-                               light_reach=0.6, threads=2)
-    result = render.render(space, Scene(objects=[walls], lights=[]), settings,
-                           camera=Camera((0.0, 0.0, 0.0), (1.0, 0.2, 0.1), (0.0, 0.0, 1.0), 90.0))
-    truth = LE * sum(rho ** k for k in range(bounces + 2))
+    settings = render.Settings(
+        width=40, height=30, samples=samples, bounces=bounces, light_samples=1, light_reach=0.6, threads=2
+    )
+    result = render.render(
+        space,
+        Scene(objects=[walls], lights=[]),
+        settings,
+        camera=Camera((0.0, 0.0, 0.0), (1.0, 0.2, 0.1), (0.0, 0.0, 1.0), 90.0),
+    )
+    truth = LE * sum(rho**k for k in range(bounces + 2))
     pixels = result.passes["color"].mean(axis=2).ravel()
     actual = math.sqrt(np.mean((pixels - truth) ** 2))
     noise = result.stats["noise"]
@@ -174,17 +195,24 @@ def test_seed_offsets_the_samples_random_numbers():
     """The same seed, the same image (any threads); another seed, other light samples and bounces."""
     space = spaces.load("torus")
     scene = default_scene(space)
+
     def image(seed):
-        return render.render(space, scene, render.Settings(width=16, height=9, samples=2, bounces=1, seed=seed,
-                                                           threads=2)).passes["color"]
+        return render.render(
+            space, scene, render.Settings(width=16, height=9, samples=2, bounces=1, seed=seed, threads=2)
+        ).passes["color"]
+
     assert np.array_equal(image(3), image(3))
     assert not np.array_equal(image(3), image(4))
 
 
 def test_cli_bounces(tmp_path, capsys):
     out = tmp_path / "gi.exr"
-    assert cli.main(["render", "--space", "torus", "--size", "16x9", "--samples", "2", "--bounces", "1",
-                     "--out", str(out)]) == 0
+    assert (
+        cli.main(
+            ["render", "--space", "torus", "--size", "16x9", "--samples", "2", "--bounces", "1", "--out", str(out)]
+        )
+        == 0
+    )
     assert out.exists() and "bounce limit 1" in capsys.readouterr().out
     assert cli.main(["render", "--space", "torus", "--bounces", "-1", "--out", str(tmp_path / "bad.exr")]) == 2
     err = capsys.readouterr().err
@@ -199,11 +227,17 @@ def mis_scene(space):
     c = np.asarray(space.camera.position, float)
     slab = trimesh.creation.box([0.5 * inr, 0.9 * inr, 0.04 * inr])
     matte = SceneObject("matte", slab.vertices + c + inr * np.array([-0.26, 0.0, -0.3]), slab.faces, (0.7, 0.7, 0.7))
-    shiny = SceneObject("shiny", slab.vertices + c + inr * np.array([0.26, 0.0, -0.3]), slab.faces,
-                        materials=[Material((0.9, 0.9, 0.9), name="metal", roughness=0.25, metallic=1.0)],
-                        triangle_material=np.zeros(len(slab.faces), np.int32))
+    shiny = SceneObject(
+        "shiny",
+        slab.vertices + c + inr * np.array([0.26, 0.0, -0.3]),
+        slab.faces,
+        materials=[Material((0.9, 0.9, 0.9), name="metal", roughness=0.25, metallic=1.0)],
+        triangle_material=np.zeros(len(slab.faces), np.int32),
+    )
     bulb = trimesh.creation.icosphere(subdivisions=2, radius=0.06 * inr)
-    lamp = SceneObject("lamp", bulb.vertices + c + inr * np.array([0.1, 0.25, 0.05]), bulb.faces, (0, 0, 0), (100.0,) * 3)
+    lamp = SceneObject(
+        "lamp", bulb.vertices + c + inr * np.array([0.1, 0.25, 0.05]), bulb.faces, (0, 0, 0), (100.0,) * 3
+    )
     return Scene(objects=[matte, shiny, lamp], lights=[])
 
 

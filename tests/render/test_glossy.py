@@ -9,6 +9,7 @@ f cos a(cos_i): a chord of a sphere meets it at the same angle at both ends, so 
 seen at cos_i. a and that integral are computed here by Gauss-Legendre quadrature (scipy) of the
 GGX BRDF written below from the formulas (D, height-correlated Smith G, Schlick's or the dielectric
 Fresnel), sharing nothing with the tracer, and integrated over the microfacet normals."""
+
 from __future__ import annotations
 
 import base64
@@ -28,9 +29,9 @@ LE = 1.0
 
 # --- the BRDF, from the formulas ------------------------------------------------------------------
 def fresnel_dielectric(c, eta):
-    g = np.sqrt(eta ** 2 - 1 + c ** 2)
+    g = np.sqrt(eta**2 - 1 + c**2)
     a, b = (g - c) / (g + c), (c * (g + c) - 1) / (c * (g - c) + 1)
-    return 0.5 * a ** 2 * (1 + b ** 2)
+    return 0.5 * a**2 * (1 + b**2)
 
 
 def layer_eta(ior, level):
@@ -58,7 +59,7 @@ class Principled:
     dw_i = fresnel(wo.h) D(h) G2 (wo.h) / cos_o dw_h."""
 
     def __init__(self, rho, roughness, metallic, eta=None, dimmed=True):
-        self.rho, self.alpha, self.metallic, self.eta, self.dimmed = rho, roughness ** 2, metallic, eta, dimmed
+        self.rho, self.alpha, self.metallic, self.eta, self.dimmed = rho, roughness**2, metallic, eta, dimmed
         self.h, self.weights = half_vectors()
         x, w = roots_legendre(200)  # cos_i over [0, 1], for the Lambert part
         self.mu, self.mu_weights = (x + 1) / 2, w / 2
@@ -70,14 +71,14 @@ class Principled:
 
     def specular(self, cos_o):
         """(cos_i of the reflected directions, f_spec cos_i dw_i / dw_h) at the normals h."""
-        wo = np.array([math.sqrt(1 - cos_o ** 2), 0.0, cos_o])
+        wo = np.array([math.sqrt(1 - cos_o**2), 0.0, cos_o])
         c = self.h @ wo
         cos_i = 2 * c * self.h[..., 2] - cos_o
-        a2 = self.alpha ** 2
+        a2 = self.alpha**2
         D = a2 / (np.pi * (self.h[..., 2] ** 2 * (a2 - 1) + 1) ** 2)
 
         def smith_lambda(u):
-            return 0.5 * (np.sqrt(1 + a2 * (1 / u ** 2 - 1)) - 1)
+            return 0.5 * (np.sqrt(1 + a2 * (1 / u**2 - 1)) - 1)
 
         up = (cos_i > 0) & (c > 0)
         G = np.where(up, 1 / (1 + smith_lambda(cos_o) + smith_lambda(np.where(up, cos_i, 1.0))), 0.0)
@@ -120,18 +121,25 @@ def glossy_furnace(material, bounces, n=12000, seed=3, light_samples=4):
     """(colours, cos_o) of n random rays from CAMERA inside a smooth sphere (corner normals along
     the radius) of the material in the 3-torus."""
     ball = trimesh.creation.icosphere(subdivisions=4, radius=RADIUS)
-    walls = SceneObject("walls", ball.vertices, ball.faces, corner_normals=(ball.vertices / RADIUS)[ball.faces],
-                        materials=[material], triangle_material=np.zeros(len(ball.faces), np.int32))
+    walls = SceneObject(
+        "walls",
+        ball.vertices,
+        ball.faces,
+        corner_normals=(ball.vertices / RADIUS)[ball.faces],
+        materials=[material],
+        triangle_material=np.zeros(len(ball.faces), np.int32),
+    )
     space = spaces.load("torus")
     tracer = render.make_tracer(space, Scene(objects=[walls], lights=[]), threads=2, light_reach=2 * RADIUS + 0.05)
     d = np.random.default_rng(seed).normal(size=(n, 3))
     d /= np.linalg.norm(d, axis=1)[:, None]
     P = np.ascontiguousarray(np.c_[np.repeat(CAMERA[None], n, axis=0), np.ones(n)])
-    out = tracer.trace(P, np.ascontiguousarray(np.c_[d, np.zeros(n)]), 5.0, 40, light_samples=light_samples,
-                       seed=seed, bounces=bounces)
+    out = tracer.trace(
+        P, np.ascontiguousarray(np.c_[d, np.zeros(n)]), 5.0, 40, light_samples=light_samples, seed=seed, bounces=bounces
+    )
     assert np.all(out["stop"] == 0)
     # where the ray meets the sphere |x| = R: sin of its angle to the normal is |c x d| / R
-    cos_o = np.sqrt(1 - np.sum(np.cross(CAMERA, d) ** 2, axis=1) / RADIUS ** 2)
+    cos_o = np.sqrt(1 - np.sum(np.cross(CAMERA, d) ** 2, axis=1) / RADIUS**2)
     return out["color"], cos_o
 
 
@@ -160,8 +168,10 @@ def test_glossy_furnace_matches_the_integrated_albedo(kind, bounces):
         else:
             wrong = Principled(rho, spec["roughness"], 0.0, eta, dimmed=False)
         wrong = furnace_truth(wrong, cos_o, bounces)
-        print(f"{kind} bounces {bounces} channel {channel}: mean {color[:, channel].mean():.5f} truth "
-              f"{truth.mean():.5f} (difference {mean:+.2e} +- {error:.1e}); the wrong BSDF: {wrong.mean():.5f}")
+        print(
+            f"{kind} bounces {bounces} channel {channel}: mean {color[:, channel].mean():.5f} truth "
+            f"{truth.mean():.5f} (difference {mean:+.2e} +- {error:.1e}); the wrong BSDF: {wrong.mean():.5f}"
+        )
         assert abs(mean) < 4 * error
         assert abs(wrong.mean() - truth.mean()) > 8 * error
 
@@ -178,7 +188,8 @@ def test_lambert_materials_shade_as_before():
 def test_toml_keys_set_the_scattering_of_every_material(tmp_path):
     (tmp_path / "scene.toml").write_text(
         '[[object]]\nprimitive = "sphere"\nradius = 0.1\nroughness = 0.25\nmetallic = 1.0\n'
-        '[[object]]\nprimitive = "box"\nspecular = 0.5\nior = 1.45\n')
+        '[[object]]\nprimitive = "box"\nspecular = 0.5\nior = 1.45\n'
+    )
     ball, box = load_scene_file(tmp_path / "scene.toml").objects
     (m,) = ball.surface_materials()[0]
     assert (m.roughness, m.metallic, m.specular, m.ior) == (0.25, 1.0, 0.0, 1.5)
@@ -186,10 +197,15 @@ def test_toml_keys_set_the_scattering_of_every_material(tmp_path):
     assert (m.roughness, m.metallic, m.specular, m.ior) == (0.5, 0.0, 0.5, 1.45)
 
 
-@pytest.mark.parametrize("key, value, message", [("roughness", 1.5, "roughness must be a number in \\[0, 1\\]"),
-                                                 ("metallic", "\"shiny\"", "metallic must be a number in \\[0, 1\\]"),
-                                                 ("specular", -0.5, "specular must be a number >= 0"),
-                                                 ("ior", 0, "ior must be a number > 0")])
+@pytest.mark.parametrize(
+    "key, value, message",
+    [
+        ("roughness", 1.5, "roughness must be a number in \\[0, 1\\]"),
+        ("metallic", '"shiny"', "metallic must be a number in \\[0, 1\\]"),
+        ("specular", -0.5, "specular must be a number >= 0"),
+        ("ior", 0, "ior must be a number > 0"),
+    ],
+)
 def test_bad_scattering_is_one_clear_error(tmp_path, key, value, message):
     (tmp_path / "scene.toml").write_text(f'[[object]]\nprimitive = "sphere"\n{key} = {value}\n')
     with pytest.raises(SceneError, match=f"scene.toml: object 0: material 'sphere': {message}"):
@@ -199,11 +215,14 @@ def test_bad_scattering_is_one_clear_error(tmp_path, key, value, message):
 def test_mtl_scattering_as_blender_imports_it(tmp_path):
     """Pr and Pm as they are; without Pr the roughness from the exponent Ns (1 - sqrt(Ns / 1000));
     the specular level the mean of Ks; Ni the index where it is one (Ni 0: none)."""
-    (tmp_path / "m.mtl").write_text("newmtl pbr\nKd 0.5 0.5 0.5\nPr 0.2\nPm 0.7\nKs 0.2 0.4 0.6\nNi 1.6\n"
-                                    "newmtl phong\nKd 0.5 0.5 0.5\nNs 250\nKs 0.5 0.5 0.5\nNi 0.0\n"
-                                    "newmtl plain\nKd 0.5 0.5 0.5\n")
-    (tmp_path / "a.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\n"
-                                    "usemtl pbr\nf 1 2 3\nusemtl phong\nf 1 3 2\nusemtl plain\nf 2 1 3\n")
+    (tmp_path / "m.mtl").write_text(
+        "newmtl pbr\nKd 0.5 0.5 0.5\nPr 0.2\nPm 0.7\nKs 0.2 0.4 0.6\nNi 1.6\n"
+        "newmtl phong\nKd 0.5 0.5 0.5\nNs 250\nKs 0.5 0.5 0.5\nNi 0.0\n"
+        "newmtl plain\nKd 0.5 0.5 0.5\n"
+    )
+    (tmp_path / "a.obj").write_text(
+        "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl pbr\nf 1 2 3\nusemtl phong\nf 1 3 2\nusemtl plain\nf 2 1 3\n"
+    )
     (obj,) = load_mesh_file(tmp_path / "a.obj")
     pbr, phong, plain = obj.materials
     assert (pbr.roughness, pbr.metallic, pbr.specular, pbr.ior) == pytest.approx((0.2, 0.7, 0.4, 1.6))
@@ -215,15 +234,25 @@ def test_gltf_metallic_roughness_factors(tmp_path):
     """glTF's factors, absent ones 1 as the format has it, over its dielectric of F0 0.04."""
     positions = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes()
     gltf = {
-        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0, 1]}],
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0, 1]}],
         "nodes": [{"mesh": 0, "name": "brushed"}, {"mesh": 1, "name": "default"}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "material": 0}]},
-                   {"primitives": [{"attributes": {"POSITION": 0}, "material": 1}]}],
-        "materials": [{"name": "brushed", "pbrMetallicRoughness": {"metallicFactor": 0.25, "roughnessFactor": 0.4}},
-                      {"name": "default", "pbrMetallicRoughness": {"baseColorFactor": [0.5, 0.5, 0.5, 1]}}],
-        "buffers": [{"byteLength": 36, "uri": "data:application/octet-stream;base64," + base64.b64encode(positions).decode()}],
+        "meshes": [
+            {"primitives": [{"attributes": {"POSITION": 0}, "material": 0}]},
+            {"primitives": [{"attributes": {"POSITION": 0}, "material": 1}]},
+        ],
+        "materials": [
+            {"name": "brushed", "pbrMetallicRoughness": {"metallicFactor": 0.25, "roughnessFactor": 0.4}},
+            {"name": "default", "pbrMetallicRoughness": {"baseColorFactor": [0.5, 0.5, 0.5, 1]}},
+        ],
+        "buffers": [
+            {"byteLength": 36, "uri": "data:application/octet-stream;base64," + base64.b64encode(positions).decode()}
+        ],
         "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}],
-        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]}
+        ],
     }
     (tmp_path / "two.gltf").write_text(json.dumps(gltf))
     brushed, default = load_mesh_file(tmp_path / "two.gltf")

@@ -1,12 +1,13 @@
 """Instancing: a mesh placed by many chart-affine maps is stored once in the core (Embree
 instances) and renders as the same mesh copied (flattened) would, and as closed forms say."""
+
 import math
 
 import numpy as np
 import pytest
+import thurston_core as _core
 import trimesh
 
-import thurston_core as _core
 from thurston_addon import render, scenes, spaces
 from thurston_addon.scenes import Camera, PointLight, Scene, SceneError, SceneObject
 
@@ -172,8 +173,9 @@ def test_emissive_instances_cast_no_shadows():
     """A lamp instanced around a light does not shadow it; the same mesh not emitting does."""
     sp = space("torus")
     shell = trimesh.creation.icosphere(subdivisions=1, radius=0.05)
-    floor = SceneObject("floor", [[-0.4, -0.4, -0.2], [0.4, -0.4, -0.2], [0.4, 0.4, -0.2], [-0.4, 0.4, -0.2]],
-                        [[0, 1, 2], [0, 2, 3]])
+    floor = SceneObject(
+        "floor", [[-0.4, -0.4, -0.2], [0.4, -0.4, -0.2], [0.4, 0.4, -0.2], [-0.4, 0.4, -0.2]], [[0, 1, 2], [0, 2, 3]]
+    )
     for emission, lit in ((np.ones(3), True), (np.zeros(3), False)):
         lamp = SceneObject("lamp", shell.vertices, shell.faces, emission=emission, instances=translations([[0, 0, 0]]))
         tracer = render.make_tracer(sp, Scene([floor, lamp], [PointLight(np.zeros(3))]), threads=1)
@@ -182,12 +184,15 @@ def test_emissive_instances_cast_no_shadows():
         assert out["object"][0] == 0 and (out["color"][0].max() > 0) == lit
 
 
-@pytest.mark.parametrize("value, message", [
-    (np.full((1, 4, 4), np.nan), "instance 0 has a NaN"),
-    (np.zeros((1, 4, 4)) + np.diag([1, 1, 0, 1]), "instance 0 has a singular transform"),
-    (np.ones((1, 4, 4)), "instance 0 is not affine"),
-    (np.eye(3)[None], r"instance transforms must have shape \(k, 4, 4\)"),
-])
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        (np.full((1, 4, 4), np.nan), "instance 0 has a NaN"),
+        (np.zeros((1, 4, 4)) + np.diag([1, 1, 0, 1]), "instance 0 has a singular transform"),
+        (np.ones((1, 4, 4)), "instance 0 is not affine"),
+        (np.eye(3)[None], r"instance transforms must have shape \(k, 4, 4\)"),
+    ],
+)
 def test_bad_instance_transforms_name_the_object(value, message):
     with pytest.raises(SceneError, match=f"object 'ball': {message}"):
         SceneObject("ball", BALL.vertices, BALL.faces, instances=value)
@@ -208,13 +213,16 @@ def test_core_rejects_singular_and_out_of_range_instances():
 
 def test_scene_file_transforms(tmp_path):
     path = tmp_path / "scene.toml"
-    path.write_text('[[object]]\nprimitive = "sphere"\nradius = 0.05\n'
-                    'transforms = [[[1, 0, 0, 0.2], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],\n'
-                    '              [[2, 0, 0, -0.2], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]]\n')
-    obj, = scenes.load_scene_file(path).objects
+    path.write_text(
+        '[[object]]\nprimitive = "sphere"\nradius = 0.05\n'
+        "transforms = [[[1, 0, 0, 0.2], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],\n"
+        "              [[2, 0, 0, -0.2], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]]\n"
+    )
+    (obj,) = scenes.load_scene_file(path).objects
     assert obj.instances.shape == (2, 4, 4) and obj.instances[1, 0, 0] == 2
-    path.write_text('[[object]]\nprimitive = "sphere"\ntransforms = [[[0, 0, 0, 0], [0, 1, 0, 0], '
-                    '[0, 0, 1, 0], [0, 0, 0, 1]]]\n')
+    path.write_text(
+        '[[object]]\nprimitive = "sphere"\ntransforms = [[[0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]]\n'
+    )
     with pytest.raises(SceneError, match="object 0: object 'sphere': instance 0 has a singular transform"):
         scenes.load_scene_file(path)
 
@@ -226,7 +234,14 @@ def test_camera_inside_an_instance_is_noted_in_its_placement():
 
     sp = space("torus")
     ball = SceneObject("ball", BALL.vertices, BALL.faces, instances=translations([[0.2, 0, 0], [0, 0.3, 0]]))
-    notes = lambda position: {n.kind for n in checks.before_render(sp, Scene([ball]), Camera(
-        np.asarray(position, float), np.array([0, 1.0, 0]), np.array([0, 0, 1.0])), lambert=False)}
+    notes = lambda position: {
+        n.kind
+        for n in checks.before_render(
+            sp,
+            Scene([ball]),
+            Camera(np.asarray(position, float), np.array([0, 1.0, 0]), np.array([0, 0, 1.0])),
+            lambert=False,
+        )
+    }
     assert checks.CAMERA_IN_OBJECT in notes([0.0, 0.3, 0.0])
     assert checks.CAMERA_IN_OBJECT not in notes([0.0, 0.0, 0.0])  # where the mesh itself lies

@@ -3,6 +3,7 @@ closed forms: the sum over the copies of a point light (in S3 over both arcs to 
 cos * power * falloff, where nothing shadows (the shaded object is emissive, so it casts no
 shadow on point lights' light, and there is nothing else), every path shadowed where the light is shut in, and the
 render's light statistics."""
+
 from __future__ import annotations
 
 import itertools
@@ -11,11 +12,12 @@ import math
 import numpy as np
 import pytest
 import trimesh
-
 from support.lit_ball import GLOW, RHO, ball_scene, shade_one
 from support.presets import simplest_per_geometry
+
 from thurston_addon import render, spaces
 from thurston_addon.scenes import PointLight, Scene, SceneObject, default_scene
+
 
 @pytest.mark.parametrize("fog", [math.inf, 0.5])
 def test_torus_sums_every_lattice_copy_within_the_reach(fog):
@@ -25,8 +27,9 @@ def test_torus_sums_every_lattice_copy_within_the_reach(fog):
     and sums p / r_k^2 exp(-r_k / fog) over them (the energy the stats set the part beyond against)."""
     space = spaces.load("torus")
     light, power, reach = np.array([-0.2, 0.1, 0.3]), 0.7, 2.5
-    colour, H, N, out = shade_one(space, ball_scene([0.1, 0.2, -0.15], light, power), [0.1, -0.2, -0.15],
-                                  [0.1, 0.2, -0.15], reach, fog)
+    colour, H, N, out = shade_one(
+        space, ball_scene([0.1, 0.2, -0.15], light, power), [0.1, -0.2, -0.15], [0.1, 0.2, -0.15], reach, fog
+    )
     x = H[:3] / H[3]
     total, energy, paths, facing = 0.0, 0.0, 0, 0
     for k in itertools.product(range(-4, 5), repeat=3):
@@ -55,8 +58,9 @@ def test_poincare_sums_120_copies_and_both_arcs():
     group = space.elements_within(math.pi + 1e-6)
     assert len(group) == 120
     light, power = np.array([0.08, -0.05, 0.12]), 0.3
-    colour, H, N, out = shade_one(space, ball_scene([0.0, 0.15, 0.0], light, power), [0.0, -0.1, 0.0],
-                                  [0.0, 0.15, 0.0], None)
+    colour, H, N, out = shade_one(
+        space, ball_scene([0.0, 0.15, 0.0], light, power), [0.0, -0.1, 0.0], [0.0, 0.15, 0.0], None
+    )
     L = g.normalize_point(g.to_model(light[None]))[0]
     total = 0.0
     for M in group:
@@ -81,8 +85,12 @@ def test_opaque_points_in_the_poincare_sphere_see_no_long_arcs():
     data = render.compile_scene(space, scene, 2 * math.pi)
     import thurston_core
 
-    traced = render.render(space, scene, settings, tracer=thurston_core.Tracer(render.core_scene({**data, "geodesic_loop": math.inf}),
-                                                                                threads=1)).passes["color"]
+    traced = render.render(
+        space,
+        scene,
+        settings,
+        tracer=thurston_core.Tracer(render.core_scene({**data, "geodesic_loop": math.inf}), threads=1),
+    ).passes["color"]
     np.testing.assert_allclose(shortcut, traced, rtol=1e-4, atol=1e-6)
 
 
@@ -98,7 +106,10 @@ def test_light_stats_and_energy_estimate():
         assert "copies within reach" in r.summary()
     assert far.stats["light_copies"] > near.stats["light_copies"]
     # beyond R = 1 up to D = 30 there is far more than the summed part: (D - R) / R ~ 29, roughly
-    assert 5 < near.stats["light_energy_left_out"] and far.stats["light_energy_left_out"] < near.stats["light_energy_left_out"]
+    assert (
+        5 < near.stats["light_energy_left_out"]
+        and far.stats["light_energy_left_out"] < near.stats["light_energy_left_out"]
+    )
     poincare = spaces.load("poincare")
     r = render.render(poincare, default_scene(poincare), render.Settings(width=16, height=9, quality="draft"))
     assert r.stats["light_copies"] == 120 and r.stats["light_energy_left_out"] == 0.0
@@ -135,9 +146,11 @@ def floor_under_lamp():
     sc = bh.fresh_scene("torus", size=(48, 27))
     sc.view_settings.view_transform = "Standard"
     sc.thurston.quality = "standard"
-    for name, size, location in (("Floor", (1.0, 1.0, 0.02), (0.0, 0.0, -0.26)),
-                                 ("Left", (0.02, 1.0, 1.0), (-0.4, 0.0, 0.0)),
-                                 ("Right", (0.02, 1.0, 1.0), (0.45, 0.0, 0.0))):
+    for name, size, location in (
+        ("Floor", (1.0, 1.0, 0.02), (0.0, 0.0, -0.26)),
+        ("Left", (0.02, 1.0, 1.0), (-0.4, 0.0, 0.0)),
+        ("Right", (0.02, 1.0, 1.0), (0.45, 0.0, 0.0)),
+    ):
         bh.lambert(bh.box(name, size, location, color=(0.7, 0.7, 0.7)).active_material)
     lamp = bh.point_light((0.05, 0.1, 0.39), energy=3.0)
     lamp.data.shadow_soft_size = 0.0
@@ -183,6 +196,7 @@ def test_floor_under_the_lamp_matches_cycles_in_the_tiled_cover(tmp_path, regist
 # textbook formulas, the cosine towards each copy as minus the derivative of that geodesic's length
 # along the normal (central differences), the falloff as the wavefront's area density. The tracer's
 # copy search (render.cover_copies) and its C++ connections share none of it.
+
 
 def h2xr_model(x):
     """Chart (x, y, z) -> the model (X1, X2, e^z, X0), (X1, X2, X0) = (x, y, 1) / sqrt(1 - x^2 - y^2)."""
@@ -260,8 +274,12 @@ def test_genus2_x_circle_sums_every_copy_in_the_cover():
     assert float(out["light_energy"]) == pytest.approx(energy, rel=1e-6)
     rtol = 1e-5  # the colour is float32
     np.testing.assert_allclose(colour, GLOW + RHO * terms.sum(), rtol=rtol)
-    print("relative error", np.abs(colour / (GLOW + RHO * terms.sum()) - 1).max(), "smallest term / colour",
-          RHO * terms[terms > 0].min() / colour.max())
+    print(
+        "relative error",
+        np.abs(colour / (GLOW + RHO * terms.sum()) - 1).max(),
+        "smallest term / colour",
+        RHO * terms[terms > 0].min() / colour.max(),
+    )
     assert RHO * terms[terms > 0].min() > 50 * rtol * colour.max()  # a missing copy fails it
 
 
@@ -290,8 +308,10 @@ def test_s2xr_sums_every_arc_of_every_copy(sid, copies):
     centre = np.array([0.0, -30.0, 0.0])
     scale = np.linalg.norm(centre)  # the metric is |dx| / |x|: a ball of chart radius 0.02 |x|
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.02 * scale)
-    scene = Scene(objects=[SceneObject("ball", ball.vertices + centre, ball.faces, (RHO,) * 3, emission=(GLOW,) * 3)],
-                  lights=[PointLight(light, np.ones(3), power)])
+    scene = Scene(
+        objects=[SceneObject("ball", ball.vertices + centre, ball.faces, (RHO,) * 3, emission=(GLOW,) * 3)],
+        lights=[PointLight(light, np.ones(3), power)],
+    )
     colour, H, N, out = shade_one(space, scene, centre + [0.0, -0.3 * scale, 0.1 * scale], centre, reach)
     g = space.geometry
     x, n = g.to_chart(H), g.tangent_to_chart(H, N)
@@ -306,9 +326,11 @@ def test_s2xr_sums_every_arc_of_every_copy(sid, copies):
     for k, q in enumerate(cover):
         for n_turns in range(4):
             for way in (+1, -1):  # the arc towards q's direction, or the other way round
+
                 def length(p):
                     theta, dw = angle_and_dw(p, q)
                     return math.hypot(2 * math.pi * n_turns + (theta if way > 0 else 2 * math.pi - theta), dw)
+
                 theta, dw = angle_and_dw(x, q)
                 alpha = 2 * math.pi * n_turns + (theta if way > 0 else 2 * math.pi - theta)
                 r = math.hypot(alpha, dw)
@@ -321,20 +343,34 @@ def test_s2xr_sums_every_arc_of_every_copy(sid, copies):
                 terms.append(max(-central_difference(length, x, n), 0.0) * power * falloff)
     terms = np.array(terms)
     assert len(terms) == out["light_paths"]
-    assert {(own, 0, -1), (own, 1, 1), (own, 1, -1), (own + 1, 0, 1), (own - 1, 0, 1)} <= arcs  # both ways, winding, other copies
+    assert {
+        (own, 0, -1),
+        (own, 1, 1),
+        (own, 1, -1),
+        (own + 1, 0, 1),
+        (own - 1, 0, 1),
+    } <= arcs  # both ways, winding, other copies
     if sid == "rp3_rp3":
         assert any(k >= len(cover) // 2 for k, _, _ in arcs)  # a reflected copy is within the reach
     assert float(out["light_energy"]) == pytest.approx(energy, rel=1e-6)
     rtol = 1e-5  # the colour is float32
     np.testing.assert_allclose(colour, GLOW + RHO * terms.sum(), rtol=rtol)
-    print("relative error", np.abs(colour / (GLOW + RHO * terms.sum()) - 1).max(), "smallest term / colour",
-          RHO * terms[terms > 0].min() / colour.max())
+    print(
+        "relative error",
+        np.abs(colour / (GLOW + RHO * terms.sum()) - 1).max(),
+        "smallest term / colour",
+        RHO * terms[terms > 0].min() / colour.max(),
+    )
     assert RHO * terms[terms > 0].min() > 50 * rtol * colour.max()
 
 
-@pytest.mark.parametrize("sid, light, centre, lamp_radius", [
-    ("genus2xs1", [0.25, -0.1, 0.6], [-0.1, 0.3, -0.2], 0.05),
-    ("s2xs1", [14.0, -26.0, 9.0], [0.0, -30.0, 0.0], 0.05 * 31.0)])
+@pytest.mark.parametrize(
+    "sid, light, centre, lamp_radius",
+    [
+        ("genus2xs1", [0.25, -0.1, 0.6], [-0.1, 0.3, -0.2], 0.05),
+        ("s2xs1", [14.0, -26.0, 9.0], [0.0, -30.0, 0.0], 0.05 * 31.0),
+    ],
+)
 def test_a_shut_in_light_is_shadowed_along_every_geodesic(sid, light, centre, lamp_radius):
     """The light inside a closed opaque ball: every geodesic to every copy (the shadow rays cross
     faces, go round the sphere, wind) meets the ball, so only the shaded ball's own emission is left."""

@@ -9,6 +9,7 @@ the integrated exponential map from those minima (rtol 1e-8), the distinct solut
 rtol 1e-12. Falloffs: 1 / (r^2 |det d exp|) in orthonormal frames, d exp by central differences of
 the integrated map. SL2's model (SU(1,1)) identifies phi with phi + 4 pi, so the tracer's geodesics
 to a lift l are those of the universal cover to l + (0, 0, 4 pi k) for every k."""
+
 from __future__ import annotations
 
 import itertools
@@ -16,16 +17,22 @@ import math
 
 import numpy as np
 import pytest
+import thurston_core
 from scipy.integrate import solve_ivp
 from scipy.spatial import cKDTree
-
-import thurston_core
-from thurston_addon import render, spaces
-from thurston_addon.geometries import sl2
-
 from support.lit_ball import GLOW, RHO, ball_scene, shade_one
-from support.truth import (christoffel_from, nil_metric, nil_sol_christoffel, nil_sol_metric_derivative, sl2_christoffel,
-                           sl2_metric, sl2_metric_derivative, sol_metric)
+from support.truth import (
+    christoffel_from,
+    nil_metric,
+    nil_sol_christoffel,
+    nil_sol_metric_derivative,
+    sl2_christoffel,
+    sl2_metric,
+    sl2_metric_derivative,
+    sol_metric,
+)
+
+from thurston_addon import render, spaces
 
 # --- the truth --------------------------------------------------------------------------------------
 
@@ -66,7 +73,7 @@ def metric_derivative(name, x):
         lam = 2 / (1 - X * X - Y * Y)
         f = np.stack([-lam * Y, lam * X, np.ones_like(X)], -1)
         df = np.zeros(x.shape + (3,))  # df[..., l, i] = d_l f_i
-        df[..., 0, 0], df[..., 0, 1] = -lam**2 * X * Y, lam + lam**2 * X * X
+        df[..., 0, 0], df[..., 0, 1] = -(lam**2) * X * Y, lam + lam**2 * X * X
         df[..., 1, 0], df[..., 1, 1] = -lam - lam**2 * Y * Y, lam**2 * X * Y
         dg = df[..., :, :, None] * f[..., None, None, :] + f[..., None, :, None] * df[..., :, None, :]
         dg[..., 0, 0, 0] += 2 * lam**3 * X
@@ -84,20 +91,21 @@ def christoffel(name, x):
 def test_the_vectorised_truth_is_the_formulas_of_the_other_tests():
     rng = np.random.default_rng(3)
     for x in np.c_[rng.uniform(-0.7, 0.7, (5, 2)), rng.uniform(-2, 2, 5)]:
-        np.testing.assert_allclose(christoffel("Nil", x), nil_sol_christoffel("Nil", x), rtol=1e-13,
-                                   atol=1e-14)
+        np.testing.assert_allclose(christoffel("Nil", x), nil_sol_christoffel("Nil", x), rtol=1e-13, atol=1e-14)
         np.testing.assert_allclose(christoffel("SL2", x), sl2_christoffel(x), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(metric("Nil", x), nil_metric(x), rtol=1e-14)
         np.testing.assert_allclose(metric("Sol", x), sol_metric(x), rtol=1e-14)
         np.testing.assert_allclose(metric("SL2", x), sl2_metric(x), rtol=1e-14)
         for name in ("Nil", "Sol"):
-            np.testing.assert_allclose(metric_derivative(name, x), nil_sol_metric_derivative(name, x),
-                                       rtol=1e-14, atol=1e-14)
+            np.testing.assert_allclose(
+                metric_derivative(name, x), nil_sol_metric_derivative(name, x), rtol=1e-14, atol=1e-14
+            )
         np.testing.assert_allclose(metric_derivative("SL2", x), sl2_metric_derivative(x), rtol=1e-13, atol=1e-13)
 
 
 def geodesic_equation(name, n):
     """x'' = -Gamma(x)(x', x') for n geodesics at once, the state (x, v) flattened, for solve_ivp."""
+
     def rhs(_s, y):
         x, v = y.reshape(2, n, 3)
         return np.concatenate([v, -np.einsum("nkij,ni,nj->nk", christoffel(name, x), v, v)]).ravel()
@@ -110,8 +118,14 @@ def exp_map(name, h, W, rtol=1e-12):
     from x'(0) = W (the geodesic at speed |W|), all rows in one DOP853 integration."""
     W = np.atleast_2d(W)
     n = len(W)
-    sol = solve_ivp(geodesic_equation(name, n), (0.0, 1.0), np.concatenate([np.broadcast_to(h, (n, 3)), W]).ravel(),
-                    method="DOP853", rtol=rtol, atol=rtol)
+    sol = solve_ivp(
+        geodesic_equation(name, n),
+        (0.0, 1.0),
+        np.concatenate([np.broadcast_to(h, (n, 3)), W]).ravel(),
+        method="DOP853",
+        rtol=rtol,
+        atol=rtol,
+    )
     assert sol.success
     return sol.y[:, -1].reshape(2, n, 3)[0]
 
@@ -135,8 +149,15 @@ def scan_seeds(name, h, targets, reach, most=None):
     U = sphere @ np.linalg.inv(np.linalg.cholesky(metric(name, h)).T).T  # unit in the metric at h
     n = len(U)
     ts = np.linspace(0.0, reach, SAMPLES)
-    sol = solve_ivp(geodesic_equation(name, n), (0.0, reach), np.concatenate([np.broadcast_to(h, (n, 3)), U]).ravel(),
-                    method="DOP853", rtol=1e-6, atol=1e-6, t_eval=ts)
+    sol = solve_ivp(
+        geodesic_equation(name, n),
+        (0.0, reach),
+        np.concatenate([np.broadcast_to(h, (n, 3)), U]).ravel(),
+        method="DOP853",
+        rtol=1e-6,
+        atol=1e-6,
+        t_eval=ts,
+    )
     assert sol.success
     path = sol.y.reshape(2, n, 3, SAMPLES)[0]
     _, near = cKDTree(sphere).query(sphere, k=9)
@@ -209,8 +230,9 @@ def geodesics_to(name, h, targets, reach, most=None):
                 distinct.append(w)
         if distinct:
             T = np.repeat(targets[k][None], len(distinct), axis=0)
-            polished, ok2 = newton(name, h, T, np.array(distinct), 6, 1e-12, 1e-10 * (1 + np.linalg.norm(targets[k])),
-                                   1.5 * reach + 1)
+            polished, ok2 = newton(
+                name, h, T, np.array(distinct), 6, 1e-12, 1e-10 * (1 + np.linalg.norm(targets[k])), 1.5 * reach + 1
+            )
             assert ok2.all()
             distinct = [w for w in polished if math.sqrt(w @ g @ w) <= reach]
         found.append(distinct)
@@ -274,6 +296,7 @@ def test_every_connecting_geodesic_and_its_falloff(case):
 
 
 # --- the lit colour: every copy of the light along every geodesic -------------------------------------
+
 
 def may_reach(name, h, x, reach, fibre=True):
     """Whether a point x may lie within reach of h (necessary conditions): no curve outruns its
@@ -417,8 +440,12 @@ def test_second_geodesics_light_too(tmp_path):
     centre, light = np.array([0.0, 0.0, -4.0]), np.array([0.25, 0.1, 4.0])
     colour, H, N, out = shade_one(space, ball_scene(centre, light, power), centre + [0.0, -0.3, 0.1], centre, reach)
     x, n = np.asarray(g.to_chart(H), float), np.asarray(g.tangent_to_chart(H, N), float)
-    neighbours = np.array([g.to_chart(g.left_multiplication(np.array(k, float) * [12, 12, 144]) @ g.to_model(light))
-                           for k in itertools.product((-1, 0, 1), repeat=3)])
+    neighbours = np.array(
+        [
+            g.to_chart(g.left_multiplication(np.array(k, float) * [12, 12, 144]) @ g.to_model(light))
+            for k in itertools.product((-1, 0, 1), repeat=3)
+        ]
+    )
     assert np.count_nonzero(may_reach("Nil", x, neighbours, reach)) == 1
     (found,) = geodesics_to("Nil", x, light, reach)
     assert len(found) == 3
@@ -430,6 +457,7 @@ def test_second_geodesics_light_too(tmp_path):
 
 
 # --- the bounds the copies of a light are found by ------------------------------------------------------
+
 
 def domain_points(space, n, rng):
     """n points of the domain (its vertices first): convex combinations of the vertices of Nil's and
@@ -459,8 +487,10 @@ def test_the_bounds_of_distances_hold(space_id):
     g = space.geometry
     inside = domain_points(space, 300, rng)
     letters = [*space.generators, *(np.linalg.inv(M) for M in space.generators)]
-    outside = [np.asarray(g.to_chart(g.normalize_point(letters[i] @ g.to_model(p))), float)
-               for p, i in zip(inside[-12:], rng.integers(0, len(letters), 12))]
+    outside = [
+        np.asarray(g.to_chart(g.normalize_point(letters[i] @ g.to_model(p))), float)
+        for p, i in zip(inside[-12:], rng.integers(0, len(letters), 12))
+    ]
     connect = thurston_core.Connections(g.name, 8.0)
 
     def distances(x):
@@ -477,9 +507,16 @@ def test_the_bounds_of_distances_hold(space_id):
     assert max(float(g.domain_distance(g.to_model(x), space.domain)) for x in outside) > 0.3
 
 
-@pytest.mark.parametrize("geometry, reach, message", [("Nil", -1.0, "reach"), ("Sol", math.nan, "reach"),
-                                                      ("SL2", math.inf, "reach"), ("E3", 1.0, "no marching flow"),
-                                                      ("Heisenberg", 1.0, "unknown geometry")])
+@pytest.mark.parametrize(
+    "geometry, reach, message",
+    [
+        ("Nil", -1.0, "reach"),
+        ("Sol", math.nan, "reach"),
+        ("SL2", math.inf, "reach"),
+        ("E3", 1.0, "no marching flow"),
+        ("Heisenberg", 1.0, "unknown geometry"),
+    ],
+)
 def test_bad_connections_are_one_clear_error(geometry, reach, message):
     with pytest.raises(ValueError, match=message):
         thurston_core.Connections(geometry, reach)

@@ -1,6 +1,7 @@
 """The progressive view behind Blender's rendered viewport (no Blender needed): coarse-to-fine frames
 on a worker thread, the newest kept, a new request cancelling the frame in progress; then samples
 added up to the count, their running mean the F12 render's."""
+
 import threading
 from dataclasses import replace
 
@@ -24,8 +25,9 @@ def frames_of(space, tracer, size, quality, log):
     def frame(level, sample, cancelled):
         settings = render.Settings(width=size[0] // level, height=size[1] // level, quality=quality, threads=2)
         try:
-            result = render.render(space, None, settings, camera=camera, tracer=tracer,
-                                   progress=lambda done, total: not cancelled())
+            result = render.render(
+                space, None, settings, camera=camera, tracer=tracer, progress=lambda done, total: not cancelled()
+            )
         except render.Cancelled:
             log.append(("cancelled", level))
             raise
@@ -43,9 +45,16 @@ def test_progressive_view_refines_then_a_new_request_cancels():
     view.request("first", frames_of(space, tracer, (64, 32), "draft", first))
     view.wait(120)
     key, level, pixels = view.frame.key, view.frame.level, view.frame.pixels
-    assert (key, level, view.frame.samples) == ("first", 1, 1) and [e for e, _ in first] == ["done"] * len(progressive.LEVELS)
-    direct = render.render(space, None, render.Settings(width=64, height=32, quality="draft", threads=2),
-                           camera=space_camera(space), tracer=tracer)
+    assert (key, level, view.frame.samples) == ("first", 1, 1) and [e for e, _ in first] == ["done"] * len(
+        progressive.LEVELS
+    )
+    direct = render.render(
+        space,
+        None,
+        render.Settings(width=64, height=32, quality="draft", threads=2),
+        camera=space_camera(space),
+        tracer=tracer,
+    )
     np.testing.assert_array_equal(pixels, direct.passes["color"])
 
     # the same key again: nothing is traced
@@ -79,8 +88,9 @@ def accumulating(space, tracer, size, samples, settings, log=None):
     def frame(level, sample, cancelled):
         view = replace(settings, width=size[0] // level, height=size[1] // level)
         shifted, one = progressive.one_sample(camera, view, sample, samples)
-        result = render.render(space, None, one, camera=shifted, tracer=tracer,
-                               progress=lambda done, total: not cancelled())
+        result = render.render(
+            space, None, one, camera=shifted, tracer=tracer, progress=lambda done, total: not cancelled()
+        )
         if log is not None:
             log.append((level, sample))
         return result.passes["color"]
@@ -97,8 +107,9 @@ def test_samples_accumulate_to_the_final_render_with_its_noise():
     space = spaces.load("torus")
     tracer = render.make_tracer(space, default_scene(space))
     size, samples = (48, 27), 4
-    settings = render.Settings(width=size[0], height=size[1], samples=samples, bounces=2, seed=5, quality="draft",
-                               threads=2)
+    settings = render.Settings(
+        width=size[0], height=size[1], samples=samples, bounces=2, seed=5, quality="draft", threads=2
+    )
     view = progressive.ProgressiveView()
     log = []
     view.request("gi", accumulating(space, tracer, size, samples, settings, log), samples)
@@ -146,6 +157,7 @@ def test_one_sample_is_sample_k_of_the_render():
     for n, first in ((5, 7), (4, 8)):  # 5 samples: one at the centre; 4: a centre pass first
         for k, jitter in enumerate(render.sample_offsets(n)):
             moved, one = progressive.one_sample(camera, settings, k, n)
-            np.testing.assert_allclose(render.view_directions(moved, one), render.view_directions(camera, settings, jitter),
-                                       atol=1e-14)
+            np.testing.assert_allclose(
+                render.view_directions(moved, one), render.view_directions(camera, settings, jitter), atol=1e-14
+            )
             assert (one.samples, one.seed) == (1, first + k)

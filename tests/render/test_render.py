@@ -1,6 +1,7 @@
 """End-to-end tests of the render pipeline (spaces -> compile_scene -> C++ tracer -> passes) against
 closed forms: ray-sphere distances to every copy of a geodesic ball under the group, lattice
 crossing counts, Lambert shading, and the behaviour of render() itself."""
+
 import math
 import os
 import subprocess
@@ -12,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-
 from support.presets import presets
+
 from thurston_addon import passes, render, spaces
 from thurston_addon.scenes import Camera, PointLight, Scene, SceneError, SceneObject, default_scene
 
@@ -147,7 +148,8 @@ def check_against_balls(space, V, F, centre, rho, sagitta, P, D, max_distance, m
     worst = int(np.argmax(err / tol[hit]))
     assert np.all(err <= tol[hit]), (
         f"depth off by {err[worst]:.3g} (tolerance {tol[hit][worst]:.3g}) at analytic depth {t[hit][worst]:.4f}, "
-        f"traced {out['depth'][hit][worst]:.4f}")
+        f"traced {out['depth'][hit][worst]:.4f}"
+    )
     # rays that stay clear of every copy (the polyhedron lies inside the ball) find nothing
     assert np.all(out["stop"][miss] == 1), np.bincount(out["stop"][miss])
     assert np.all(np.isinf(out["depth"][miss]))
@@ -246,8 +248,9 @@ def test_object_reaching_two_domains_away_is_whole(space_cache):
     assert out["stop"][2] == 1  # x = -0.3 maps to 0.7 and 1.7: the bar is not there
 
 
-@pytest.mark.parametrize("sid, word", [("torus", (0, 0, 0, 0, 2, 2, 2)), ("poincare", (0, 0)),
-                                       ("seifert_weber", (0, 0))])
+@pytest.mark.parametrize(
+    "sid, word", [("torus", (0, 0, 0, 0, 2, 2, 2)), ("poincare", (0, 0)), ("seifert_weber", (0, 0))]
+)
 def test_object_far_out_in_the_cover_is_brought_in(space_cache, sid, word):
     """A ball placed by a word in the face pairings, outside the domain and its neighbouring copies
     (H3: 4 from the centre; farther, chart coordinates lose the ball's shape), is the same point set
@@ -325,7 +328,7 @@ def test_no_leak_at_edges_and_vertices(space_cache, sid):
     n = 100_000
     targets = edge_targets(space, rng, n)
     p = np.zeros((n, 3))
-    p[n // 2:] = interior_points(space, rng, n - n // 2)
+    p[n // 2 :] = interior_points(space, rng, n - n // 2)
     P, D = model_rays(g, p, targets - p)
     assert np.all(np.isfinite(P)) and np.all(np.isfinite(D))
     max_distance, max_crossings = (3.0 if g.name == "H3" else 6.0), 40
@@ -347,7 +350,7 @@ def test_torus_crossings_count_lattice_planes(space_cache):
     n = 20000
     L = 7.318309886
     p = np.zeros((n, 3))
-    p[n // 2:] = rng.uniform(-0.45, 0.45, size=(n - n // 2, 3))
+    p[n // 2 :] = rng.uniform(-0.45, 0.45, size=(n - n // 2, 3))
     d = random_units(rng, n)
     e = p + L * d
     frac = np.abs((e + 0.5) - np.round(e + 0.5))
@@ -377,8 +380,7 @@ def test_lambert_shading_closed_form(space_cache, sid, reach):
     light_chart = np.array([0.02, 0.05, -0.03])
     power = 0.7
     light_color = np.array([1.0, 0.9, 0.6])
-    scene = Scene(objects=[SceneObject("wall", V, F, base)],
-                  lights=[PointLight(light_chart, light_color, power)])
+    scene = Scene(objects=[SceneObject("wall", V, F, base)], lights=[PointLight(light_chart, light_color, power)])
     tracer = render.make_tracer(space, scene, light_reach=reach)
     rng = np.random.default_rng(7)
     targets = np.column_stack([np.full(50, x0), rng.uniform(-0.8 * half, 0.8 * half, size=(50, 2))])
@@ -390,7 +392,9 @@ def test_lambert_shading_closed_form(space_cache, sid, reach):
     L = g.to_model(light_chart)
     r = g.distance(H, L[None, :])
     # unit normal of the plane x = x0 at H (the covector (1,0,0,-x0) as a tangent vector), towards O
-    N = g.normalize_tangent(H, np.tile([-1.0, 0.0, 0.0, x0 * g.curvature], (50, 1)) if g.curvature else np.tile([-1.0, 0, 0, 0], (50, 1)))
+    N = g.normalize_tangent(
+        H, np.tile([-1.0, 0.0, 0.0, x0 * g.curvature], (50, 1)) if g.curvature else np.tile([-1.0, 0, 0, 0], (50, 1))
+    )
     assert np.all(g.inner(N, g.direction_to(H, ORIGIN[None, :])) > 0)
     cos = g.inner(N, g.direction_to(H, L[None, :]))
     expected = base[None, :] * light_color[None, :] * power * (cos * g.falloff(r))[:, None]
@@ -405,9 +409,13 @@ def test_emission_adds_and_shadow_blocks(space_cache):
     g = space.geometry
     V, F = square(0.3, 0.4)
     blocker_V, blocker_F = square(0.15, 0.05)  # between the light and the wall's centre
-    scene = Scene(objects=[SceneObject("wall", V, F, (1, 1, 1), emission=(0.1, 0.2, 0.3)),
-                           SceneObject("blocker", blocker_V + [0, 0.2, 0.2], blocker_F, (1, 1, 1))],
-                  lights=[PointLight(np.array([0.0, 0.2, 0.2]), np.ones(3), 1.0)])
+    scene = Scene(
+        objects=[
+            SceneObject("wall", V, F, (1, 1, 1), emission=(0.1, 0.2, 0.3)),
+            SceneObject("blocker", blocker_V + [0, 0.2, 0.2], blocker_F, (1, 1, 1)),
+        ],
+        lights=[PointLight(np.array([0.0, 0.2, 0.2]), np.ones(3), 1.0)],
+    )
     tracer = render.make_tracer(space, scene, light_reach=0.7)  # the light's own copy only
     # ray to the wall point straight behind the blocker (seen from the light) and one beside it
     targets = np.array([[0.3, 0.2, 0.2], [0.3, -0.2, -0.2]])
@@ -510,15 +518,28 @@ def test_render_cancel(space_cache):
         return False
 
     with pytest.raises(render.Cancelled):
-        render.render(space, default_scene(space), render.Settings(width=64, height=32, quality="draft"), progress=progress)
+        render.render(
+            space, default_scene(space), render.Settings(width=64, height=32, quality="draft"), progress=progress
+        )
     assert calls
 
 
 def test_bad_settings_raise(space_cache):
     space = space_cache("torus")
-    for kw in (dict(width=0), dict(projection="fisheye"), dict(quality="ultra"), dict(shading="toon"),
-               dict(max_distance=float("nan")), dict(max_crossings=-1), dict(fog=float("nan")),
-               dict(fog=-0.5), dict(fog=0.0), dict(fog=float("inf")), dict(threads=-1), dict(max_crossings=2.7)):
+    for kw in (
+        dict(width=0),
+        dict(projection="fisheye"),
+        dict(quality="ultra"),
+        dict(shading="toon"),
+        dict(max_distance=float("nan")),
+        dict(max_crossings=-1),
+        dict(fog=float("nan")),
+        dict(fog=-0.5),
+        dict(fog=0.0),
+        dict(fog=float("inf")),
+        dict(threads=-1),
+        dict(max_crossings=2.7),
+    ):
         with pytest.raises(render.RenderError):
             render.render(space, Scene(), render.Settings(**{"width": 4, "height": 4, **kw}))
 
@@ -544,7 +565,9 @@ def test_projection_orientation_and_fog(space_cache):
     assert obj[4, 20] == 1 and obj[36, 20] == -1  # up in the top rows
     W, H = 64, 32
     scene = Scene(objects=[box([0.3, 0.0, 0.0]), box([0.0, 0.0, 0.3]), box([0.0, 0.3, 0.0])])
-    res = render.render(space, scene, render.Settings(**{**common, "width": W, "height": H, "projection": "equirect"}), camera=cam)
+    res = render.render(
+        space, scene, render.Settings(**{**common, "width": W, "height": H, "projection": "equirect"}), camera=cam
+    )
     obj = res.passes["object"]
     assert obj[16, 32] == 2  # longitude 0 (column centre) is forward
     assert obj[16, 48] == 0  # longitude +90 degrees: right
@@ -609,8 +632,12 @@ def test_colour_of_a_linear_ramp_is_its_value_at_the_pixel_centre(space_cache, s
     scene = Scene(objects=[SceneObject("wall", V, np.array([[0, 1, 2], [0, 2, 3]]))])
     cam = Camera(np.zeros(3), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), 60.0)
     W, H = 9, 7
-    res = render.render(space, scene, render.Settings(width=W, height=H, samples=samples, shading="position",
-                                                      max_distance=1.0), camera=cam)
+    res = render.render(
+        space,
+        scene,
+        render.Settings(width=W, height=H, samples=samples, shading="position", max_distance=1.0),
+        camera=cam,
+    )
     assert np.all(res.passes["object"] == 0)
     lo, hi = space.domain.vertices.min(axis=0), space.domain.vertices.max(axis=0)
     t = math.tan(math.radians(30))
@@ -628,13 +655,16 @@ def test_passes_are_the_unshaded_centre_ray_trace(space_cache, samples):
     space = space_cache("torus")
     g = space.geometry
     V, F, _, _ = ball_mesh(g, [0, 1, 0], 0.0, 0.2, subdivisions=3)
-    scene = Scene(objects=[SceneObject("ball", V + [0.1, 0.3, 0.05], F, (0.5, 0.5, 0.5))],
-                  lights=[PointLight(np.array([0.0, 0.0, 0.2]), np.ones(3), 1.0)])
+    scene = Scene(
+        objects=[SceneObject("ball", V + [0.1, 0.3, 0.05], F, (0.5, 0.5, 0.5))],
+        lights=[PointLight(np.array([0.0, 0.0, 0.2]), np.ones(3), 1.0)],
+    )
     W, H = 13, 9
     cam = Camera(np.array([0.0, -0.2, 0.0]), np.array([0.2, 1.0, 0.1]), np.array([0.0, 0.0, 1.0]), 80.0)
     tracer = render.make_tracer(space, scene)
-    res = render.render(space, scene, render.Settings(width=W, height=H, samples=samples, max_distance=3.0),
-                        camera=cam, tracer=tracer)
+    res = render.render(
+        space, scene, render.Settings(width=W, height=H, samples=samples, max_distance=3.0), camera=cam, tracer=tracer
+    )
     f = cam.forward / np.linalg.norm(cam.forward)
     r = np.cross(f, cam.up)
     r /= np.linalg.norm(r)
@@ -790,8 +820,10 @@ def test_poincare_light_sums_all_120_copies_near_the_vertices(space_cache):
         e2 = np.cross(n, e1)
         s = 0.1 * delta
         quad = np.array([h + s * (x * e1 + y * e2) for x, y in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
-        scene = Scene(objects=[SceneObject("facet", quad, np.array([[0, 1, 2], [0, 2, 3]]), base, emission=(glow,) * 3)],
-                      lights=[PointLight(l, np.ones(3), power)])
+        scene = Scene(
+            objects=[SceneObject("facet", quad, np.array([[0, 1, 2], [0, 2, 3]]), base, emission=(glow,) * 3)],
+            lights=[PointLight(l, np.ones(3), power)],
+        )
         tracer = render.make_tracer(space, scene)
         out = tracer.trace(Q[None, :], V[None, :], 3.0, 200, shade=True)
         assert out["stop"][0] == 0 and out["object"][0] == 0
@@ -835,8 +867,9 @@ def test_curved_render_states_and_keeps_its_bound(space_cache, sid, quality):
     pixel = math.radians(space.camera.fov) / 64
     assert st["geodesic_error"] <= fraction * render.footprint(space, pixel, nearest)
     # that footprint in closed form (the domain's chart extent is Nil's and Sol's metric one)
-    assert render.footprint(space, pixel, nearest) == pytest.approx(pixel * (nearest + render.NEAR_FRACTION * space.extent),
-                                                                    rel=1e-12)
+    assert render.footprint(space, pixel, nearest) == pytest.approx(
+        pixel * (nearest + render.NEAR_FRACTION * space.extent), rel=1e-12
+    )
 
 
 def test_geodesic_error_sees_a_perturbed_pairing(space_cache):

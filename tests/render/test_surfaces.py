@@ -2,6 +2,7 @@
 mesh files that carry them (OBJ vn/vt/map_Kd, glTF), and the corner normals of copies in curved
 spaces. Truth: the analytic sphere normal, the Lambert closed form of a point light, the texels
 written, the files' own numbers."""
+
 from __future__ import annotations
 
 import base64
@@ -12,7 +13,7 @@ import pytest
 import trimesh
 
 from thurston_addon import render, spaces
-from thurston_addon.scenes import Material, Scene, SceneError, SceneObject, PointLight, clean, load_mesh_file
+from thurston_addon.scenes import Material, PointLight, Scene, SceneError, SceneObject, clean, load_mesh_file
 
 
 @pytest.fixture(scope="module")
@@ -92,8 +93,14 @@ def test_texture_and_per_face_materials_in_the_lambert_closed_form(torus):
     uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1.0]])
     T = np.array([[0, 1, 2], [0, 2, 3]])
     plain = Material([0.2, 0.5, 0.9], [0.05, 0.0, 0.0])
-    quad = SceneObject("quad", V, T, corner_uvs=uv[T], triangle_material=[0, 1],
-                       materials=[Material([1, 1, 1], [0, 0, 0], texels), plain])
+    quad = SceneObject(
+        "quad",
+        V,
+        T,
+        corner_uvs=uv[T],
+        triangle_material=[0, 1],
+        materials=[Material([1, 1, 1], [0, 0, 0], texels), plain],
+    )
     power = 0.3
     scene = Scene(objects=[quad], lights=[PointLight(np.zeros(3), np.ones(3), power)])
     rows, cols = np.meshgrid(np.arange(4), np.arange(4), indexing="ij")
@@ -104,8 +111,11 @@ def test_texture_and_per_face_materials_in_the_lambert_closed_form(torus):
     r = np.linalg.norm(targets, axis=1)
     lambert = power * (0.2 / r) / r**2  # cos / r^2 for a point light in E3
     textured = (u > v)[off]  # below the diagonal: triangle 0
-    expected = np.where(textured[:, None], texels[rows[off], cols[off]] * lambert[:, None],
-                        plain.color * lambert[:, None] + plain.emission)
+    expected = np.where(
+        textured[:, None],
+        texels[rows[off], cols[off]] * lambert[:, None],
+        plain.color * lambert[:, None] + plain.emission,
+    )
     np.testing.assert_allclose(out["color"], expected, rtol=1e-4)
 
 
@@ -118,16 +128,25 @@ def test_bad_surfaces_are_named():
     with pytest.raises(SceneError, match="texture file '/nowhere/t.png' does not exist"):
         Material(color_texture="/nowhere/t.png")
     with pytest.raises(ValueError, match="material 0 has a texture, which needs corner_uvs"):
-        render.make_tracer(spaces.load("torus"), Scene(objects=[SceneObject(
-            "q", V * 0.1, T, materials=[Material(color_texture=np.ones((2, 2, 3)))])]))
+        render.make_tracer(
+            spaces.load("torus"),
+            Scene(objects=[SceneObject("q", V * 0.1, T, materials=[Material(color_texture=np.ones((2, 2, 3)))])]),
+        )
 
 
 def test_clean_keeps_the_surface_arrays_with_their_triangles():
     V = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0]]
     T = [[0, 1, 2], [0, 1, 3], [1, 2, 0]]  # the middle one is degenerate
     normals = np.arange(27, dtype=float).reshape(3, 3, 3) + 1
-    obj = SceneObject("o", V, T, corner_normals=normals, corner_uvs=normals[..., :2], triangle_material=[0, 1, 0],
-                      materials=[Material(), Material()])
+    obj = SceneObject(
+        "o",
+        V,
+        T,
+        corner_normals=normals,
+        corner_uvs=normals[..., :2],
+        triangle_material=[0, 1, 0],
+        materials=[Material(), Material()],
+    )
     with pytest.warns(UserWarning, match="skipped 1 degenerate"):
         clean(obj, "test")
     np.testing.assert_array_equal(obj.corner_normals, normals[[0, 2]])
@@ -170,8 +189,9 @@ f 1//2 3//1 4//2
 """)
     (obj,) = load_mesh_file(tmp_path / "m.obj")
     assert obj.name == "quad"
-    np.testing.assert_allclose(obj.corner_normals, [[[0, 0, 1], [0.6, 0, 0.8], [0, 0, 1]],
-                                                    [[0.6, 0, 0.8], [0, 0, 1], [0.6, 0, 0.8]]])
+    np.testing.assert_allclose(
+        obj.corner_normals, [[[0, 0, 1], [0.6, 0, 0.8], [0, 0, 1]], [[0.6, 0, 0.8], [0, 0, 1], [0.6, 0, 0.8]]]
+    )
     np.testing.assert_allclose(obj.corner_uvs, [[[0, 0], [1, 0], [1, 1]], [[0, 0], [0, 0], [0, 0]]])
     np.testing.assert_array_equal(obj.triangle_material, [0, 1])
     tex, blue = obj.materials
@@ -180,7 +200,9 @@ f 1//2 3//1 4//2
     np.testing.assert_allclose(blue.color, [0.1, 0.2, 0.9])
     assert blue.color_texture is None
     (tmp_path / "m.mtl").write_text("newmtl tex\nmap_Kd gone.png\n")
-    with pytest.raises(SceneError, match=r"m\.mtl: material 'tex': base colour: texture file .*gone\.png' does not exist"):
+    with pytest.raises(
+        SceneError, match=r"m\.mtl: material 'tex': base colour: texture file .*gone\.png' does not exist"
+    ):
         load_mesh_file(tmp_path / "m.obj")
 
 
@@ -189,8 +211,13 @@ def test_glb_normals_uvs_and_base_colour_factor(tmp_path):
     uv = np.random.default_rng(1).uniform(size=(len(mesh.vertices), 2))
     normals = mesh.vertices / 0.1
     material = trimesh.visual.material.PBRMaterial(name="paint", baseColorFactor=[0.2, 0.4, 0.6, 1.0])
-    glb = trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_normals=normals, process=False,
-                          visual=trimesh.visual.TextureVisuals(uv=uv, material=material))
+    glb = trimesh.Trimesh(
+        mesh.vertices,
+        mesh.faces,
+        vertex_normals=normals,
+        process=False,
+        visual=trimesh.visual.TextureVisuals(uv=uv, material=material),
+    )
     glb.export(tmp_path / "ball.glb")
     (obj,) = load_mesh_file(tmp_path / "ball.glb")
     np.testing.assert_allclose(obj.corner_normals, normals[mesh.faces], atol=1e-6)
@@ -208,15 +235,25 @@ def test_gltf_base_colour_texture(tmp_path):
     uvs = np.array([[0, 0], [1, 0], [0, 1]], np.float32)  # glTF: v down from the top
     blob = positions.tobytes() + uvs.tobytes()
     gltf = {
-        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0, "name": "tri"}],
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "name": "tri"}],
         "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "material": 0}]}],
         "materials": [{"name": "painted", "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
-        "textures": [{"source": 0}], "images": [{"uri": "tex.png"}],
-        "buffers": [{"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
-        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 24}],
+        "textures": [{"source": 0}],
+        "images": [{"uri": "tex.png"}],
+        "buffers": [
+            {"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 36},
+            {"buffer": 0, "byteOffset": 36, "byteLength": 24},
+        ],
         "accessors": [
             {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
-            {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"}],
+            {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"},
+        ],
     }
     (tmp_path / "tri.gltf").write_text(json.dumps(gltf))
     (obj,) = load_mesh_file(tmp_path / "tri.gltf")

@@ -18,23 +18,36 @@ tracer:
 
 Tables of the measured numbers are printed (pytest -s).
 """
+
 import functools
 import math
 
 import numpy as np
 import pytest
-import trimesh
-
 import thurston_core
+import trimesh
 from support.cover import first_hits
-from thurston_addon import render, spaces
-from thurston_addon.render.statistics import _image_distance
-from thurston_addon.scenes import Scene, SceneObject
 from support.lattice import into_domain
 from support.presets import presets, simplest_per_geometry
 from support.report import report
-from support.truth import (AMBIENT, assert_sl2_flow, chart_metric, check_flows_against_dop853, h2xr_metric, nil_metric,
-                           nil_sol_christoffel, s2xr_metric, sl2_body_direction, sl2_metric, sol_metric, unit_in)
+from support.truth import (
+    AMBIENT,
+    assert_sl2_flow,
+    chart_metric,
+    check_flows_against_dop853,
+    h2xr_metric,
+    nil_metric,
+    nil_sol_christoffel,
+    s2xr_metric,
+    sl2_body_direction,
+    sl2_metric,
+    sol_metric,
+    unit_in,
+)
+
+from thurston_addon import render, spaces
+from thurston_addon.render.statistics import _image_distance
+from thurston_addon.scenes import Scene, SceneObject
 
 ld = np.longdouble
 FINAL = render.QUALITY["final"].footprint_fraction
@@ -59,9 +72,15 @@ def random_rays(space, rng, n):
 
 
 def trace(space, scene, P, V, length, tolerances, max_crossings=10**6):
-    out = render.make_tracer(space, scene).trace(np.ascontiguousarray(P, float), np.ascontiguousarray(V, float),
-                                                float(length), max_crossings, shade=False, tolerance=tolerances[0],
-                                                tolerance_per_distance=tolerances[1])
+    out = render.make_tracer(space, scene).trace(
+        np.ascontiguousarray(P, float),
+        np.ascontiguousarray(V, float),
+        float(length),
+        max_crossings,
+        shade=False,
+        tolerance=tolerances[0],
+        tolerance_per_distance=tolerances[1],
+    )
     return out
 
 
@@ -96,9 +115,16 @@ def end_errors(space, out, X):
     return _image_distance(space, space.geometry.to_model(out["end"]), X)
 
 
-CHART_METRICS = {"E3": lambda x: chart_metric("E3", x), "S3": lambda x: chart_metric("S3", x),
-                 "H3": lambda x: chart_metric("H3", x), "Nil": nil_metric, "Sol": sol_metric, "H2xR": h2xr_metric,
-                 "S2xR": s2xr_metric, "SL2": sl2_metric}
+CHART_METRICS = {
+    "E3": lambda x: chart_metric("E3", x),
+    "S3": lambda x: chart_metric("S3", x),
+    "H3": lambda x: chart_metric("H3", x),
+    "Nil": nil_metric,
+    "Sol": sol_metric,
+    "H2xR": h2xr_metric,
+    "S2xR": s2xr_metric,
+    "SL2": sl2_metric,
+}
 
 
 @pytest.mark.parametrize("sid", simplest_per_geometry())
@@ -183,12 +209,16 @@ def test_ends_within_the_bound_from_1_to_1000_crossings(space_of, sid):
             held = name == "stable" or sid not in CHAOTIC or level <= CHAOS_LEVEL
             err = end_errors(space, out, cover_ends(space, Pf, Vf, L)) if held else np.full(len(Pf), np.nan)
             bound = stated_bound(space, L)
-            rows.append([name, level, L, float(out["crossings"].mean()), float(np.max(err)), bound,
-                         float(np.max(err) / bound)])
+            rows.append(
+                [name, level, L, float(out["crossings"].mean()), float(np.max(err)), bound, float(np.max(err) / bound)]
+            )
             if held:
                 assert np.all(err <= bound), (name, level, err.max(), bound)
-    report(f"{sid}: traced ends against the cover geodesic's (final tolerances)",
-           ["rays", "crossings~", "length", "mean cross", "max error", "bound", "error/bound"], rows)
+    report(
+        f"{sid}: traced ends against the cover geodesic's (final tolerances)",
+        ["rays", "crossings~", "length", "mean cross", "max error", "bound", "error/bound"],
+        rows,
+    )
     assert max(r[3] for r in rows) >= 900
 
 
@@ -221,8 +251,14 @@ def cover_entry(space, P, V, L, centre, radius, step):
 
 # (space, levels with hits): a ball on the cover geodesic after many crossings is met earlier
 # where geodesics close up (S3's great circles, SL2's fibres, Sol's axis) or separate
-HIT_LEVELS = {"torus": LEVELS, "nil": LEVELS, "poincare": (1,), "seifert_weber": (1, 10), "sol": (1, 10),
-              "sl2": (1, 10)}
+HIT_LEVELS = {
+    "torus": LEVELS,
+    "nil": LEVELS,
+    "poincare": (1,),
+    "seifert_weber": (1, 10),
+    "sol": (1, 10),
+    "sl2": (1, 10),
+}
 # Chords this close to the curve: what is measured is the walk's accumulated error, not where
 # coarse chords put silhouettes (an earlier pass of the ray within the chord tolerance of the ball
 # may hit it; benchmarks/bench_front.py measures that).
@@ -254,8 +290,14 @@ def test_hit_depths_within_the_bound_after_many_crossings(space_of, sid):
             t_outer, t_inner, margin = cover_entry(space, P[i], V[i], L + 2 * radius, centre, radius, 0.005)
             if not (math.isfinite(t_inner) and t_inner - t_outer < 0.01):
                 continue  # grazing, or (first through a copy's rim) ill-posed
-            out = trace(space, Scene(objects=[SceneObject("ball", mesh, BALL.faces)]), P[i:i + 1], V[i:i + 1],
-                        L + 2 * radius, FINE)
+            out = trace(
+                space,
+                Scene(objects=[SceneObject("ball", mesh, BALL.faces)]),
+                P[i : i + 1],
+                V[i : i + 1],
+                L + 2 * radius,
+                FINE,
+            )
             bound = stated_bound(space, t_outer)
             assert out["stop"][0] == 0, (level, i)
             depth = float(out["depth"][0])
@@ -264,8 +306,11 @@ def test_hit_depths_within_the_bound_after_many_crossings(space_of, sid):
             worst = max(worst, max(t_outer - depth, depth - t_inner, 0.0) / bound)
         rows.append([level, L, compared, worst])
         assert compared >= (3 if level >= 1000 else 6), (level, compared)
-    report(f"{sid}: hit depth against the cover geodesic's first entry", ["crossings~", "length", "compared",
-                                                                          "outside/bound"], rows)
+    report(
+        f"{sid}: hit depth against the cover geodesic's first entry",
+        ["crossings~", "length", "compared", "outside/bound"],
+        rows,
+    )
 
 
 # --- 2. accumulated isometries ------------------------------------------------------------------
@@ -311,8 +356,16 @@ def isometry_defect(space, M, rng):
 # float64 the Klein and Poincare charts hold points out to distance ~18 in H3 and H2xR, ~35 in SL2
 # (model vectors ~e^t, their quadric lost beyond), and Nil's face steps (z grows like t^2) and
 # Sol's exponentials (e^|z|, |z| <= t) stay within move_inside's steps
-FAR = {"torus": 660.0, "poincare": 420.0, "seifert_weber": 15.0, "nil": 60.0, "sol": 20.0, "genus2xs1": 15.0,
-       "s2xs1": 100.0, "sl2": 30.0}
+FAR = {
+    "torus": 660.0,
+    "poincare": 420.0,
+    "seifert_weber": 15.0,
+    "nil": 60.0,
+    "sol": 20.0,
+    "genus2xs1": 15.0,
+    "s2xs1": 100.0,
+    "sl2": 30.0,
+}
 
 
 @pytest.mark.parametrize("sid", list(FAR))
@@ -331,15 +384,21 @@ def test_accumulated_isometries_stay_isometries(space_of, sid):
     assert np.allclose(g.normalize_point(X), X, rtol=1e-12, atol=1e-12)
     defects = {"move_inside": isometry_defect(space, M, rng)}
     light = g.to_model(space._interior_points(rng, 1))[0]
-    defects["light copies"] = isometry_defect(space, render.light_copies(space, light, render.default_light_reach(space)), rng)
+    defects["light copies"] = isometry_defect(
+        space, render.light_copies(space, light, render.default_light_reach(space)), rng
+    )
     defects["neighbours"] = isometry_defect(space, np.array(space.neighbourhood(1)), rng)
-    report(f"{sid}: isometry defects (relative)", ["matrices", "count", "max defect"],
-           [[k, len(v), float(v.max())] for k, v in defects.items()])
+    report(
+        f"{sid}: isometry defects (relative)",
+        ["matrices", "count", "max defect"],
+        [[k, len(v), float(v.max())] for k, v in defects.items()],
+    )
     for name, d in defects.items():
         assert d.max() <= 1e-12, (name, d.max())
 
 
 # --- 3. grazing hits at a coarse tolerance ------------------------------------------------------
+
 
 @pytest.mark.parametrize("sid", ["nil", "sol", "sl2"])
 def test_grazing_hits_stay_on_their_ball_at_a_coarse_tolerance(space_of, sid):
@@ -354,10 +413,17 @@ def test_grazing_hits_stay_on_their_ball_at_a_coarse_tolerance(space_of, sid):
     rng = np.random.default_rng(74)
     tolerance = 0.03
     radius = 0.3 * space.chart_inradius
-    centres = np.array([c for c in space._interior_points(rng, 200)
-                        for around in [c + 1.3 * radius * BALL.vertices]
-                        if g.in_chart(around).all() and space.domain.contains(g.to_model(around), tol=-1e-9).all()][:2])
-    scene = Scene(objects=[SceneObject(f"ball{k}", c + radius * BALL.vertices, BALL.faces) for k, c in enumerate(centres)])
+    centres = np.array(
+        [
+            c
+            for c in space._interior_points(rng, 200)
+            for around in [c + 1.3 * radius * BALL.vertices]
+            if g.in_chart(around).all() and space.domain.contains(g.to_model(around), tol=-1e-9).all()
+        ][:2]
+    )
+    scene = Scene(
+        objects=[SceneObject(f"ball{k}", c + radius * BALL.vertices, BALL.faces) for k, c in enumerate(centres)]
+    )
     x = space._interior_points(rng, 6000)
     x = x[np.min(np.linalg.norm(x[:, None] - centres[None], axis=2), axis=1) > 1.5 * radius][:3000]
     k = rng.integers(len(centres), size=len(x))
@@ -374,16 +440,22 @@ def test_grazing_hits_stay_on_their_ball_at_a_coarse_tolerance(space_of, sid):
     owner = out["object"][hit]
     tri = np.stack([c + radius * BALL.triangles for c in centres])[owner]  # (n, faces, 3, 3)
     n_faces = tri.shape[1]
-    near = trimesh.triangles.closest_point(tri.reshape(-1, 3, 3), np.repeat(h, n_faces, axis=0)).reshape(len(h), n_faces, 3)
+    near = trimesh.triangles.closest_point(tri.reshape(-1, 3, 3), np.repeat(h, n_faces, axis=0)).reshape(
+        len(h), n_faces, 3
+    )
     off_ball = np.min(np.linalg.norm(near - h[:, None], axis=2), axis=1)
     on_curve = end_errors(space, {"end": h}, cover_ends(space, P[hit], V[hit], out["depth"][hit]))
-    report(f"{sid}: grazing hits at tolerance {tolerance}", ["hits", "max off ball", "max off curve"],
-           [[len(hit), float(off_ball.max()), float(on_curve.max())]])
+    report(
+        f"{sid}: grazing hits at tolerance {tolerance}",
+        ["hits", "max off ball", "max off curve"],
+        [[len(hit), float(off_ball.max()), float(on_curve.max())]],
+    )
     assert off_ball.max() <= tolerance, off_ball.max()
     assert on_curve.max() <= tolerance, on_curve.max()
 
 
 # --- 4. no NaN or inf at the extremes -----------------------------------------------------------
+
 
 def test_h3_rays_of_length_50(space_of):
     """Seifert-Weber rays traced for 50 (about 50 crossings; H3 separates nearby geodesics like e^t,
@@ -422,8 +494,13 @@ def test_sol_starts_at_z_20(space_of):
     u = rng.normal(size=(n, 3))
     # the C++ and the Python flow (and their speed) against DOP853; tol 5e-10 (relative + absolute
     # on 1 + |reference|) is within 1e-9 (1 + |reference|)
-    check_flows_against_dop853(SOL, functools.partial(nil_sol_christoffel, "Sol"), sol_metric,
-                               [(x[i], unit_in(sol_metric, x[i], u[i]), 1.5) for i in range(4)], tol=5e-10)
+    check_flows_against_dop853(
+        SOL,
+        functools.partial(nil_sol_christoffel, "Sol"),
+        sol_metric,
+        [(x[i], unit_in(sol_metric, x[i], u[i]), 1.5) for i in range(4)],
+        tol=5e-10,
+    )
     P = g.to_model(x)
     V = g.normalize_tangent(P, g.tangent_to_model(x, u))
     L = 1.0
@@ -431,7 +508,11 @@ def test_sol_starts_at_z_20(space_of):
     assert np.all(out["stop"] == 1) and np.all(out["distance"] == L) and np.all(np.isfinite(out["end"]))
     assert space.domain.contains(g.to_model(out["end"]), tol=1e-9).all()
     err = end_errors(space, out, cover_ends(space, P, V, L))
-    report("sol: rays started at |z| = 20", ["rays", "crossings", "max error"], [[n, int(out["crossings"].max()), float(err.max())]])
+    report(
+        "sol: rays started at |z| = 20",
+        ["rays", "crossings", "max error"],
+        [[n, int(out["crossings"].max()), float(err.max())]],
+    )
     assert err.max() <= 1e-6 * math.exp(L), err.max()  # 9.3e-7 measured
 
 
@@ -494,8 +575,11 @@ def test_sl2_rays_at_a_equal_to_c(space_of):
 
 # (space, the chart radius of the disk or ball whose rim is approached, how the chart point of
 # radius r is placed): the Klein ball of H3, the Klein disk of H2xR, the Poincare disk of SL2
-RIMS = {"seifert_weber": lambda d, r: r * d, "genus2xs1": lambda d, r: np.c_[r * d[:, :2] / np.linalg.norm(d[:, :2], axis=1)[:, None], d[:, 2]],
-        "sl2": lambda d, r: np.c_[r * d[:, :2] / np.linalg.norm(d[:, :2], axis=1)[:, None], d[:, 2]]}
+RIMS = {
+    "seifert_weber": lambda d, r: r * d,
+    "genus2xs1": lambda d, r: np.c_[r * d[:, :2] / np.linalg.norm(d[:, :2], axis=1)[:, None], d[:, 2]],
+    "sl2": lambda d, r: np.c_[r * d[:, :2] / np.linalg.norm(d[:, :2], axis=1)[:, None], d[:, 2]],
+}
 
 
 @pytest.mark.parametrize("sid", list(RIMS))
@@ -536,8 +620,11 @@ def test_points_near_the_rim_of_the_disks(space_of, sid, gap):
     floor = 1e-14 / gap
     back, _ = thurston_core.geodesic_flow(g.name, xt, np.ascontiguousarray(-vt), t)
     gone = np.array([math.sqrt(max(q @ metric(p) @ q, 0.0)) for p, q in zip(x, back - x)])
-    report(f"{sid}: the flow from 1 - {gap:g}", ["max |speed - 1|", "max back", "floor"],
-           [[float(np.abs(speed - 1).max()), float(gone.max()), floor]])
+    report(
+        f"{sid}: the flow from 1 - {gap:g}",
+        ["max |speed - 1|", "max back", "floor"],
+        [[float(np.abs(speed - 1).max()), float(gone.max()), floor]],
+    )
     assert np.all(np.abs(speed - 1) <= floor), np.abs(speed - 1).max()
     assert gone.max() <= floor, gone.max()
 
@@ -606,8 +693,15 @@ def test_no_leak_at_edges_and_vertices(space_of, sid):
         P, V = rays_through(space, rng, boundary_targets(space, rng, 3 * n // 2), s)
         assert len(P) >= n, (q, len(P))
         tolerances = render.Settings(quality=q).tolerances(space, render.REFERENCE_PIXEL_ANGLE)
-        out = tracer.trace(np.ascontiguousarray(P[:n]), np.ascontiguousarray(V[:n]), s + past, 10**6, shade=False,
-                           tolerance=tolerances[0], tolerance_per_distance=tolerances[1])
+        out = tracer.trace(
+            np.ascontiguousarray(P[:n]),
+            np.ascontiguousarray(V[:n]),
+            s + past,
+            10**6,
+            shade=False,
+            tolerance=tolerances[0],
+            tolerance_per_distance=tolerances[1],
+        )
         assert np.all(out["stop"] == 1) and np.all(np.isfinite(out["end"])), (q, np.bincount(out["stop"]))
         inside = space.domain.contains(g.to_model(out["end"]), tol=1e-9)
         assert inside.all(), (q, np.flatnonzero(~inside)[:5])
@@ -622,8 +716,9 @@ def test_no_leak_at_edges_and_vertices(space_of, sid):
     radius = 0.5 * np.min(np.linalg.norm(np.asarray(g.to_chart(P), float) - corner, axis=1))
     ball = Scene(objects=[SceneObject("ball", corner + radius * BALL.vertices, BALL.faces)])
     tolerance = 1e-4
-    out = render.make_tracer(space, ball).trace(np.ascontiguousarray(P), np.ascontiguousarray(V), 0.3 * space.inradius,
-                                                10**6, shade=False, tolerance=tolerance)
+    out = render.make_tracer(space, ball).trace(
+        np.ascontiguousarray(P), np.ascontiguousarray(V), 0.3 * space.inradius, 10**6, shade=False, tolerance=tolerance
+    )
     hit = out["stop"] == 0
     assert hit.mean() >= 0.99 and np.all(np.isfinite(out["position"][hit])), hit.mean()
     # (a curve may poke out of a face and back within a chord, by less than the tolerance: SL2's
@@ -633,6 +728,7 @@ def test_no_leak_at_edges_and_vertices(space_of, sid):
 
 
 # --- 6. float32 BVH, float64 geodesics ----------------------------------------------------------
+
 
 def first_hits_in_double(origins, directions, triangles):
     """(t, point) of the first crossing of each ray (unit chart directions) with the triangles,
@@ -659,8 +755,12 @@ def test_far_from_the_origin_hits_are_refined_in_double(tmp_path):
     planes in double precision), far below what float32 could give."""
     side = 2000.0
     text = spaces.preset_path("torus").read_text()
-    big = text.replace("[1, 0, 0, 1]", f"[1, 0, 0, {side}]").replace("[0, 1, 0, 1]", f"[0, 1, 0, {side}]") \
-              .replace("[0, 0, 1, 1]", f"[0, 0, 1, {side}]").replace("position = [0.1, -0.2, 0.05]", "position = [0, 0, 0]")
+    big = (
+        text.replace("[1, 0, 0, 1]", f"[1, 0, 0, {side}]")
+        .replace("[0, 1, 0, 1]", f"[0, 1, 0, {side}]")
+        .replace("[0, 0, 1, 1]", f"[0, 0, 1, {side}]")
+        .replace("position = [0.1, -0.2, 0.05]", "position = [0, 0, 0]")
+    )
     path = tmp_path / "big_torus.toml"
     path.write_text(big)
     space = spaces.load(path)
@@ -671,8 +771,12 @@ def test_far_from_the_origin_hits_are_refined_in_double(tmp_path):
     centre = np.array([900.0, 300.0, -600.0])
     shift = np.eye(4)
     shift[:3, 3] = [-1800.0, 0.0, 0.0]  # the instance's centre: (-900, 300, -600)
-    scene = Scene(objects=[SceneObject("ball", mesh.vertices + centre, mesh.faces),
-                           SceneObject("placed", mesh.vertices + centre, mesh.faces, instances=shift[None])])
+    scene = Scene(
+        objects=[
+            SceneObject("ball", mesh.vertices + centre, mesh.faces),
+            SceneObject("placed", mesh.vertices + centre, mesh.faces, instances=shift[None]),
+        ]
+    )
     rng = np.random.default_rng(81)
     n = 4000
     target = np.where(np.arange(n)[:, None] % 2 == 0, centre, centre + shift[:3, 3])
@@ -688,8 +792,11 @@ def test_far_from_the_origin_hits_are_refined_in_double(tmp_path):
     assert hit.sum() > 2000 and np.array_equal(out["stop"] == 0, hit)
     err = np.linalg.norm(out["position"][hit] - h[hit], axis=1)
     depth_err = np.abs(out["depth"][hit] - t[hit])
-    report("flat torus of side 2000, hits at |x| ~ 900", ["hits", "max position error", "max depth error", "float32 ulp"],
-           [[int(hit.sum()), float(err.max()), float(depth_err.max()), float(np.spacing(np.float32(900.0)))]])
+    report(
+        "flat torus of side 2000, hits at |x| ~ 900",
+        ["hits", "max position error", "max depth error", "float32 ulp"],
+        [[int(hit.sum()), float(err.max()), float(depth_err.max()), float(np.spacing(np.float32(900.0)))]],
+    )
     assert err.max() <= 1e-9 and depth_err.max() <= 1e-9
 
 
@@ -722,9 +829,18 @@ def test_s2xr_hits_far_out_in_the_chart_are_refined_in_double(space_of):
     near = trimesh.triangles.closest_point(np.tile(tri, (len(h), 1, 1)), np.repeat(h, len(tri), axis=0))
     off_mesh = np.min(np.linalg.norm(near.reshape(len(h), len(tri), 3) - h[:, None], axis=2), axis=1)
     on_curve = end_errors(space, {"end": h}, cover_ends(space, P[hit], V[hit], out["depth"][hit]))
-    report("s2xs1: hits at |x| ~ 400", ["hits", "max off plane / |x|", "max off curve (metric)", "float32 ulp / |x|"],
-           [[int(hit.sum()), float((off_plane / np.linalg.norm(h, axis=1)).max()), float(on_curve.max()),
-             float(np.spacing(np.float32(400.0)) / 400.0)]])
+    report(
+        "s2xs1: hits at |x| ~ 400",
+        ["hits", "max off plane / |x|", "max off curve (metric)", "float32 ulp / |x|"],
+        [
+            [
+                int(hit.sum()),
+                float((off_plane / np.linalg.norm(h, axis=1)).max()),
+                float(on_curve.max()),
+                float(np.spacing(np.float32(400.0)) / 400.0),
+            ]
+        ],
+    )
     assert np.all(off_plane <= 1e-12 * np.linalg.norm(h, axis=1))
     assert np.all(off_mesh <= 1e-12 * np.linalg.norm(h, axis=1)), (off_mesh / np.linalg.norm(h, axis=1)).max()
     assert on_curve.max() <= tolerance

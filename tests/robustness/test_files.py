@@ -2,6 +2,7 @@
 on a signal: real `thurston` processes on real file systems (small tmpfs mounts where the tests run
 as root), with the exit code, the one error line, the previous file's bytes and the folder's
 listing asserted."""
+
 import os
 import re
 import resource
@@ -14,10 +15,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.outputs import PREVIOUS, error_line, fill, listing, stop, tmpfs
 
 from thurston_addon import files, images
-
-from support.outputs import PREVIOUS, error_line, fill, listing, stop, tmpfs
 
 THURSTON = Path(sys.executable).with_name("thurston")
 FORMATS = ("png", "jpg", "exr", "tif")
@@ -28,7 +28,20 @@ def thurston(*args, timeout=120, **kwargs):
 
 
 def render_args(out, *extra):
-    return ("render", "--space", "torus", "--size", "160x90", "--quality", "draft", "--threads", "1", "--out", out, *extra)
+    return (
+        "render",
+        "--space",
+        "torus",
+        "--size",
+        "160x90",
+        "--quality",
+        "draft",
+        "--threads",
+        "1",
+        "--out",
+        out,
+        *extra,
+    )
 
 
 def pixels(path):
@@ -42,6 +55,7 @@ def rays_file(folder: Path, n=20000) -> Path:
 
 
 # --- 1. failed writes: exit 2, one message naming the file, the previous file untouched, no temporary ----
+
 
 @pytest.mark.parametrize("suffix", FORMATS + ("npz",))
 def test_full_disk_keeps_the_previous_file(tmp_path, suffix):
@@ -130,19 +144,24 @@ def current_umask() -> int:
 
 # --- 2. concurrent runs and the overwrite promise -------------------------------------------------------
 
+
 @pytest.mark.slow
 def test_a_file_that_appears_during_the_render_is_not_replaced(tmp_path):
     """Without --overwrite the output is claimed only at the end: a file created while the render
     runs stays, and the render fails saying so (before: checked at the start, clobbered at the end)."""
     out = tmp_path / "out.png"
-    run = subprocess.Popen([str(THURSTON), *map(str, render_args(out, "--size", "640x360", "--quality", "final"))],
-                           stderr=subprocess.PIPE, text=True)
+    run = subprocess.Popen(
+        [str(THURSTON), *map(str, render_args(out, "--size", "640x360", "--quality", "final"))],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     assert run.stderr.readline().startswith("render torus [")  # tracing has begun: the start's check passed
     out.write_bytes(PREVIOUS)
     stderr = run.stderr.read()
     assert run.wait(timeout=120) == 2
-    assert error_line(stderr) == (f"thurston: error: output {str(out)!r} appeared while this run was working; "
-                                 "pass --overwrite to replace it")
+    assert error_line(stderr) == (
+        f"thurston: error: output {str(out)!r} appeared while this run was working; pass --overwrite to replace it"
+    )
     assert out.read_bytes() == PREVIOUS and listing(tmp_path) == ["out.png"]
 
 
@@ -161,9 +180,15 @@ def test_concurrent_runs_on_one_path(tmp_path, overwrite):
     shared = tmp_path / "shared" / "out.exr"
     shared.parent.mkdir()
     extra = ("--overwrite",) if overwrite else ()
-    runs = {name: subprocess.Popen([str(THURSTON), *map(str, render_args(shared, *view, *extra))],
-                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-            for name, view in views.items()}
+    runs = {
+        name: subprocess.Popen(
+            [str(THURSTON), *map(str, render_args(shared, *view, *extra))],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for name, view in views.items()
+    }
     results = {name: (run.wait(timeout=120), run.stderr.read()) for name, run in runs.items()}
     winners = [name for name, (code, _) in results.items() if code == 0]
     assert listing(shared.parent) == ["out.exr"]
@@ -175,7 +200,9 @@ def test_concurrent_runs_on_one_path(tmp_path, overwrite):
         assert len(winners) == 1, results
         loser = next(name for name in views if name not in winners)
         code, stderr = results[loser]
-        assert code == 2 and re.search(r"(exists|appeared while this run was working); pass --overwrite", error_line(stderr))
+        assert code == 2 and re.search(
+            r"(exists|appeared while this run was working); pass --overwrite", error_line(stderr)
+        )
         assert np.array_equal(final, truth[winners[0]])
 
 
@@ -184,9 +211,16 @@ def test_concurrent_runs_on_one_path(tmp_path, overwrite):
 LONG_RAYS = ("--max-crossings", "2000000000", "--max-distance", "1e15")
 
 
-@pytest.mark.parametrize("space, signum", [("torus", signal.SIGINT), ("torus", signal.SIGTERM),
-                                           ("poincare", signal.SIGINT), ("nil", signal.SIGTERM),
-                                           ("sol", signal.SIGINT)])
+@pytest.mark.parametrize(
+    "space, signum",
+    [
+        ("torus", signal.SIGINT),
+        ("torus", signal.SIGTERM),
+        ("poincare", signal.SIGINT),
+        ("nil", signal.SIGTERM),
+        ("sol", signal.SIGINT),
+    ],
+)
 def test_a_signal_stops_rays_that_never_end(tmp_path, space, signum):
     """Rays through an empty scene with limits no ray reaches: SIGINT or SIGTERM stops the render
     within a fraction of a second (measured 0.06-0.17 s; 5 s allowed here), exits 130 / 143 with one
@@ -196,9 +230,28 @@ def test_a_signal_stops_rays_that_never_end(tmp_path, space, signum):
     empty.write_text("")
     out = tmp_path / "out.png"
     out.write_bytes(PREVIOUS)
-    run = subprocess.Popen([str(THURSTON), "render", "--space", space, "--scene", str(empty), "--size", "8x8",
-                            "--quality", "draft", "--threads", "2", *LONG_RAYS, "--out", str(out), "--overwrite"],
-                           stderr=subprocess.PIPE, text=True)
+    run = subprocess.Popen(
+        [
+            str(THURSTON),
+            "render",
+            "--space",
+            space,
+            "--scene",
+            str(empty),
+            "--size",
+            "8x8",
+            "--quality",
+            "draft",
+            "--threads",
+            "2",
+            *LONG_RAYS,
+            "--out",
+            str(out),
+            "--overwrite",
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     line = run.stderr.readline()
     while not line.startswith(f"render {space} ["):  # tracing has begun (warnings come before)
         line = run.stderr.readline()
@@ -217,20 +270,30 @@ def test_more_threads_than_the_system_starts(tmp_path):
     limit = lambda: resource.setrlimit(resource.RLIMIT_AS, (3 * 2**30, 3 * 2**30))  # noqa: E731
     run = thurston(*render_args(out, "--threads", "1000"), preexec_fn=limit, timeout=60)
     assert run.returncode == 2, run.stderr
-    assert re.fullmatch(r"thurston: error: cannot start 1000 threads: the system refused thread \d+ \(.+\); "
-                        r"ask for fewer threads", error_line(run.stderr))
+    assert re.fullmatch(
+        r"thurston: error: cannot start 1000 threads: the system refused thread \d+ \(.+\); "
+        r"ask for fewer threads",
+        error_line(run.stderr),
+    )
     run = thurston(*render_args(out, "--threads", "5000"))
     assert run.returncode == 2
-    assert error_line(run.stderr) == "thurston: error: threads must be a whole number from 0 (all cores) to 4096, got 5000"
+    assert (
+        error_line(run.stderr) == "thurston: error: threads must be a whole number from 0 (all cores) to 4096, got 5000"
+    )
     assert listing(tmp_path) == []
 
 
-@pytest.mark.parametrize("option, kind", [(o, "fifo") for o in ("--space", "--scene", "--scene-obj", "--scene-gltf", "--rays")]
-                         + [("--space", "directory"), ("--scene-obj", "directory"), ("--rays", "device")])
+@pytest.mark.parametrize(
+    "option, kind",
+    [(o, "fifo") for o in ("--space", "--scene", "--scene-obj", "--scene-gltf", "--rays")]
+    + [("--space", "directory"), ("--scene-obj", "directory"), ("--rays", "device")],
+)
 def test_an_input_that_is_no_regular_file(tmp_path, option, kind):
     """A FIFO (which would block the read forever), a directory or a device as any input file: one
     error at once naming it (before: .toml FIFOs blocked, .obj ones were "does not exist")."""
-    suffix = {"--space": ".toml", "--scene": ".toml", "--scene-obj": ".obj", "--scene-gltf": ".gltf", "--rays": ".npy"}[option]
+    suffix = {"--space": ".toml", "--scene": ".toml", "--scene-obj": ".obj", "--scene-gltf": ".gltf", "--rays": ".npy"}[
+        option
+    ]
     if kind == "device":
         path = Path("/dev/null")
     else:

@@ -4,6 +4,7 @@ in-process: TOML scenes, TOML spaces, OBJ with MTL, PLY, STL, glTF/GLB and .npy 
 loads validly (a scene or mesh file then compiles into a tracer, rays come back finite and inside
 the domain) or raises the project's error type with a message naming the file; never another
 exception. A scene or space file's message also never shows Python's or Qhull's own words."""
+
 import base64
 import io
 import json
@@ -15,16 +16,38 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
-
-from thurston_addon import cli, render, spaces
-from thurston_addon import scenes
-
 from support.outputs import INTERNALS
 
+from thurston_addon import cli, render, scenes, spaces
+
 SEED = 20261211
-TOML_VALUES = ["5", '"x"', "[1]", "{ a = 1 }", "true", "-1", "0", "1e300", "-1e300", "nan", "inf", "[[]]", '""',
-               "[1, 2]", "[1e39, 0, 0]", "[nan, 0, 0]", "[1e200, 0, 0]", "1e-320", '"sqrt(-1)"', '"1/0"', '"2**9999"',
-               "[-1, -1, -1]", "[0, 0, 0]", "3000000000", "[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]"]
+TOML_VALUES = [
+    "5",
+    '"x"',
+    "[1]",
+    "{ a = 1 }",
+    "true",
+    "-1",
+    "0",
+    "1e300",
+    "-1e300",
+    "nan",
+    "inf",
+    "[[]]",
+    '""',
+    "[1, 2]",
+    "[1e39, 0, 0]",
+    "[nan, 0, 0]",
+    "[1e200, 0, 0]",
+    "1e-320",
+    '"sqrt(-1)"',
+    '"1/0"',
+    '"2**9999"',
+    "[-1, -1, -1]",
+    "[0, 0, 0]",
+    "3000000000",
+    "[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]",
+]
 MESH_TOKENS = ["nan", "inf", "1e39", "-1", "0", "1e400", "99999999999999999999", "x", "1/2/3", "-99999", "1e-320"]
 
 SCENE = """\
@@ -116,7 +139,7 @@ def mutate_text(rng: random.Random, text: str, toml: bool = True) -> bytes:
     lines = text.splitlines()
     kind = rng.choice([0, 1, 2, 3, 4, 5] if toml else [0, 1, 3, 4])
     if kind == 0:
-        return text.encode()[:rng.randrange(len(text))]
+        return text.encode()[: rng.randrange(len(text))]
     if kind == 1:
         data = bytearray(text.encode())
         for _ in range(rng.randint(1, 3)):
@@ -133,7 +156,9 @@ def mutate_text(rng: random.Random, text: str, toml: bool = True) -> bytes:
         lines.insert(i, lines[i])
     else:
         tables = [k for k, line in enumerate(lines) if line.startswith("[")]
-        lines.insert(rng.choice(tables) + 1, rng.choice(["bogus = 1", "colour = [1, 0, 0]", "radus = 0.1", "matrx = 1"]))
+        lines.insert(
+            rng.choice(tables) + 1, rng.choice(["bogus = 1", "colour = [1, 0, 0]", "radus = 0.1", "matrx = 1"])
+        )
     return ("\n".join(lines) + "\n").encode()
 
 
@@ -152,16 +177,24 @@ def mutate_bytes(rng: random.Random, data: bytes) -> bytes:
     """Binary files: truncation, flipped bytes, or 4 or 8 bytes overwritten with extreme values."""
     kind = rng.randrange(3)
     if kind == 0:
-        return data[:rng.randrange(len(data))]
+        return data[: rng.randrange(len(data))]
     out = bytearray(data)
     if kind == 1:
         for _ in range(rng.randint(1, 4)):
             out[rng.randrange(len(out))] ^= rng.randint(1, 255)
     else:
-        value = rng.choice([struct.pack("<I", 0xFFFFFFFF), struct.pack("<I", 0x7FFFFFFF), struct.pack("<f", float("nan")),
-                            struct.pack("<f", 3e38), struct.pack("<d", 1e300), struct.pack("<d", float("inf"))])
+        value = rng.choice(
+            [
+                struct.pack("<I", 0xFFFFFFFF),
+                struct.pack("<I", 0x7FFFFFFF),
+                struct.pack("<f", float("nan")),
+                struct.pack("<f", 3e38),
+                struct.pack("<d", 1e300),
+                struct.pack("<d", float("inf")),
+            ]
+        )
         at = rng.randrange(max(1, len(out) - len(value)))
-        out[at:at + len(value)] = value
+        out[at : at + len(value)] = value
     return bytes(out)
 
 
@@ -189,12 +222,18 @@ def mutate_json(rng: random.Random, tree):
 
 # --- the seeds -----------------------------------------------------------------------------------------------
 
+
 def mesh_seeds():
     box = trimesh.creation.box(extents=(0.1, 0.2, 0.1))
     box.apply_translation((0.2, 0, 0))
     out = {}
-    for name, kwargs in (("binary.ply", dict(encoding="binary")), ("ascii.ply", dict(encoding="ascii")),
-                         ("binary.stl", {}), ("ascii.stl", dict(file_type="stl_ascii")), ("mesh.glb", {})):
+    for name, kwargs in (
+        ("binary.ply", dict(encoding="binary")),
+        ("ascii.ply", dict(encoding="ascii")),
+        ("binary.stl", {}),
+        ("ascii.stl", dict(file_type="stl_ascii")),
+        ("mesh.glb", {}),
+    ):
         data = box.export(file_type=kwargs.pop("file_type", name.split(".")[1]), **kwargs)
         out[name] = data.encode() if isinstance(data, str) else data
     gltf = trimesh.Scene([box]).export(file_type="gltf")  # {name: bytes}: the JSON and its buffer
@@ -217,10 +256,26 @@ VALID_RAYS = np.tile([0.01, 0.02, 0.03, 1.0, 0.3, 0.2], (20, 1))
 def ray_cases(rng: random.Random, n: int):
     """(.npy bytes) of rays: byte-level mutations of a valid file and arrays of the wrong kind."""
     valid = VALID_RAYS
-    arrays = [valid.astype(np.float32), valid.astype(np.int64), valid[:, :5], valid.ravel(), valid.reshape(2, 10, 6),
-              valid.astype(np.complex128), np.asfortranarray(valid), np.zeros((0, 6)), valid.astype(">f8")]
-    for value, at in ((np.nan, (3, 1)), (np.inf, (4, 4)), (1e200, (5, 0)), (1e300, (6, 3)), (0.0, (7, slice(3, 6))),
-                      (-1e308, (8, 2)), (5e-324, (9, 5))):
+    arrays = [
+        valid.astype(np.float32),
+        valid.astype(np.int64),
+        valid[:, :5],
+        valid.ravel(),
+        valid.reshape(2, 10, 6),
+        valid.astype(np.complex128),
+        np.asfortranarray(valid),
+        np.zeros((0, 6)),
+        valid.astype(">f8"),
+    ]
+    for value, at in (
+        (np.nan, (3, 1)),
+        (np.inf, (4, 4)),
+        (1e200, (5, 0)),
+        (1e300, (6, 3)),
+        (0.0, (7, slice(3, 6))),
+        (-1e308, (8, 2)),
+        (5e-324, (9, 5)),
+    ):
         a = valid.copy()
         a[at] = value
         arrays.append(a)
@@ -275,9 +330,14 @@ def test_the_unmutated_seeds_load_validly(tmp_path, torus):
     would pass the fuzz): the scene file's objects, lights and camera, the OBJ's five triangles (a
     quad split in two), each mesh file's box of 12, the presets' spaces, the rays."""
     (tmp_path / "m.mtl").write_bytes(MTL.encode())
-    seeds = {"scene.toml": SCENE.encode(), "m.obj": OBJ.encode(), "rays.npy": npy_seed(VALID_RAYS),
-             "torus.toml": (spaces.PRESET_DIR / "torus.toml").read_bytes(),
-             "nil.toml": (spaces.PRESET_DIR / "nil.toml").read_bytes(), **mesh_seeds()}
+    seeds = {
+        "scene.toml": SCENE.encode(),
+        "m.obj": OBJ.encode(),
+        "rays.npy": npy_seed(VALID_RAYS),
+        "torus.toml": (spaces.PRESET_DIR / "torus.toml").read_bytes(),
+        "nil.toml": (spaces.PRESET_DIR / "nil.toml").read_bytes(),
+        **mesh_seeds(),
+    }
     for name, data in seeds.items():
         (tmp_path / name).write_bytes(data)
         kind = {"scene.toml": "scene", "rays.npy": "rays", "torus.toml": "space", "nil.toml": "space"}.get(name, "mesh")
@@ -299,14 +359,18 @@ def test_the_unmutated_seeds_load_validly(tmp_path, torus):
 def test_malformed_files_load_validly_or_are_one_clear_error(tmp_path, torus, start):
     """Forty cases per test (the whole fuzz stays within seconds)."""
     outcomes = {"valid": 0, "error": 0, "refused by the compiler": 0}
-    for name, contents, loaded, kind in CASES[start:start + 40]:
+    for name, contents, loaded, kind in CASES[start : start + 40]:
         folder = tmp_path / name
         folder.mkdir()
         for file, data in contents.items():
             (folder / file).write_bytes(data)
         path = folder / loaded
-        error = {"scene": scenes.SceneError, "mesh": scenes.SceneError, "space": spaces.SpaceError,
-                 "rays": cli.CommandError}[kind]
+        error = {
+            "scene": scenes.SceneError,
+            "mesh": scenes.SceneError,
+            "space": spaces.SpaceError,
+            "rays": cli.CommandError,
+        }[kind]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:

@@ -3,6 +3,7 @@ or value (through the command line: one `thurston: error:` line, exit status 2),
 and gives the true result. Truth: lattice covolumes (determinants), the torus's representative
 x - round(x), float32's range from numpy, triangle areas in closed form; real processes for signals
 and for a file rewritten while it is read."""
+
 import math
 import re
 import signal
@@ -15,11 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import thurston_core
+from support.outputs import INTERNALS, error_line, fill, listing, stop, tmpfs
 
 from thurston_addon import cli, files, render, scenes, spaces
 from thurston_addon.scenes import Camera, scene_file
-
-from support.outputs import INTERNALS, error_line, fill, listing, stop, tmpfs
 
 THURSTON = Path(sys.executable).with_name("thurston")
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -46,7 +46,7 @@ def sparse(path: Path, size: int) -> Path:
 
 
 def translation(x, y, z):
-    return f'[[1, 0, 0, {x}], [0, 1, 0, {y}], [0, 0, 1, {z}], [0, 0, 0, 1]]'
+    return f"[[1, 0, 0, {x}], [0, 1, 0, {y}], [0, 0, 1, {z}], [0, 0, 0, 1]]"
 
 
 def space_file(tmp_path, *matrices, name="space.toml", geometry="E3", extra=""):
@@ -58,9 +58,18 @@ def space_file(tmp_path, *matrices, name="space.toml", geometry="E3", extra=""):
 
 # --- 4. bounded resources from small inputs ---------------------------------------------------------
 
-@pytest.mark.parametrize("kind, name", [("space file", "big.toml"), ("scene file", "big.toml"), ("OBJ file", "big.obj"),
-                                        ("mesh file", "big.glb"), ("material library", "big.mtl"),
-                                        ("texture", "big.png")])
+
+@pytest.mark.parametrize(
+    "kind, name",
+    [
+        ("space file", "big.toml"),
+        ("scene file", "big.toml"),
+        ("OBJ file", "big.obj"),
+        ("mesh file", "big.glb"),
+        ("material library", "big.mtl"),
+        ("texture", "big.png"),
+    ],
+)
 def test_an_input_beyond_its_size_limit_is_refused_before_it_is_read(tmp_path, kind, name):
     """A file one byte over its kind's limit (a hole: no disk is used) is refused at once, the
     message naming the file, its size and the limit."""
@@ -80,7 +89,10 @@ def test_an_input_beyond_its_size_limit_is_refused_before_it_is_read(tmp_path, k
     error = spaces.SpaceError if kind == "space file" else scenes.SceneError
     with pytest.raises(error) as info:
         load()
-    assert f"{str(big)!r} is {files.size_text(files.SIZE_LIMITS[kind] + 1)}, more than the {limit} a {kind} may have" in str(info.value)
+    assert (
+        f"{str(big)!r} is {files.size_text(files.SIZE_LIMITS[kind] + 1)}, more than the {limit} a {kind} may have"
+        in str(info.value)
+    )
 
 
 def test_a_space_file_at_its_size_limit_loads(tmp_path):
@@ -108,17 +120,24 @@ def test_a_scene_files_primitives_are_bounded_together(tmp_path, monkeypatch):
     monkeypatch.setattr(scene_file, "MAX_PRIMITIVE_TRIANGLES", 2 * 1280)
     path = tmp_path / "many.toml"
     path.write_text('[[object]]\nprimitive = "sphere"\n' * 3)
-    with pytest.raises(scenes.SceneError, match=r"many\.toml: object 2: the file's primitives have more than 2560 "
-                                                r"triangles; place copies of one with `transforms`"):
+    with pytest.raises(
+        scenes.SceneError,
+        match=r"many\.toml: object 2: the file's primitives have more than 2560 "
+        r"triangles; place copies of one with `transforms`",
+    ):
         scenes.load_scene_file(path)
 
 
 def test_a_tolerance_too_small_to_finish_is_refused(tmp_path, capsys):
     """Nil's chords grow as 1 / sqrt(tolerance): at 1e-300 four rays never finished (before: the
     render ran until it was stopped); 1e-10 is the least taken."""
-    line = cli_error(["render", "--space", "nil", "--size", "4x4", "--tolerance", "1e-300", "--out", tmp_path / "x.png"],
-                     capsys)
-    assert line == "thurston: error: tolerance must be a number of chart units of at least 1e-10 (None: the quality's), got 1e-300"
+    line = cli_error(
+        ["render", "--space", "nil", "--size", "4x4", "--tolerance", "1e-300", "--out", tmp_path / "x.png"], capsys
+    )
+    assert (
+        line
+        == "thurston: error: tolerance must be a number of chart units of at least 1e-10 (None: the quality's), got 1e-300"
+    )
     render.Settings(tolerance=render.MIN_TOLERANCE).check()
 
 
@@ -145,16 +164,24 @@ def test_an_npy_header_claiming_too_much_is_refused_before_allocating(tmp_path, 
         raise AssertionError("np.load was called")
 
     monkeypatch.setattr(np, "load", never)
-    with pytest.raises(cli.CommandError, match=r"truncated\.npy' is truncated: its header describes a float64 array of "
-                                               r"shape \(1000000000000, 6\) \(43\.7 TiB\), the file holds 100 bytes of data"):
+    with pytest.raises(
+        cli.CommandError,
+        match=r"truncated\.npy' is truncated: its header describes a float64 array of "
+        r"shape \(1000000000000, 6\) \(43\.7 TiB\), the file holds 100 bytes of data",
+    ):
         files.load_npy(tmp_path / "truncated.npy", "rays file", cli.CommandError)
-    with pytest.raises(cli.CommandError, match=rf"huge\.npy' \(a float64 array of shape \({rows}, 6\)\) would take .* more "
-                                               r"than this machine's memory"):
+    with pytest.raises(
+        cli.CommandError,
+        match=rf"huge\.npy' \(a float64 array of shape \({rows}, 6\)\) would take .* more "
+        r"than this machine's memory",
+    ):
         files.load_npy(tmp_path / "huge.npy", "rays file", cli.CommandError)
     with pytest.raises(cli.CommandError, match=r"pickled\.npy' holds Python objects"):
         files.load_npy(tmp_path / "pickled.npy", "rays file", cli.CommandError)
     monkeypatch.undo()
-    line = cli_error(["trace", "--space", "torus", "--rays", tmp_path / "truncated.npy", "--out", tmp_path / "h.npz"], capsys)
+    line = cli_error(
+        ["trace", "--space", "torus", "--rays", tmp_path / "truncated.npy", "--out", tmp_path / "h.npz"], capsys
+    )
     assert line.startswith(f"thurston: error: rays file {str(tmp_path / 'truncated.npy')!r} is truncated")
 
 
@@ -179,15 +206,23 @@ def test_a_far_point_costs_only_its_own_steps(monkeypatch):
 
 # --- 5. values at the edge of floating point ----------------------------------------------------------
 
-@pytest.mark.parametrize("space_id, words", [("torus", "too far out: the face pairings no longer move it"),
-                                             ("nil", "too far out: the face pairings no longer move it"),
-                                             ("sol", "more than 10000 face crossings from the domain"),
-                                             ("poincare", "too far out in the chart of S3")])
+
+@pytest.mark.parametrize(
+    "space_id, words",
+    [
+        ("torus", "too far out: the face pairings no longer move it"),
+        ("nil", "too far out: the face pairings no longer move it"),
+        ("sol", "more than 10000 face crossings from the domain"),
+        ("poincare", "too far out in the chart of S3"),
+    ],
+)
 def test_a_camera_at_1e200_is_refused(tmp_path, capsys, space_id, words):
     """Before: the torus and Sol rendered black images (the domain test overflowed and called the
     point inside), Nil failed in the core, the Poincaré sphere named a point [nan nan nan]."""
-    line = cli_error(["render", "--space", space_id, "--size", "8x8", "--camera-position", "1e200,0,0",
-                      "--out", tmp_path / "x.png"], capsys)
+    line = cli_error(
+        ["render", "--space", space_id, "--size", "8x8", "--camera-position", "1e200,0,0", "--out", tmp_path / "x.png"],
+        capsys,
+    )
     assert "camera" in line and "1e+200" in line and words in line, line
     assert listing(tmp_path) == []
 
@@ -221,14 +256,20 @@ def test_the_domain_test_does_not_overflow():
         assert space.domain.contains(g.to_model(np.array([0.1, 0.0, 0.0])))
 
 
-@pytest.mark.parametrize("body, words", [
-    ("[[light]]\nposition = [0, 0, 0.3]\npower = 1e300\n", ["light 0", "power times colour", "1e+300", "float32"]),
-    ("[[light]]\nposition = [0, 0, 0.3]\npower = 1e20\ncolor = [1e20, 1, 1]\n", ["light 0", "1e+40", "float32"]),
-    ('[[object]]\nprimitive = "sphere"\nemission = [1e39, 0, 0]\n', ["object 0: emission", "1e+39", "float32"]),
-    ('[[object]]\nprimitive = "box"\ncolor = [0.5, 4e38, 0]\n', ["object 0: color", "4e+38", "float32"]),
-    ('[[light]]\ntype = "area"\nposition = [0, 0, 0.3]\nemission = [1, 1e39, 1]\n', ["light 0: emission", "float32"]),
-    ('[[object]]\nprimitive = "sphere"\ncolor = [0.5, -0.1, 0]\n', ["object 0: color", "negative"]),
-])
+@pytest.mark.parametrize(
+    "body, words",
+    [
+        ("[[light]]\nposition = [0, 0, 0.3]\npower = 1e300\n", ["light 0", "power times colour", "1e+300", "float32"]),
+        ("[[light]]\nposition = [0, 0, 0.3]\npower = 1e20\ncolor = [1e20, 1, 1]\n", ["light 0", "1e+40", "float32"]),
+        ('[[object]]\nprimitive = "sphere"\nemission = [1e39, 0, 0]\n', ["object 0: emission", "1e+39", "float32"]),
+        ('[[object]]\nprimitive = "box"\ncolor = [0.5, 4e38, 0]\n', ["object 0: color", "4e+38", "float32"]),
+        (
+            '[[light]]\ntype = "area"\nposition = [0, 0, 0.3]\nemission = [1, 1e39, 1]\n',
+            ["light 0: emission", "float32"],
+        ),
+        ('[[object]]\nprimitive = "sphere"\ncolor = [0.5, -0.1, 0]\n', ["object 0: color", "negative"]),
+    ],
+)
 def test_values_beyond_float32_name_the_file_and_the_object(tmp_path, body, words):
     """The tracer keeps colours, radiance and vertices as float32; before, such values became inf
     there and the core said only 'light_radiance contain NaN or inf at row 0'."""
@@ -244,17 +285,24 @@ def test_values_beyond_float32_name_the_file_and_the_object(tmp_path, body, word
 
 def test_the_largest_float32_values_are_accepted(tmp_path):
     path = tmp_path / "scene.toml"
-    path.write_text(f'[[light]]\nposition = [0, 0, 0.3]\npower = 1e30\n[[object]]\nprimitive = "sphere"\n'
-                    f'emission = [{FLOAT32_MAX!r}, 0, 0]\n')
+    path.write_text(
+        f'[[light]]\nposition = [0, 0, 0.3]\npower = 1e30\n[[object]]\nprimitive = "sphere"\n'
+        f"emission = [{FLOAT32_MAX!r}, 0, 0]\n"
+    )
     scene = scenes.load_scene_file(path)
     assert scene.lights[0].power == 1e30 and scene.objects[0].emission[0] == FLOAT32_MAX
 
 
-@pytest.mark.parametrize("line, words", [("Kd 1e39 0 0", [":2: Kd", "1e+39", "float32"]),
-                                         ("Ke nan 0 0", [":2: Ke", "NaN"]),
-                                         ("Kd 0.5 -1 0", [":2: Kd", "negative"]),
-                                         ("Kd 0.5 0.5", [":2: Kd needs 1 or 3 numbers"]),
-                                         ("Kd red", [":2: cannot parse 'Kd red'"])])
+@pytest.mark.parametrize(
+    "line, words",
+    [
+        ("Kd 1e39 0 0", [":2: Kd", "1e+39", "float32"]),
+        ("Ke nan 0 0", [":2: Ke", "NaN"]),
+        ("Kd 0.5 -1 0", [":2: Kd", "negative"]),
+        ("Kd 0.5 0.5", [":2: Kd needs 1 or 3 numbers"]),
+        ("Kd red", [":2: cannot parse 'Kd red'"]),
+    ],
+)
 def test_mtl_colours_are_checked_on_load(tmp_path, line, words):
     (tmp_path / "m.mtl").write_text(f"newmtl a\n{line}\n")
     (tmp_path / "m.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n")
@@ -285,7 +333,9 @@ def test_blank_and_comment_lines_inside_an_mtl_material(tmp_path):
 def test_the_cli_names_the_file_of_a_float32_overflow(tmp_path, capsys):
     path = tmp_path / "bright.toml"
     path.write_text("[[light]]\nposition = [0, 0, 0.3]\npower = 1e300\n")
-    line = cli_error(["render", "--space", "torus", "--scene", path, "--size", "8x8", "--out", tmp_path / "x.png"], capsys)
+    line = cli_error(
+        ["render", "--space", "torus", "--scene", path, "--size", "8x8", "--out", tmp_path / "x.png"], capsys
+    )
     assert line.startswith(f"thurston: error: {path}: light 0: ") and "float32" in line
 
 
@@ -293,16 +343,19 @@ def test_blender_names_the_light_beyond_float32(registered_addon):
     """The add-on's export: a light whose power times colour passes float32 is an ExportError
     naming the Blender light (the engine and the operators report it)."""
     import bpy
-
     from support import blender_helpers as bh
+
     from thurston_addon.blender import export
 
     bh.fresh_scene("torus", scale=1.0)
     light = bpy.data.lights.new("Huge", "POINT")
     light.energy, light.color = 3e38, (3e38, 1.0, 1.0)
     bh.link(bpy.data.objects.new("Huge", light))
-    with pytest.raises(export.ExportError, match=r"light 'Huge': light at .*: power times colour has a value of "
-                                                 r"2\.28e\+75, beyond the 3\.4e\+38 of the tracer's float32"):
+    with pytest.raises(
+        export.ExportError,
+        match=r"light 'Huge': light at .*: power times colour has a value of "
+        r"2\.28e\+75, beyond the 3\.4e\+38 of the tracer's float32",
+    ):
         export.export_scene(bpy.context.evaluated_depsgraph_get(), 1.0, [])
 
 
@@ -342,12 +395,16 @@ def test_a_stray_far_vertex_does_not_make_an_object_degenerate(tmp_path):
 def test_degenerate_is_judged_by_each_triangle_alone():
     """Twice the area against the square of the longest side: a needle of height 1e-10 on a base of
     1 is a triangle, one of height 1e-16 is not; the same shapes scaled by 1e-100 or 1e30 alike."""
+
     def needle(h, scale):
         return scale * np.array([[0.0, 0, 0], [1, 0, 0], [0.5, h, 0]])
 
     for scale in (1.0, 1e-100, 1e30):
-        assert list(scenes.degenerate(np.array([needle(1e-10, scale), needle(1e-16, scale), needle(0.5, scale)]))) == \
-            [False, True, False]
+        assert list(scenes.degenerate(np.array([needle(1e-10, scale), needle(1e-16, scale), needle(0.5, scale)]))) == [
+            False,
+            True,
+            False,
+        ]
     assert scenes.degenerate(np.array([[[1e8, 0, 0], [1e8, 0, 0], [1e8, 1, 0]]]))[0]
 
 
@@ -361,8 +418,11 @@ SCENE_KEYS = [
     ('[[object]]\nprimitive = "sphere"\ncolour = [1, 0, 0]\n', "'colour'", "did you mean 'color'?"),
     ('[[object]]\nprimtive = "sphere"\n', "'primtive'", "did you mean 'primitive'?"),
     ("[[light]]\nposition = [0, 0, 0]\npowr = 2\n", "'powr'", "did you mean 'power'?"),
-    ('[[light]]\ntype = "spot"\nposition = [0, 0, 0]\ndirection = [0, 0, -1]\nspot_sise = 30\n', "'spot_sise'",
-     "did you mean 'spot_size'?"),
+    (
+        '[[light]]\ntype = "spot"\nposition = [0, 0, 0]\ndirection = [0, 0, -1]\nspot_sise = 30\n',
+        "'spot_sise'",
+        "did you mean 'spot_size'?",
+    ),
     ('[[light]]\ntype = "area"\nposition = [0, 0, 0]\nemision = [1, 1, 1]\n', "'emision'", "did you mean 'emission'?"),
     ("[camera]\nfov = 60\nclipend = 3\n", "'clipend'", "did you mean 'clip_end'?"),
 ]
@@ -378,10 +438,13 @@ def test_an_unknown_scene_key_names_the_nearest_valid_one(tmp_path, body, key, h
     assert message.startswith(str(path)) and f"unknown key {key}; {hint}" in message, message
 
 
-@pytest.mark.parametrize("text, key, hint", [
-    ("max_distanse = 3\n", "'max_distanse'", "did you mean 'max_distance'?"),
-    ("[camera]\nfoward = [0, 1, 0]\n", "'foward'", "did you mean 'forward'?"),
-])
+@pytest.mark.parametrize(
+    "text, key, hint",
+    [
+        ("max_distanse = 3\n", "'max_distanse'", "did you mean 'max_distance'?"),
+        ("[camera]\nfoward = [0, 1, 0]\n", "'foward'", "did you mean 'forward'?"),
+    ],
+)
 def test_an_unknown_space_key_names_the_nearest_valid_one(tmp_path, text, key, hint):
     torus = (spaces.PRESET_DIR / "torus.toml").read_text().replace("[camera]\n", "[view]\n")
     body = text + torus if not text.startswith("[camera]") else torus.split("[view]")[0] + text
@@ -401,12 +464,22 @@ def test_a_negative_scale_is_an_error(tmp_path):
         spaces.load(path)
 
 
-MALFORMED_SCENES = ["object = 5\n", "light = [1]\n", "camera = 3\n", '[[object]]\nprimitive = ["sphere"]\n',
-                    '[[object]]\nprimitive = "sphere"\ntransforms = "x"\n', '[[object]]\nprimitive = "sphere"\nname = [1]\n',
-                    '[[object]]\nprimitive = "sphere"\ncolor = 3\n', '[[object]]\nprimitive = "sphere"\ncenter = ["1", 2, 3]\n',
-                    '[[light]]\ntype = ["spot"]\nposition = [0, 0, 0]\n', "[[light]]\ncolor = [1, 1, 1]\n",
-                    '[[light]]\ntype = "area"\nposition = [0, 0, 0]\nshape = {}\n', "[camera]\nposition = {}\n",
-                    '[[object]]\nfile = 3\n', "[[object]]\ncolor = [1, 1, 1]\n"]
+MALFORMED_SCENES = [
+    "object = 5\n",
+    "light = [1]\n",
+    "camera = 3\n",
+    '[[object]]\nprimitive = ["sphere"]\n',
+    '[[object]]\nprimitive = "sphere"\ntransforms = "x"\n',
+    '[[object]]\nprimitive = "sphere"\nname = [1]\n',
+    '[[object]]\nprimitive = "sphere"\ncolor = 3\n',
+    '[[object]]\nprimitive = "sphere"\ncenter = ["1", 2, 3]\n',
+    '[[light]]\ntype = ["spot"]\nposition = [0, 0, 0]\n',
+    "[[light]]\ncolor = [1, 1, 1]\n",
+    '[[light]]\ntype = "area"\nposition = [0, 0, 0]\nshape = {}\n',
+    "[camera]\nposition = {}\n",
+    "[[object]]\nfile = 3\n",
+    "[[object]]\ncolor = [1, 1, 1]\n",
+]
 
 
 @pytest.mark.parametrize("body", MALFORMED_SCENES)
@@ -426,8 +499,7 @@ def test_malformed_space_files_never_show_python_or_qhull(tmp_path):
         "[[generator]]\nmatrix = 5\n": "'matrix' must be 4 rows of 4 numbers",
         "camera = [1]\n" + f"[[generator]]\nmatrix = {translation(1, 0, 0)}\n": "expected a [camera] table",
         # two translations: QH6154 before
-        f"[[generator]]\nmatrix = {translation(1, 0, 0)}\n[[generator]]\nmatrix = {translation(0, 1, 0)}\n":
-            "the domain is not compact: it reaches out of every bound along [0.0, 0.0, 1.0]",
+        f"[[generator]]\nmatrix = {translation(1, 0, 0)}\n[[generator]]\nmatrix = {translation(0, 1, 0)}\n": "the domain is not compact: it reaches out of every bound along [0.0, 0.0, 1.0]",
         'name = ["x"]\n' + f"[[generator]]\nmatrix = {translation(1, 0, 0)}\n": "name must be a string",
     }
     for text, words in cases.items():
@@ -439,8 +511,11 @@ def test_malformed_space_files_never_show_python_or_qhull(tmp_path):
         assert not INTERNALS.search(str(info.value)), str(info.value)
     # a Nil face paired by the identity: QH6023 before
     path = tmp_path / "nil.toml"
-    path.write_text('geometry = "Nil"\n' + f"[[generator]]\nmatrix = {translation(0, 0, 0)}\nface = [1, 0, 0, -0.5]\n"
-                    + f"[[generator]]\nmatrix = {translation(0, 1, 0)}\nface = [0, 1, 0, -0.5]\n")
+    path.write_text(
+        'geometry = "Nil"\n'
+        + f"[[generator]]\nmatrix = {translation(0, 0, 0)}\nface = [1, 0, 0, -0.5]\n"
+        + f"[[generator]]\nmatrix = {translation(0, 1, 0)}\nface = [0, 1, 0, -0.5]\n"
+    )
     with pytest.raises(spaces.SpaceError, match="generator 'g0' is the identity: it pairs its face with no other"):
         spaces.load(path)
 
@@ -449,24 +524,30 @@ def test_malformed_space_files_never_show_python_or_qhull(tmp_path):
 def test_an_identity_only_generator_list_is_an_error(tmp_path, geometry, generators):
     """Before: IndexError."""
     path = space_file(tmp_path, *[translation(0, 0, 0)] * generators, geometry=geometry)
-    with pytest.raises(spaces.SpaceError, match=rf"every generator is the identity: the group is trivial, and the space "
-                                                rf"would be all of {geometry}"):
+    with pytest.raises(
+        spaces.SpaceError,
+        match=rf"every generator is the identity: the group is trivial, and the space "
+        rf"would be all of {geometry}",
+    ):
         spaces.load(path)
 
 
-@pytest.mark.parametrize("name, generators, volume, faces", [
-    ("thin", [(1, 0, 0), (0, 1, 0), (0, 0, 1e-3)], 1e-3, 6),  # before: "more than 20000 group elements"
-    ("thinner", [(1, 0, 0), (0, 1, 0), (0, 0, 1e-6)], 1e-6, 6),
-    ("long", [(1, 0, 0), (0, 1, 0), (0, 0, 1000)], 1000, 6),  # before: "more than 20000 group elements"
-    ("redundant product", [(1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0)], 1, 6),
-    ("redundant inverse", [(1, 0, 0), (0, 1, 0), (0, 0, 1), (-1, 0, 0)], 1, 6),
-    ("hexagonal", [(1, 0, 0), (0.5, "'sqrt(3)/2'", 0), (-0.5, "'sqrt(3)/2'", 0), (0, 0, 1)], math.sqrt(3) / 2, 8),
-    ("skew basis", [(1, 0, 0), (1, 1, 0), (0, 0, 1)], 1, 6),
-    # before: "more than 20000 group elements" (the generators are shortened first)
-    ("long skew basis", [(1, 0, 0), (1000, 1, 0), (0, 0, 1)], 1, 6),
-    ("thin skew basis", [(1, 0, 0), (1000, 1e-3, 0), (0, 0, 1)], 1e-3, 6),
-    ("long skew hexagonal", [(1, 0, 0), ("'300.5'", "'sqrt(3)/2'", 0), (0, 0, 1)], math.sqrt(3) / 2, 8),
-])
+@pytest.mark.parametrize(
+    "name, generators, volume, faces",
+    [
+        ("thin", [(1, 0, 0), (0, 1, 0), (0, 0, 1e-3)], 1e-3, 6),  # before: "more than 20000 group elements"
+        ("thinner", [(1, 0, 0), (0, 1, 0), (0, 0, 1e-6)], 1e-6, 6),
+        ("long", [(1, 0, 0), (0, 1, 0), (0, 0, 1000)], 1000, 6),  # before: "more than 20000 group elements"
+        ("redundant product", [(1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0)], 1, 6),
+        ("redundant inverse", [(1, 0, 0), (0, 1, 0), (0, 0, 1), (-1, 0, 0)], 1, 6),
+        ("hexagonal", [(1, 0, 0), (0.5, "'sqrt(3)/2'", 0), (-0.5, "'sqrt(3)/2'", 0), (0, 0, 1)], math.sqrt(3) / 2, 8),
+        ("skew basis", [(1, 0, 0), (1, 1, 0), (0, 0, 1)], 1, 6),
+        # before: "more than 20000 group elements" (the generators are shortened first)
+        ("long skew basis", [(1, 0, 0), (1000, 1, 0), (0, 0, 1)], 1, 6),
+        ("thin skew basis", [(1, 0, 0), (1000, 1e-3, 0), (0, 0, 1)], 1e-3, 6),
+        ("long skew hexagonal", [(1, 0, 0), ("'300.5'", "'sqrt(3)/2'", 0), (0, 0, 1)], math.sqrt(3) / 2, 8),
+    ],
+)
 def test_valid_lattices_are_accepted(tmp_path, name, generators, volume, faces):
     """The Dirichlet domain's volume is the lattice's covolume, |det| of a basis (closed form)."""
     space = spaces.load(space_file(tmp_path, *[translation(*t) for t in generators]))
@@ -500,34 +581,56 @@ def test_a_screw_far_from_the_centre_is_shortened(tmp_path):
     """The half-turn space with its screw's axis 150 lattice steps away from the domain centre (the
     same group): the half-turn space's domain, of volume 1 (before: "more than 20000 group
     elements")."""
-    path = space_file(tmp_path, translation(1, 0, 0), translation(0, 1, 0),
-                      "[[-1, 0, 0, 300], [0, -1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]]")
+    path = space_file(
+        tmp_path,
+        translation(1, 0, 0),
+        translation(0, 1, 0),
+        "[[-1, 0, 0, 300], [0, -1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]]",
+    )
     space = spaces.load(path)
     assert len(space.domain.faces) == 6
     assert space.volume == pytest.approx(1.0, rel=1e-9)
     assert len(space.holonomy) == 2
 
 
-@pytest.mark.parametrize("generators, words", [
-    ([(1e-7, 0, 0), (0, 1e-7, 0), (0, 0, 1e-7)],  # before: "a group element ... fixes the domain centre"
-     "generator 'g0' moves the domain centre by only 1e-07, less than the 1e-06 the domain's computation resolves"),
-    ([(1e-9, 0, 0), (0, 1e-9, 0), (0, 0, 1e-9)], "moves the domain centre by only 1e-09"),  # before: IndexError
-    ([(1, 0, 0), (0.5, "'sqrt(3)/2'", 0), (-0.5, 0.866025, 0), (0, 0, 1)],  # before: "more than 20000 group elements"
-     "a word in the generators moves the domain centre by only 4.04e-07"),
-])
+@pytest.mark.parametrize(
+    "generators, words",
+    [
+        (
+            [(1e-7, 0, 0), (0, 1e-7, 0), (0, 0, 1e-7)],  # before: "a group element ... fixes the domain centre"
+            "generator 'g0' moves the domain centre by only 1e-07, less than the 1e-06 the domain's computation resolves",
+        ),
+        ([(1e-9, 0, 0), (0, 1e-9, 0), (0, 0, 1e-9)], "moves the domain centre by only 1e-09"),  # before: IndexError
+        (
+            [
+                (1, 0, 0),
+                (0.5, "'sqrt(3)/2'", 0),
+                (-0.5, 0.866025, 0),
+                (0, 0, 1),
+            ],  # before: "more than 20000 group elements"
+            "a word in the generators moves the domain centre by only 4.04e-07",
+        ),
+    ],
+)
 def test_groups_the_domain_cannot_resolve_are_refused_with_the_true_reason(tmp_path, generators, words):
     with pytest.raises(spaces.SpaceError, match=re.escape(words)):
         spaces.load(space_file(tmp_path, *[translation(*t) for t in generators]))
 
 
 def test_a_rotation_about_the_centre_is_refused_as_not_free(tmp_path):
-    path = space_file(tmp_path, "[[-1, 0, 0, 0], [0, -1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]",
-                      translation(1, 0, 0), translation(0, 1, 0), translation(0, 0, 1))
+    path = space_file(
+        tmp_path,
+        "[[-1, 0, 0, 0], [0, -1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]",
+        translation(1, 0, 0),
+        translation(0, 1, 0),
+        translation(0, 0, 1),
+    )
     with pytest.raises(spaces.SpaceError, match="generator 'g0' fixes the domain centre .* does not act freely"):
         spaces.load(path)
 
 
 # --- 7. signals to a real process, a file rewritten while it is read -------------------------------------
+
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_stops_the_reduction_of_far_rays(tmp_path, signum):
@@ -537,9 +640,22 @@ def test_a_signal_stops_the_reduction_of_far_rays(tmp_path, signum):
     rays = np.tile([5000.3, 0.2, 0.1, 1.0, 0.3, 0.2], (50000, 1))
     np.save(tmp_path / "far.npy", rays)
     (tmp_path / "empty.toml").write_text("")
-    run = subprocess.Popen([str(THURSTON), "trace", "--space", "torus", "--scene", str(tmp_path / "empty.toml"),
-                            "--rays", str(tmp_path / "far.npy"), "--out", str(tmp_path / "h.npz")],
-                           stderr=subprocess.PIPE, text=True)
+    run = subprocess.Popen(
+        [
+            str(THURSTON),
+            "trace",
+            "--space",
+            "torus",
+            "--scene",
+            str(tmp_path / "empty.toml"),
+            "--rays",
+            str(tmp_path / "far.npy"),
+            "--out",
+            str(tmp_path / "h.npz"),
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     assert "the scene files hold no objects" in run.stderr.readline()  # loaded: the rays come next
     time.sleep(1.0)
     _, took, _ = stop(run, signum)
@@ -558,23 +674,45 @@ def test_a_full_disk_where_a_gltf_texture_is_unpacked(tmp_path, monkeypatch):
 
     images.write(tmp_path / "tex.png", {"color": np.full((4, 4, 3), 0.5, np.float32)})
     png = base64.b64encode((tmp_path / "tex.png").read_bytes()).decode()
-    blob = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]], np.float32).tobytes() + np.zeros((3, 2), np.float32).tobytes()
+    blob = (
+        np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]], np.float32).tobytes() + np.zeros((3, 2), np.float32).tobytes()
+    )
     gltf = {
-        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0, "name": "tri"}],
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "name": "tri"}],
         "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "material": 0}]}],
         "materials": [{"name": "painted", "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
-        "textures": [{"source": 0}], "images": [{"uri": f"data:image/png;base64,{png}"}],
-        "buffers": [{"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
-        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 24}],
-        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0],
-                       "max": [0.1, 0.1, 0]}, {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"}]}
+        "textures": [{"source": 0}],
+        "images": [{"uri": f"data:image/png;base64,{png}"}],
+        "buffers": [
+            {"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 36},
+            {"buffer": 0, "byteOffset": 36, "byteLength": 24},
+        ],
+        "accessors": [
+            {
+                "bufferView": 0,
+                "componentType": 5126,
+                "count": 3,
+                "type": "VEC3",
+                "min": [0, 0, 0],
+                "max": [0.1, 0.1, 0],
+            },
+            {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"},
+        ],
+    }
     path = tmp_path / "painted.gltf"
     path.write_text(json.dumps(gltf))
     with tmpfs(tmp_path / "tmp", "64k") as disk:
         monkeypatch.setattr(tempfile, "tempdir", str(disk))
         fill(disk)
-        with pytest.raises(scenes.SceneError, match=re.escape(f"cannot read mesh file {str(path)!r}: No space left on "
-                                                              "device")):
+        with pytest.raises(
+            scenes.SceneError, match=re.escape(f"cannot read mesh file {str(path)!r}: No space left on device")
+        ):
             scenes.load_mesh_file(path)
         (disk / "filler").unlink()
         (obj,) = scenes.load_mesh_file(path)
@@ -587,23 +725,49 @@ def test_a_scene_file_rewritten_while_renders_read_it(tmp_path):
     it again and again: every render either succeeds or fails with one error line, never a
     traceback."""
     path = tmp_path / "scene.toml"
-    text = ('[[object]]\nprimitive = "sphere"\ncenter = [0.2, 0.1, 0]\nradius = 0.1\n'
-            '[[light]]\nposition = [0, 0, 0.3]\npower = 0.5\n') * 4
+    text = (
+        '[[object]]\nprimitive = "sphere"\ncenter = [0.2, 0.1, 0]\nradius = 0.1\n'
+        "[[light]]\nposition = [0, 0, 0.3]\npower = 0.5\n"
+    ) * 4
     path.write_text(text)
-    writer = subprocess.Popen([sys.executable, "-c", f"""
+    writer = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            f"""
 import time
 text = {text!r}
 while True:
     with open({str(path)!r}, "w") as f:
         for k in range(0, len(text), 17):
             f.write(text[k:k + 17]); f.flush(); time.sleep(0.0005)
-"""])
+""",
+        ]
+    )
     try:
         outcomes = []
         for k in range(3):
-            run = subprocess.run([str(THURSTON), "render", "--space", "torus", "--scene", str(path), "--size", "16x9",
-                                  "--quality", "draft", "--threads", "1", "--out", str(tmp_path / f"{k}.png")],
-                                 capture_output=True, text=True, timeout=120)
+            run = subprocess.run(
+                [
+                    str(THURSTON),
+                    "render",
+                    "--space",
+                    "torus",
+                    "--scene",
+                    str(path),
+                    "--size",
+                    "16x9",
+                    "--quality",
+                    "draft",
+                    "--threads",
+                    "1",
+                    "--out",
+                    str(tmp_path / f"{k}.png"),
+                ],
+                capture_output=True,
+                text=True,
+                timeout=120,
+            )
             assert run.returncode in (0, 2), run.stderr
             if run.returncode == 2:
                 assert error_line(run.stderr).startswith("thurston: error: ")
@@ -615,12 +779,15 @@ while True:
     print("outcomes", outcomes)
 
 
-@pytest.mark.parametrize("forward, up, words", [
-    ((1e200, 0, 1), (0, 0, 1), None),  # before: "must be finite" (the cross product overflowed)
-    ((1e-200, 0, 1e-200), (0, 1e-300, 1), None),
-    ((0, 0, 0), (0, 0, 1), "camera forward [0.0, 0.0, 0.0] must be a finite non-zero vector"),
-    ((0, 0, 5), (0, 1e-300, 1), "are parallel"),
-])
+@pytest.mark.parametrize(
+    "forward, up, words",
+    [
+        ((1e200, 0, 1), (0, 0, 1), None),  # before: "must be finite" (the cross product overflowed)
+        ((1e-200, 0, 1e-200), (0, 1e-300, 1), None),
+        ((0, 0, 0), (0, 0, 1), "camera forward [0.0, 0.0, 0.0] must be a finite non-zero vector"),
+        ((0, 0, 5), (0, 1e-300, 1), "are parallel"),
+    ],
+)
 def test_camera_directions_of_any_size(forward, up, words):
     """Only the directions of forward and up count: huge or tiny ones give the frame of the same
     directions at unit size; a zero or parallel pair is its own error."""

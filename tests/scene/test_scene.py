@@ -1,17 +1,26 @@
 """Scene description: mesh files (OBJ, PLY, STL, GLB), TOML scene files, errors, the default scene,
 and the object numbering seen end to end through the tracer's object pass."""
+
 import math
 import textwrap
 
 import numpy as np
 import pytest
 import trimesh
+from support.presets import presets
 from trimesh.visual.material import PBRMaterial
 
-from support.presets import presets
 from thurston_addon import render, spaces
-from thurston_addon.scenes import (Camera, Scene, SceneError, default_scene, load_mesh_file, load_scene_file,
-                                  load_scenes, primitive)
+from thurston_addon.scenes import (
+    Camera,
+    Scene,
+    SceneError,
+    default_scene,
+    load_mesh_file,
+    load_scene_file,
+    load_scenes,
+    primitive,
+)
 
 
 @pytest.fixture(scope="module")
@@ -83,8 +92,10 @@ def test_obj_objects_order_colours_quads_negative_indices(tmp_path, torus):
     area = sum(0.5 * np.linalg.norm(np.cross(*(a.vertices[t[1:]] - a.vertices[t[0]]))) for t in a.triangles)
     assert area == pytest.approx(0.01)
     assert b.triangles.shape == (1, 3)
-    np.testing.assert_allclose(np.sort(b.vertices[b.triangles[0]], axis=0),
-                               np.sort([[-0.1, -0.05, -0.05], [-0.1, 0.05, -0.05], [-0.1, 0.0, 0.05]], axis=0))
+    np.testing.assert_allclose(
+        np.sort(b.vertices[b.triangles[0]], axis=0),
+        np.sort([[-0.1, -0.05, -0.05], [-0.1, 0.05, -0.05], [-0.1, 0.0, 0.05]], axis=0),
+    )
     # end to end: the ray towards +x meets A (0), towards -x meets B (1), both at depth 0.1
     out = trace_objects(torus, Scene(objects=objs), [[1, 0.01, 0.0], [-1, 0.0, 0.0]])
     assert list(out["object"]) == [0, 1]
@@ -92,14 +103,17 @@ def test_obj_objects_order_colours_quads_negative_indices(tmp_path, torus):
 
 
 def test_obj_missing_mtl_warns_and_uses_default(tmp_path):
-    path = write(tmp_path / "one.obj", """
+    path = write(
+        tmp_path / "one.obj",
+        """
         mtllib nowhere.mtl
         v 0 0 0
         v 1 0 0
         v 0 1 0
         usemtl x
         f 1 2 3
-    """)
+    """,
+    )
     with pytest.warns(UserWarning, match="nowhere.mtl"):
         (obj,) = load_mesh_file(path)
     np.testing.assert_allclose(obj.color, [0.8, 0.8, 0.8])
@@ -125,8 +139,9 @@ def glb_scene(tmp_path, names):
     sc = trimesh.Scene()
     for i, n in enumerate(names):
         m = box_at([0.0, 0.0, 0.1 + 0.15 * i])
-        m.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(
-            baseColorFactor=[0.2 * (i + 1), 0.5, 0.9, 1.0], emissiveFactor=[0.0, 0.25 * i, 0.0]))
+        m.visual = trimesh.visual.TextureVisuals(
+            material=PBRMaterial(baseColorFactor=[0.2 * (i + 1), 0.5, 0.9, 1.0], emissiveFactor=[0.0, 0.25 * i, 0.0])
+        )
         sc.add_geometry(m, node_name=n, geom_name=n + "_mesh")
     path = tmp_path / "nodes.glb"
     sc.export(path)
@@ -174,7 +189,9 @@ def test_toml_scene_files_primitives_lights_camera(tmp_path, monkeypatch, torus)
     (tmp_path / "meshes").mkdir()
     write(tmp_path / "meshes" / "colours.mtl", MTL)
     write(tmp_path / "meshes" / "two.obj", OBJ)
-    path = write(tmp_path / "scene.toml", """
+    path = write(
+        tmp_path / "scene.toml",
+        """
         [[object]]
         file = "meshes/two.obj"
         [[object]]
@@ -203,7 +220,8 @@ def test_toml_scene_files_primitives_lights_camera(tmp_path, monkeypatch, torus)
         forward = [1.0, 0.0, 0.0]
         up = [0.0, 1.0, 0.0]
         fov = 70
-    """)
+    """,
+    )
     other = tmp_path / "elsewhere"
     other.mkdir()
     monkeypatch.chdir(other)  # relative paths resolve against the scene file, not the working directory
@@ -232,11 +250,14 @@ def test_toml_scene_files_primitives_lights_camera(tmp_path, monkeypatch, torus)
     assert 0.2 - 1e-9 <= out["depth"][2] < 0.2 + 2e-3
     assert out["depth"][3] == pytest.approx(0.2, abs=1e-6)
     # color override applies to every object of a file
-    path2 = write(tmp_path / "tinted.toml", """
+    path2 = write(
+        tmp_path / "tinted.toml",
+        """
         [[object]]
         file = "meshes/two.obj"
         color = [0.3, 0.3, 0.3]
-    """)
+    """,
+    )
     tinted = load_scene_file(path2)
     assert [o.name for o in tinted.objects] == ["A", "B"]
     for o in tinted.objects:
@@ -260,10 +281,13 @@ def test_missing_file(tmp_path):
         load_scenes([missing])
     with pytest.raises(SceneError, match="nope.toml"):
         load_scene_file(tmp_path / "nope.toml")
-    path = write(tmp_path / "ref.toml", """
+    path = write(
+        tmp_path / "ref.toml",
+        """
         [[object]]
         file = "gone.ply"
-    """)
+    """,
+    )
     with pytest.raises(SceneError, match="gone.ply"):
         load_scene_file(path)
 
@@ -275,14 +299,17 @@ def test_unsupported_suffix(tmp_path):
         load_mesh_file(path)
 
 
-@pytest.mark.parametrize("body, pattern", [
-    ("v 0 0 0\nv nan 1 0\nv 0 1 0\nf 1 2 3\n", r"bad\.obj.*NaN"),
-    ("v 0 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 9\n", r"bad\.obj.*vertex that does not exist"),
-    ("v 0 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 0\n", r"bad\.obj.*vertex that does not exist"),
-    ("v 0 0 0\nv 1 x 0\nv 0 1 0\nf 1 2 3\n", r"bad\.obj:2: cannot parse 'v 1 x 0'"),
-    ("v 0 0 0\nv 1 1 0\nv 0 1 0\nf 1 two 3\n", r"bad\.obj:4: cannot parse"),
-    ("v 0 0 0\nv 1 1 0\n", r"bad\.obj.*no triangles"),
-])
+@pytest.mark.parametrize(
+    "body, pattern",
+    [
+        ("v 0 0 0\nv nan 1 0\nv 0 1 0\nf 1 2 3\n", r"bad\.obj.*NaN"),
+        ("v 0 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 9\n", r"bad\.obj.*vertex that does not exist"),
+        ("v 0 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 0\n", r"bad\.obj.*vertex that does not exist"),
+        ("v 0 0 0\nv 1 x 0\nv 0 1 0\nf 1 2 3\n", r"bad\.obj:2: cannot parse 'v 1 x 0'"),
+        ("v 0 0 0\nv 1 1 0\nv 0 1 0\nf 1 two 3\n", r"bad\.obj:4: cannot parse"),
+        ("v 0 0 0\nv 1 1 0\n", r"bad\.obj.*no triangles"),
+    ],
+)
 def test_bad_obj(tmp_path, body, pattern):
     path = tmp_path / "bad.obj"
     path.write_text(body)
@@ -290,33 +317,39 @@ def test_bad_obj(tmp_path, body, pattern):
         load_mesh_file(path)
 
 
-@pytest.mark.parametrize("body, pattern", [
-    ('[[object]]\nname = "x"\n', "object 0.*needs 'file' or 'primitive'"),
-    ('[[object]]\nprimitive = "cone"\n', "object 0.*unknown primitive 'cone'"),
-    ('[[object]]\nprimitive = "sphere"\ncenter = [0, 1]\n', "object 0.*center.*expected 3 numbers"),
-    ('[[light]]\nposition = [0, "a", 0]\n', "light 0.*position"),
-    ('[[light]]\nposition = [0, 0, inf]\n', "light 0.*not finite"),
-    ("[camera]\nposition = [0, 0]\n", "camera.position"),
-    ("[[object]\n", "cannot read scene file"),
-    # values of the wrong type
-    ('[[light]]\nposition = [0, 0, 0]\npower = "bright"\n', "light 0.*power"),
-    ('[camera]\nfov = "wide"\n', "camera.*fov"),
-    ('[[object]]\nprimitive = "sphere"\nradius = "big"\n', "object 0.*radius"),
-    ('[[object]]\nprimitive = "sphere"\nsubdivisions = "many"\n', "object 0.*subdivisions"),
-    ("[[object]]\nfile = 3\n", "object 0.*file"),
-    ("object = 5\n", "object"),
-    ('[[light]]\nposition = [0, 0, 0]\npower = -5\n', "light 0.*power must be >= 0"),
-    ('[[light]]\nposition = [0, 0, 0]\n[[light]]\nposition = [0, 0, 0]\npower = -0.5\n', "light 1.*power"),
-    # negative or zero sizes (before: accepted, the meshes turned inside out or empty)
-    ('[[object]]\nprimitive = "sphere"\nradius = -0.1\n', r"object 0: radius must be positive, got -0\.1"),
-    ('[[object]]\nprimitive = "sphere"\nradius = 0\n', "object 0: radius must be positive, got 0"),
-    ('[[object]]\nprimitive = "torus"\ntube = -0.01\n', "object 0: tube must be positive"),
-    ('[[object]]\nprimitive = "box"\nsize = [0.1, -0.1, 0.1]\n', r"object 0: size must be positive, got \[0\.1, -0\.1"),
-    ('[[light]]\ntype = "area"\nposition = [0, 0, 0]\nsize = [0.1, -0.1]\n', "light 0: .*positive size"),
-    ("[camera]\nclip_start = -1\n", "camera: clip_start must be >= 0"),
-    ("[camera]\nclip_start = 2\nclip_end = 1\n", "camera: .*less than clip_end"),
-    ("[camera]\nfov = 0\n", "camera: fov must be between 0 and 180"),
-])
+@pytest.mark.parametrize(
+    "body, pattern",
+    [
+        ('[[object]]\nname = "x"\n', "object 0.*needs 'file' or 'primitive'"),
+        ('[[object]]\nprimitive = "cone"\n', "object 0.*unknown primitive 'cone'"),
+        ('[[object]]\nprimitive = "sphere"\ncenter = [0, 1]\n', "object 0.*center.*expected 3 numbers"),
+        ('[[light]]\nposition = [0, "a", 0]\n', "light 0.*position"),
+        ("[[light]]\nposition = [0, 0, inf]\n", "light 0.*not finite"),
+        ("[camera]\nposition = [0, 0]\n", "camera.position"),
+        ("[[object]\n", "cannot read scene file"),
+        # values of the wrong type
+        ('[[light]]\nposition = [0, 0, 0]\npower = "bright"\n', "light 0.*power"),
+        ('[camera]\nfov = "wide"\n', "camera.*fov"),
+        ('[[object]]\nprimitive = "sphere"\nradius = "big"\n', "object 0.*radius"),
+        ('[[object]]\nprimitive = "sphere"\nsubdivisions = "many"\n', "object 0.*subdivisions"),
+        ("[[object]]\nfile = 3\n", "object 0.*file"),
+        ("object = 5\n", "object"),
+        ("[[light]]\nposition = [0, 0, 0]\npower = -5\n", "light 0.*power must be >= 0"),
+        ("[[light]]\nposition = [0, 0, 0]\n[[light]]\nposition = [0, 0, 0]\npower = -0.5\n", "light 1.*power"),
+        # negative or zero sizes (before: accepted, the meshes turned inside out or empty)
+        ('[[object]]\nprimitive = "sphere"\nradius = -0.1\n', r"object 0: radius must be positive, got -0\.1"),
+        ('[[object]]\nprimitive = "sphere"\nradius = 0\n', "object 0: radius must be positive, got 0"),
+        ('[[object]]\nprimitive = "torus"\ntube = -0.01\n', "object 0: tube must be positive"),
+        (
+            '[[object]]\nprimitive = "box"\nsize = [0.1, -0.1, 0.1]\n',
+            r"object 0: size must be positive, got \[0\.1, -0\.1",
+        ),
+        ('[[light]]\ntype = "area"\nposition = [0, 0, 0]\nsize = [0.1, -0.1]\n', "light 0: .*positive size"),
+        ("[camera]\nclip_start = -1\n", "camera: clip_start must be >= 0"),
+        ("[camera]\nclip_start = 2\nclip_end = 1\n", "camera: .*less than clip_end"),
+        ("[camera]\nfov = 0\n", "camera: fov must be between 0 and 180"),
+    ],
+)
 def test_bad_toml(tmp_path, body, pattern):
     path = tmp_path / "bad.toml"
     path.write_text(body)
@@ -335,7 +368,9 @@ def test_nan_vertex_in_binary_mesh(tmp_path):
 
 
 def test_degenerate_triangles_skipped_with_warning(tmp_path, torus):
-    path = write(tmp_path / "degenerate.obj", """
+    path = write(
+        tmp_path / "degenerate.obj",
+        """
         v 0.2 -0.05 -0.05
         v 0.2 0.05 -0.05
         v 0.2 0.0 0.05
@@ -344,7 +379,8 @@ def test_degenerate_triangles_skipped_with_warning(tmp_path, torus):
         f 1 2 3
         f 1 1 2
         f 1 4 5
-    """)
+    """,
+    )
     with pytest.warns(UserWarning, match="2 degenerate"):
         (obj,) = load_mesh_file(path)
     assert len(obj.triangles) == 1
@@ -371,8 +407,11 @@ def test_default_scene_has_a_tube_along_every_edge(sid):
     size = np.ptp(V, axis=0).max()
     radius = 0.012 * size
     # the tubes are the connected pieces of the edge objects
-    tubes = [piece.vertices for o in edges
-             for piece in trimesh.Trimesh(o.vertices, o.triangles, process=False).split(only_watertight=False)]
+    tubes = [
+        piece.vertices
+        for o in edges
+        for piece in trimesh.Trimesh(o.vertices, o.triangles, process=False).split(only_watertight=False)
+    ]
     assert len(tubes) == len(dom.edges)
     found = 0
     for a, b, _, _ in dom.edges:
@@ -382,7 +421,12 @@ def test_default_scene_has_a_tube_along_every_edge(sid):
             s = (W - p) @ axis
             radial = np.linalg.norm(W - p - s[:, None] * axis, axis=1)
             on_tube = np.isclose(radial, radius, rtol=1e-6) | (radial < 1e-12)  # rims and cap centres
-            if on_tube.all() and np.sum(radial > 0) >= 10 and abs(s.min()) < 1e-9 and abs(s.max() - np.linalg.norm(q - p)) < 1e-9:
+            if (
+                on_tube.all()
+                and np.sum(radial > 0) >= 10
+                and abs(s.min()) < 1e-9
+                and abs(s.max() - np.linalg.norm(q - p)) < 1e-9
+            ):
                 found += 1
                 break
     assert found == len(dom.edges)

@@ -2,20 +2,21 @@
 here, edge classes and dihedral angles computed here from the face covectors, group orders and
 holonomy groups from closing the generators here, volumes from a quadrature written here and from
 published invariants (Poincare 2 pi^2 / 120, Seifert-Weber 11.199064740...)."""
+
 import math
 import os
 import subprocess
 import sys
 import time
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-from thurston_addon import spaces
 from support.presets import BUILT_IN, presets
 from support.truth import AMBIENT, chart_metric
+
+from thurston_addon import spaces
 
 PRESETS = presets(lambda space: space.geometry.projective)  # Dirichlet domains
 FLAT = presets(lambda space: space.geometry.name == "E3")
@@ -26,7 +27,7 @@ PHI = (1 + math.sqrt(5)) / 2
 REPO = Path(__file__).resolve().parents[2]
 
 
-@lru_cache(maxsize=None)
+@cache
 def load(pid):
     return spaces.load(pid)
 
@@ -37,7 +38,6 @@ def space(request):
 
 
 # --- independent helpers ---------------------------------------------------------------------------
-
 
 
 def volume_density(name, x):
@@ -234,7 +234,11 @@ def tetra_volume_integral(space, n=16):
 def s3_translation(n, d):
     n = np.asarray(n, float) / np.linalg.norm(n)
     N, E = np.append(n, 0.0), np.array([0, 0, 0, 1.0])
-    return np.eye(4) + (math.cos(d) - 1) * (np.outer(N, N) + np.outer(E, E)) + math.sin(d) * (np.outer(N, E) - np.outer(E, N))
+    return (
+        np.eye(4)
+        + (math.cos(d) - 1) * (np.outer(N, N) + np.outer(E, E))
+        + math.sin(d) * (np.outer(N, E) - np.outer(E, N))
+    )
 
 
 def rotation4(n, angle):
@@ -270,6 +274,7 @@ def poincare_toml(twist):
 
 
 # --- every preset -----------------------------------------------------------------------------------
+
 
 def test_preset_ids():
     assert sorted(spaces.preset_ids()) == sorted(BUILT_IN)
@@ -322,7 +327,7 @@ def test_face_pairings_map_faces_onto_partner_faces(space):
 
 def test_partner_covector_pulls_back_to_flipped_face_covector(space):
     faces = space.domain.faces
-    for i, face in enumerate(faces):
+    for face in faces:
         cj = faces[face.partner].covector
         pulled = cj @ face.pairing
         ci = face.covector
@@ -376,8 +381,13 @@ def test_origin_is_inside_and_is_the_centroid(space):
 
 def test_domain_volume_by_quadrature(space):
     expected = {
-        "torus": 1.0, "half_turn": 1.0, "quarter_turn": 1.0, "third_turn": math.sqrt(3) / 2,
-        "sixth_turn": math.sqrt(3) / 2, "hantzsche_wendt": 2.0, "poincare": 2 * math.pi ** 2 / 120,
+        "torus": 1.0,
+        "half_turn": 1.0,
+        "quarter_turn": 1.0,
+        "third_turn": math.sqrt(3) / 2,
+        "sixth_turn": math.sqrt(3) / 2,
+        "hantzsche_wendt": 2.0,
+        "poincare": 2 * math.pi**2 / 120,
         "seifert_weber": 11.199064740,
     }[space.id]
     n = 48 if space.id == "seifert_weber" else 12
@@ -386,6 +396,7 @@ def test_domain_volume_by_quadrature(space):
 
 
 # --- spherical and hyperbolic invariants ------------------------------------------------------------
+
 
 def test_poincare_group_closure_has_order_120_and_binary_icosahedral_structure():
     s = load("poincare")
@@ -416,7 +427,7 @@ def test_poincare_invariants():
     face_distances = [math.asin(abs(c @ ORIGIN) / np.linalg.norm(c)) for c in covectors(s)]
     np.testing.assert_allclose(face_distances, math.pi / 10, atol=1e-12)
     assert s.inradius == pytest.approx(math.pi / 10, abs=1e-12)
-    assert s.volume == pytest.approx(2 * math.pi ** 2 / 120, abs=1e-10)
+    assert s.volume == pytest.approx(2 * math.pi**2 / 120, abs=1e-10)
     classes = edge_classes(s)
     assert len(classes) == 10 and all(len(c) == 3 for c in classes)
     assert all(len(c) == 3 for c in s.edge_cycles)
@@ -447,7 +458,7 @@ def test_poincare_from_an_independent_construction():
         s = spaces.from_data(__import__("tomllib").loads(poincare_toml(twist)), "dodecahedron.toml")
         assert len(s.domain.faces) == 12
         assert s.group_order == 120
-        assert s.volume == pytest.approx(2 * math.pi ** 2 / 120, abs=1e-9)
+        assert s.volume == pytest.approx(2 * math.pi**2 / 120, abs=1e-9)
 
 
 # --- flat presets -----------------------------------------------------------------------------------
@@ -501,8 +512,14 @@ def test_flat_domain_volume_is_covolume(pid):
         coeffs = np.linalg.solve(B, t)
         np.testing.assert_allclose(coeffs, np.round(coeffs), atol=1e-9)
     covolume = abs(np.linalg.det(B)) / HOLONOMY[pid]
-    expected = {"torus": 1.0, "half_turn": 1.0, "quarter_turn": 1.0, "third_turn": math.sqrt(3) / 2,
-                "sixth_turn": math.sqrt(3) / 2, "hantzsche_wendt": 2.0}[pid]
+    expected = {
+        "torus": 1.0,
+        "half_turn": 1.0,
+        "quarter_turn": 1.0,
+        "third_turn": math.sqrt(3) / 2,
+        "sixth_turn": math.sqrt(3) / 2,
+        "hantzsche_wendt": 2.0,
+    }[pid]
     assert covolume == pytest.approx(expected, rel=1e-12)
     assert s.volume == pytest.approx(covolume, rel=1e-9)
     assert tetra_volume_integral(s, 4) == pytest.approx(covolume, rel=1e-9)
@@ -536,6 +553,7 @@ def test_cube_domains(pid):
 
 # --- group elements ---------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("r", [0.5, 1.0, 1.5, 2.3])
 def test_torus_elements_within_are_lattice_translations(r):
     s = load("torus")
@@ -564,6 +582,7 @@ def test_torus_neighbourhood():
 
 
 # --- bring_inside -------------------------------------------------------------------------------------
+
 
 def test_bring_inside_torus():
     s = load("torus")
@@ -609,13 +628,16 @@ def test_bring_inside_far_points_flat_and_spherical(pid):
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
-@pytest.mark.parametrize("X", [
-    [1.5, 0.0, 0.0, 1.0],  # Klein point outside the ball
-    [1.0, 0.0, 0.0, 1.0],  # on the sphere at infinity
-    [0.6, 0.8, 0.0, 1.0],
-    [np.nan, 0.0, 0.0, 1.0],
-    [np.inf, 0.0, 0.0, 1.0],
-])
+@pytest.mark.parametrize(
+    "X",
+    [
+        [1.5, 0.0, 0.0, 1.0],  # Klein point outside the ball
+        [1.0, 0.0, 0.0, 1.0],  # on the sphere at infinity
+        [0.6, 0.8, 0.0, 1.0],
+        [np.nan, 0.0, 0.0, 1.0],
+        [np.inf, 0.0, 0.0, 1.0],
+    ],
+)
 def test_bring_inside_h3_rejects_points_outside_the_model(X):
     s = load("seifert_weber")
     t0 = time.perf_counter()
@@ -699,7 +721,7 @@ def test_missing_file(tmp_path):
 
 
 def test_invalid_toml(tmp_path):
-    expect_error(write(tmp_path, "geometry = \"E3\n[[generator]\n"), "TOML")
+    expect_error(write(tmp_path, 'geometry = "E3\n[[generator]\n'), "TOML")
 
 
 def test_unknown_geometry(tmp_path):
@@ -716,7 +738,17 @@ def test_matrix_that_is_not_an_isometry(tmp_path):
 
 
 def test_matrix_with_wrong_shape(tmp_path):
-    expect_error(write(tmp_path, BOX_TORUS.replace(", [0, 0, 0, 1]]\n[[generator]]\nmatrix = [[1, 0, 0, 0], [0, 1, 0, 1]", "]\n[[generator]]\nmatrix = [[1, 0, 0, 0], [0, 1, 0, 1]", 1)), "matrix")
+    expect_error(
+        write(
+            tmp_path,
+            BOX_TORUS.replace(
+                ", [0, 0, 0, 1]]\n[[generator]]\nmatrix = [[1, 0, 0, 0], [0, 1, 0, 1]",
+                "]\n[[generator]]\nmatrix = [[1, 0, 0, 0], [0, 1, 0, 1]",
+                1,
+            ),
+        ),
+        "matrix",
+    )
 
 
 @pytest.mark.parametrize("entry", ['"sqrt("', '"1/0"', '"nan"', '"exp(1000)"', "true"])
@@ -726,8 +758,9 @@ def test_bad_matrix_entries(tmp_path, entry):
 
 def test_matrix_entries_are_not_executed(tmp_path):
     sentinel = tmp_path / "pwned"
-    for i, code in enumerate([f"open('{sentinel}', 'w')", f"__import__('pathlib').Path('{sentinel}').touch()",
-                              "__import__('os')"]):
+    for i, code in enumerate(
+        [f"open('{sentinel}', 'w')", f"__import__('pathlib').Path('{sentinel}').touch()", "__import__('os')"]
+    ):
         text = BOX_TORUS.replace('"sqrt(4)/2"', '"' + code.replace('"', '\\"') + '"')
         expect_error(write(tmp_path, text, f"evil{i}.toml"), "cannot evaluate")
         assert not sentinel.exists()
@@ -767,18 +800,29 @@ def test_dodecahedron_glued_by_pure_translations_fails_quickly(tmp_path):
     """Twist 0: the group is not discrete; loading must raise SpaceError, not hang (subprocess
     with a timeout, so that a hang fails the test instead of the suite)."""
     path = write(tmp_path, poincare_toml(0.0), "untwisted.toml")
-    code = ("import sys\nfrom thurston_addon import spaces\n"
-            "try:\n    spaces.load(sys.argv[1])\nexcept spaces.SpaceError as e:\n    print('SpaceError:', e)\n    sys.exit(3)\n")
-    proc = subprocess.run([sys.executable, "-c", code, str(path)], cwd=REPO, capture_output=True, text=True, timeout=60,
-                          env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"})
+    code = (
+        "import sys\nfrom thurston_addon import spaces\n"
+        "try:\n    spaces.load(sys.argv[1])\nexcept spaces.SpaceError as e:\n    print('SpaceError:', e)\n    sys.exit(3)\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code, str(path)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"},
+    )
     assert proc.returncode == 3, proc.stdout + proc.stderr
     assert str(path) in proc.stdout
 
 
-@pytest.mark.parametrize("entry", [
-    '"(-1)**0.5"',
-    '"' + "+".join(["1"] * 5000) + '"',
-])
+@pytest.mark.parametrize(
+    "entry",
+    [
+        '"(-1)**0.5"',
+        '"' + "+".join(["1"] * 5000) + '"',
+    ],
+)
 def test_pathological_matrix_entries_raise_space_error(tmp_path, entry):
     expect_error(write(tmp_path, BOX_TORUS.replace('"sqrt(4)/2"', entry)), "cannot evaluate")
 
@@ -795,8 +839,13 @@ matrix = [[0, 0, 1, 0], [0, 0, 0, 1], [-1, 0, 0, 0], [0, -1, 0, 0]]
 
 
 def test_quaternion_generators_are_orthogonal_and_generate_q8():
-    gens = [np.array(m, float) for m in ([[0, 0, 0, 1], [0, 0, -1, 0], [0, 1, 0, 0], [-1, 0, 0, 0]],
-                                         [[0, 0, 1, 0], [0, 0, 0, 1], [-1, 0, 0, 0], [0, -1, 0, 0]])]
+    gens = [
+        np.array(m, float)
+        for m in (
+            [[0, 0, 0, 1], [0, 0, -1, 0], [0, 1, 0, 0], [-1, 0, 0, 0]],
+            [[0, 0, 1, 0], [0, 0, 0, 1], [-1, 0, 0, 0], [0, -1, 0, 0]],
+        )
+    ]
     for g in gens:
         np.testing.assert_allclose(g.T @ g, np.eye(4))
     group = close_group(gens)
@@ -808,8 +857,8 @@ def test_quaternionic_space_loads(tmp_path):
     assert s.group_order == 8
     corners = {(x, y, z) for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)}
     assert {tuple(np.round(v, 12) + 0.0) for v in s.domain.vertices} == corners
-    assert s.volume == pytest.approx(2 * math.pi ** 2 / 8, abs=1e-9)
-    assert tetra_volume_integral(s, 16) == pytest.approx(2 * math.pi ** 2 / 8, abs=1e-6)
+    assert s.volume == pytest.approx(2 * math.pi**2 / 8, abs=1e-9)
+    assert tetra_volume_integral(s, 16) == pytest.approx(2 * math.pi**2 / 8, abs=1e-6)
 
 
 # --- fields of the wrong type or out of range: SpaceError naming the file and the field -------------
@@ -929,16 +978,22 @@ def test_nil_domain_is_the_unit_cube_and_its_pairings_are_left_multiplications(r
     lattice = [heisenberg(1, 0, 0), heisenberg(0, 1, 0), heisenberg(0, 0, 1)]
     for face in s.domain.faces:
         assert pulls_back_the_metric("Nil", face.pairing, rng)
-        assert any(np.allclose(face.element, L, atol=1e-12) or np.allclose(face.element, np.linalg.inv(L), atol=1e-12)
-                   for L in lattice)
+        assert any(
+            np.allclose(face.element, L, atol=1e-12) or np.allclose(face.element, np.linalg.inv(L), atol=1e-12)
+            for L in lattice
+        )
     assert s.volume == pytest.approx(1.0, abs=1e-12)  # the covolume of the integer Heisenberg group
 
 
 def test_sol_domain_is_the_parallelogram_prism(rng):
     s = load("sol")
     ell = math.log(PHI)
-    corners = {tuple(np.round(np.append(a * U1 + b * U2, c), 10) + 0.0)
-               for a in (-0.5, 0.5) for b in (-0.5, 0.5) for c in (-ell, ell)}
+    corners = {
+        tuple(np.round(np.append(a * U1 + b * U2, c), 10) + 0.0)
+        for a in (-0.5, 0.5)
+        for b in (-0.5, 0.5)
+        for c in (-ell, ell)
+    }
     assert {tuple(np.round(v, 10) + 0.0) for v in s.domain.vertices} == corners
     for face in s.domain.faces:
         assert pulls_back_the_metric("Sol", face.pairing, rng)
@@ -976,9 +1031,14 @@ def test_points_and_their_images_reduce_to_one_point(sid, rng):
 
 def test_paper_nil_generator_is_not_an_isometry(tmp_path):
     """Errata: the paper's (x, y, z) -> (x + 1, y, z) is not an isometry of its own metric."""
-    text = (spaces.PRESET_DIR / "nil.toml").read_text().replace(
-        "matrix = [[1, 0, 0, 1], [0, 1, 0, 0], [0, 1, 1, 0], [0, 0, 0, 1]]",
-        "matrix = [[1, 0, 0, 1], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]")
+    text = (
+        (spaces.PRESET_DIR / "nil.toml")
+        .read_text()
+        .replace(
+            "matrix = [[1, 0, 0, 1], [0, 1, 0, 0], [0, 1, 1, 0], [0, 0, 0, 1]]",
+            "matrix = [[1, 0, 0, 1], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]",
+        )
+    )
     expect_error(write(tmp_path, text, "paper_nil.toml"), "generator 'x'", "not an isometry of Nil")
 
 
@@ -1006,6 +1066,6 @@ def test_coordinate_space_file_errors(tmp_path):
     expect_error(write(tmp_path, no_face, "b.toml"), "generator 'z' has no 'face'")
     outside = text.replace("face = [0, 0, 1, -0.5]", "face = [0, 0, 1, 0.5]")
     expect_error(write(tmp_path, outside, "c.toml"), "origin", "inside")
-    dirichlet = text.replace("geometry = \"Nil\"", "geometry = \"Nil\"\n")
+    dirichlet = text.replace('geometry = "Nil"', 'geometry = "Nil"\n')
     dirichlet = "\n".join(line for line in dirichlet.splitlines() if not line.startswith("face"))
     expect_error(write(tmp_path, dirichlet, "d.toml"), "Nil has no Dirichlet domains")

@@ -2,6 +2,7 @@
 never imports Blender's modules or the Blender layer (blender/, operators/, panels/), except the command
 line's render-blend, which imports it inside its function; and no module imports, directly or through
 others, itself. A module is a .py file or a package (its __init__.py), whichever the tree holds."""
+
 import ast
 from pathlib import Path
 
@@ -9,8 +10,19 @@ PACKAGE = "thurston_addon"
 ROOT = Path(__file__).resolve().parents[2] / PACKAGE
 BLENDER_LAYER = ("blender", "operators", "panels")
 # Modules that exist only inside Blender (the bpy wheel and Blender's own Python).
-BLENDER_MODULES = {"bpy", "bpy_extras", "bl_operators", "bl_ui", "bmesh", "mathutils", "gpu", "gpu_extras",
-                   "idprop", "aud", "freestyle"}
+BLENDER_MODULES = {
+    "bpy",
+    "bpy_extras",
+    "bl_operators",
+    "bl_ui",
+    "bmesh",
+    "mathutils",
+    "gpu",
+    "gpu_extras",
+    "idprop",
+    "aud",
+    "freestyle",
+}
 # The one place the library reaches the Blender layer: render-blend, importing it when it runs.
 LAZY_BLENDER_IMPORTS = {(f"{PACKAGE}.cli", "cmd_render_blend")}
 
@@ -41,7 +53,7 @@ def imports(name: str):
                     yield alias.name, function
             elif isinstance(child, ast.ImportFrom):
                 if child.level:
-                    base = package.split(".")[:len(package.split(".")) - (child.level - 1)]
+                    base = package.split(".")[: len(package.split(".")) - (child.level - 1)]
                     source = ".".join(base + ([child.module] if child.module else []))
                 else:
                     source = child.module
@@ -101,15 +113,17 @@ def test_nothing_imports_the_entry():
 def test_no_import_cycle():
     """Depth-first search over every import, at module level or inside a function (one inside a
     function is still a dependency, only a later one)."""
-    graph = {name: sorted({imported for imported, _ in imports(name) if imported in MODULES and imported != name})
-             for name in MODULES}
+    graph = {
+        name: sorted({imported for imported, _ in imports(name) if imported in MODULES and imported != name})
+        for name in MODULES
+    }
     state = {}  # name -> "open" while on the current path, "done" after
 
     def walk(name, path):
         state[name] = "open"
         for nxt in graph[name]:
             if state.get(nxt) == "open":
-                return path[path.index(nxt):] + [nxt] if nxt in path else [name, nxt]
+                return path[path.index(nxt) :] + [nxt] if nxt in path else [name, nxt]
             if nxt not in state:
                 cycle = walk(nxt, path + [nxt])
                 if cycle:

@@ -1,5 +1,6 @@
 """Helpers for the Blender-layer tests (real bpy): scene building, pixel read-back, and an
 independent export of a Blender scene to OBJ+MTL and a TOML scene file for `thurston render`."""
+
 from __future__ import annotations
 
 import math
@@ -170,8 +171,12 @@ def scattering_lines(obj):
     if p is None:
         return []
     level = p.inputs["Specular IOR Level"].default_value
-    return [f"Pr {p.inputs['Roughness'].default_value!r}", f"Pm {p.inputs['Metallic'].default_value!r}",
-            f"Ks {level!r} {level!r} {level!r}", f"Ni {p.inputs['IOR'].default_value!r}"]
+    return [
+        f"Pr {p.inputs['Roughness'].default_value!r}",
+        f"Pm {p.inputs['Metallic'].default_value!r}",
+        f"Ks {level!r} {level!r} {level!r}",
+        f"Ni {p.inputs['IOR'].default_value!r}",
+    ]
 
 
 def exported_names(scene):
@@ -206,21 +211,30 @@ def write_scene_files(scene, folder: Path, scale: float):
         ev.to_mesh_clear()
     (folder / "scene.obj").write_text("\n".join(obj_lines) + "\n")
     (folder / "scene.mtl").write_text("\n".join(mtl_lines) + "\n")
-    toml = ['[[object]]', 'file = "scene.obj"']
+    toml = ["[[object]]", 'file = "scene.obj"']
     for obj in scene.objects:
         if obj.type == "LIGHT":
             pos = np.array(obj.matrix_world.translation, float) / scale
             power = obj.data.energy / (4 * math.pi**2) / scale**2  # radiant intensity x albedo / pi
-            toml += ["[[light]]", f"position = [{', '.join(map(repr, map(float, pos)))}]",
-                     f"color = [{', '.join(map(repr, map(float, obj.data.color)))}]", f"power = {power!r}"]
+            toml += [
+                "[[light]]",
+                f"position = [{', '.join(map(repr, map(float, pos)))}]",
+                f"color = [{', '.join(map(repr, map(float, obj.data.color)))}]",
+                f"power = {power!r}",
+            ]
     cam = scene.camera
     M = np.array(cam.matrix_world, float)
     fov = math.degrees(cam.data.angle_x)  # Blender's own horizontal angle (float32, from lens and sensor width)
-    toml += ["[camera]", f"position = [{', '.join(map(repr, map(float, M[:3, 3] / scale)))}]",
-             f"forward = [{', '.join(map(repr, map(float, -M[:3, 2])))}]",
-             f"up = [{', '.join(map(repr, map(float, M[:3, 1])))}]", f"fov = {fov!r}",
-             f"shift = [{cam.data.shift_x!r}, {cam.data.shift_y!r}]",  # in widths under the default sensor fit
-             f"clip_start = {cam.data.clip_start / scale!r}", f"clip_end = {cam.data.clip_end / scale!r}"]
+    toml += [
+        "[camera]",
+        f"position = [{', '.join(map(repr, map(float, M[:3, 3] / scale)))}]",
+        f"forward = [{', '.join(map(repr, map(float, -M[:3, 2])))}]",
+        f"up = [{', '.join(map(repr, map(float, M[:3, 1])))}]",
+        f"fov = {fov!r}",
+        f"shift = [{cam.data.shift_x!r}, {cam.data.shift_y!r}]",  # in widths under the default sensor fit
+        f"clip_start = {cam.data.clip_start / scale!r}",
+        f"clip_end = {cam.data.clip_end / scale!r}",
+    ]
     (folder / "scene.toml").write_text("\n".join(toml) + "\n")
     return folder / "scene.toml"
 

@@ -2,6 +2,7 @@
 the geometry's closed form in the universal cover (each piece carried into the domain by the
 isometry that reduces its start), then a root of the distance to the ball's centre. The march is
 the geometry's model (cover_first_hits) or the caller's own (first_hits: SL2's cover elements)."""
+
 import math
 
 import numpy as np
@@ -31,8 +32,8 @@ def first_hits(t, x, x_next, chart, centres, outer, inner):
     reduced by piece k's isometry."""
     centres, outer, inner = np.asarray(centres, float), np.asarray(outer, float), np.asarray(inner, float)
     margin = np.min(np.linalg.norm(x[:, None] - centres[None], axis=-1) - outer)
-    start = np.linalg.norm(x[:len(t) - 1, None] - centres[None], axis=-1)  # (pieces, centres)
-    end = np.linalg.norm(x_next[:len(t) - 1, None] - centres[None], axis=-1)
+    start = np.linalg.norm(x[: len(t) - 1, None] - centres[None], axis=-1)  # (pieces, centres)
+    end = np.linalg.norm(x_next[: len(t) - 1, None] - centres[None], axis=-1)
     found = []
     for rho in (outer, inner):
         entering = (start - rho > 0) & (end - rho <= 0)  # the pieces that enter a sphere
@@ -81,14 +82,15 @@ def assert_no_leak_at_the_prism_edges(space, half_height, ball_radius, seed, n=1
     rng = np.random.default_rng(seed)
     V0 = space.domain.vertices
     target = V0[rng.integers(len(V0), size=n)]
-    target[n // 2:, 2] = rng.uniform(-half_height, half_height, n - n // 2)
+    target[n // 2 :, 2] = rng.uniform(-half_height, half_height, n - n // 2)
     x = 0.5 * space._interior_points(rng, n)
     P = G.to_model(x)
     V = G.normalize_tangent(P, G.tangent_to_model(x, target - x))
     ball = trimesh.creation.icosphere(subdivisions=2, radius=ball_radius)
     for scene in (Scene(), Scene(objects=[SceneObject("ball", ball.vertices, ball.faces, (1, 1, 1))])):
-        out = render.make_tracer(space, scene).trace(np.ascontiguousarray(P), np.ascontiguousarray(V), 8.0, 1000,
-                                                    shade=False, tolerance=1e-3)
+        out = render.make_tracer(space, scene).trace(
+            np.ascontiguousarray(P), np.ascontiguousarray(V), 8.0, 1000, shade=False, tolerance=1e-3
+        )
         assert np.all((out["stop"] == 0) | (out["stop"] == 1)), np.bincount(out["stop"])
         assert np.all(np.isfinite(out["end"]))
         assert space.domain.contains(G.to_model(out["end"]), tol=1e-6).all()

@@ -1,6 +1,7 @@
 """Truth for Nil's and Sol's lattices: a point of the universal cover reduced into the domain in
 closed form and extended precision (Nil: the integer Heisenberg group; Sol: the monodromy power,
 then the lattice of u1, u2), finished by Space.move_inside."""
+
 import numpy as np
 
 ld = np.longdouble

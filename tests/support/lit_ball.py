@@ -1,5 +1,6 @@
 """The direct-light tests' scene: a small ball, faintly emissive (so it casts no shadow on point
 lights' light), lit by one point light; and the traced colour of one ray onto it."""
+
 from __future__ import annotations
 
 import math
@@ -15,8 +16,10 @@ RHO, GLOW = 0.5, 1e-3  # the ball's base colour and its faint emission (which ma
 
 def ball_scene(centre, light, power=1.0):
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.02)
-    return Scene(objects=[SceneObject("ball", ball.vertices + centre, ball.faces, (RHO,) * 3, emission=(GLOW,) * 3)],
-                 lights=[PointLight(np.asarray(light, float), np.ones(3), power)])
+    return Scene(
+        objects=[SceneObject("ball", ball.vertices + centre, ball.faces, (RHO,) * 3, emission=(GLOW,) * 3)],
+        lights=[PointLight(np.asarray(light, float), np.ones(3), power)],
+    )
 
 
 def shade_one(space, scene, origin, target, light_reach, fog=math.inf):

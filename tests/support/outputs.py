@@ -1,6 +1,7 @@
 """What the tests of outputs share: a small real file system to fill or make read-only, the
 folder's listing, the one error line a failed run prints, the words an error message must never
 show, and a signal to a running `thurston`."""
+
 import contextlib
 import os
 import re
@@ -13,8 +14,10 @@ import pytest
 
 PREVIOUS = b"the user's previous file\n"
 # what an error message must never show: Python's and Qhull's own words
-INTERNALS = re.compile(r"object is not|has no attribute|not subscriptable|unhashable|Traceback|IndexError|KeyError|"
-                       r"TypeError|cannot reshape|QH\d|[Qq]hull")
+INTERNALS = re.compile(
+    r"object is not|has no attribute|not subscriptable|unhashable|Traceback|IndexError|KeyError|"
+    r"TypeError|cannot reshape|QH\d|[Qq]hull"
+)
 
 
 def error_line(err: str) -> str:
@@ -29,8 +32,9 @@ def error_line(err: str) -> str:
 def tmpfs(folder: Path, size: str):
     """A tmpfs of `size` mounted on folder (needs root; the test is skipped where mounting fails)."""
     folder.mkdir()
-    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(folder)],
-                             capture_output=True, text=True)
+    mounted = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(folder)], capture_output=True, text=True
+    )
     if mounted.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here (needs root): {mounted.stderr.strip()}")
     try:
@@ -67,6 +71,7 @@ def stop(run: subprocess.Popen, signum: int) -> tuple[int, float, str]:
     stderr = run.stderr.read()
     assert code == 128 + signum and took < 5.0, (code, took, stderr)
     assert "Traceback" not in stderr
-    assert stderr.strip().splitlines()[-1] == ("thurston: interrupted" if signum == signal.SIGINT
-                                               else f"thurston: stopped by {signal.Signals(signum).name}")
+    assert stderr.strip().splitlines()[-1] == (
+        "thurston: interrupted" if signum == signal.SIGINT else f"thurston: stopped by {signal.Signals(signum).name}"
+    )
     return code, took, stderr

@@ -1,6 +1,7 @@
 """The presets the tests run over, taken from the spaces' own listing (spaces.preset_ids()) and
 filtered by what a test needs of a space. BUILT_IN is the one list written by hand: the truth that
 listing (and the command line's) is checked against."""
+
 from __future__ import annotations
 
 from functools import cache
@@ -10,9 +11,22 @@ import numpy as np
 from thurston_addon import spaces
 
 # The built-in presets and their geometries (with no THURSTON_SPACE_PATH set).
-BUILT_IN = {"torus": "E3", "half_turn": "E3", "quarter_turn": "E3", "third_turn": "E3", "sixth_turn": "E3",
-            "hantzsche_wendt": "E3", "poincare": "S3", "seifert_weber": "H3", "nil": "Nil", "sol": "Sol",
-            "genus2xs1": "H2xR", "s2xs1": "S2xR", "rp3_rp3": "S2xR", "sl2": "SL2"}
+BUILT_IN = {
+    "torus": "E3",
+    "half_turn": "E3",
+    "quarter_turn": "E3",
+    "third_turn": "E3",
+    "sixth_turn": "E3",
+    "hantzsche_wendt": "E3",
+    "poincare": "S3",
+    "seifert_weber": "H3",
+    "nil": "Nil",
+    "sol": "Sol",
+    "genus2xs1": "H2xR",
+    "s2xs1": "S2xR",
+    "rp3_rp3": "S2xR",
+    "sl2": "SL2",
+}
 
 
 @cache

@@ -1,6 +1,7 @@
 """Independent truth shared by the tests: the chart metrics written from the textbook formulas,
 not taken from the library, their derivatives and Christoffel symbols, and the checks of the
 library's flows against DOP853 on them."""
+
 import math
 
 import numpy as np
@@ -77,7 +78,7 @@ def sl2_metric_derivative(x):
     lam = 2 / (1 - X * X - Y * Y)
     f = np.array([-lam * Y, lam * X, 1.0])
     df = np.zeros((3, 3))  # df[l, i] = d_l f_i
-    df[0] = [-lam**2 * X * Y, lam + lam**2 * X * X, 0.0]
+    df[0] = [-(lam**2) * X * Y, lam + lam**2 * X * X, 0.0]
     df[1] = [-lam - lam**2 * Y * Y, lam**2 * X * Y, 0.0]
     dg = np.einsum("li,j->lij", df, f) + np.einsum("i,lj->lij", f, df)
     for l, xl in enumerate((X, Y)):
@@ -93,12 +94,14 @@ def sl2_christoffel(x):
 def sl2_body_direction(x, b):
     """The unit chart velocity at x of body velocity b (carried from the origin by from_origin(x))."""
     from thurston_addon.geometries import sl2
+
     return sl2.act_tangent(sl2.from_origin(x), np.zeros(3), sl2.body_to_chart(b))
 
 
 def assert_sl2_flow(x, u, t, tol=1e-9):
     """SL2's Python and C++ closed forms against DOP853."""
     from thurston_addon.geometries import sl2
+
     check_flows_against_dop853(sl2.SL2(), sl2_christoffel, sl2_metric, [(x, u, t)], tol=tol)
 
 
@@ -121,6 +124,7 @@ def dop853(christoffel, x0, v0, t):
 
     def rhs(_t, y):
         return np.concatenate([y[3:], -np.einsum("kij,i,j->k", christoffel(y[:3]), y[3:], y[3:])])
+
     sol = solve_ivp(rhs, (0.0, t), np.concatenate([x0, v0]), method="DOP853", rtol=1e-12, atol=1e-12)
     assert sol.success
     return sol.y[:3, -1], sol.y[3:, -1]
@@ -130,6 +134,7 @@ def flows_against_dop853(G, christoffel, x, v, t):
     """(reference, flows): DOP853's chart position and velocity at t from (x, v), and those of the
     geometry's Python closed form and of the C++ core's flow."""
     import thurston_core
+
     xc, vc = thurston_core.geodesic_flow(G.name, x[None].copy(), v[None].copy(), np.array([t]))
     return dop853(christoffel, x, v, t), [G.chart_geodesic(x, v, t), (xc[0], vc[0])]
 

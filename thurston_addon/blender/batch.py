@@ -1,4 +1,5 @@
 """Background batch rendering of a .blend file with its own Thurston settings (no GUI)."""
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -1,5 +1,6 @@
 """The domain guide: a wireframe of the fundamental domain, in its own collection, excluded from
 export and from Blender's own renders; and the camera moved into the domain by the pairings."""
+
 import bpy
 import numpy as np
 

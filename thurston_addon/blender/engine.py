@@ -1,13 +1,14 @@
 """The THURSTON render engine: F12 renders each view layer through the tracer into the Combined pass
 and the passes its view layer enables (export.BLENDER_PASSES); the viewport in rendered mode draws
 progressively refined frames, then adds samples up to the settings' count."""
+
 from __future__ import annotations
 
 import weakref
 from dataclasses import replace
 
-import numpy as np
 import bpy
+import numpy as np
 
 from .. import progressive, render, scenes
 from . import export
@@ -48,8 +49,9 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         bscene = depsgraph.scene
         w, h = export.resolution(bscene)
         try:
-            job = export.RenderJob(bscene, depsgraph, w, h, camera_object=self.camera_override,
-                                   region=export.border_region(bscene, w, h))
+            job = export.RenderJob(
+                bscene, depsgraph, w, h, camera_object=self.camera_override, region=export.border_region(bscene, w, h)
+            )
         except (export.ExportError, render.RenderError) as exc:
             self.report({"ERROR"}, f"Thurston: {exc}")
             return
@@ -119,8 +121,14 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         except (export.ExportError, render.RenderError) as exc:
             self.update_stats("Thurston", str(exc))
             return
-        key = (w, h, tuple(map(tuple, view.view_matrix)), tuple(map(tuple, view.window_matrix)), self._scene_version,
-               samples)
+        key = (
+            w,
+            h,
+            tuple(map(tuple, view.view_matrix)),
+            tuple(map(tuple, view.window_matrix)),
+            self._scene_version,
+            samples,
+        )
         self._view.request(key, job, samples)
         if self._view.error is not None:
             self.update_stats("Thurston", f"viewport render failed: {self._view.error}")
@@ -162,8 +170,9 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         def frame(level, sample, cancelled):
             sized = replace(settings, width=max(1, w // level), height=max(1, h // level))
             shifted, one = progressive.one_sample(camera, sized, sample, samples)
-            result = render.render(space, None, one, camera=shifted, tracer=tracer,
-                                   progress=lambda done, total: not cancelled())
+            result = render.render(
+                space, None, one, camera=shifted, tracer=tracer, progress=lambda done, total: not cancelled()
+            )
             return _flip_rows(export.combined(result.passes))
 
         return frame, samples
@@ -222,8 +231,14 @@ def _redraw_timer(engine):
 
 # Blender's panels that are not generic (Blender's generic panels list BLENDER_RENDER) but that a user of
 # this engine needs: material slots and surface, the world's surface, the view layer's passes.
-_SHARED_PANELS = ("EEVEE_MATERIAL_PT_context_material", "EEVEE_MATERIAL_PT_surface", "EEVEE_WORLD_PT_surface",
-                  "VIEWLAYER_PT_layer_passes", "VIEWLAYER_PT_layer_passes_aov", "DATA_PT_EEVEE_light")
+_SHARED_PANELS = (
+    "EEVEE_MATERIAL_PT_context_material",
+    "EEVEE_MATERIAL_PT_surface",
+    "EEVEE_WORLD_PT_surface",
+    "VIEWLAYER_PT_layer_passes",
+    "VIEWLAYER_PT_layer_passes_aov",
+    "DATA_PT_EEVEE_light",
+)
 
 
 def _walk(cls):
@@ -241,7 +256,9 @@ def compatible_panels():
         engines = getattr(panel, "COMPAT_ENGINES", None)
         if engines is None or getattr(panel, "bl_space_type", "") != "PROPERTIES":
             continue
-        if ("BLENDER_RENDER" in engines and "freestyle" not in panel.__name__.lower()) or panel.__name__ in _SHARED_PANELS:
+        if (
+            "BLENDER_RENDER" in engines and "freestyle" not in panel.__name__.lower()
+        ) or panel.__name__ in _SHARED_PANELS:
             panels[panel.__name__] = panel
     return list(panels.values())
 

@@ -1,4 +1,5 @@
 """Scene-level settings (bpy.types.Scene.thurston) and the last render's statistics."""
+
 import bpy
 
 from .. import render, spaces
@@ -12,8 +13,17 @@ PRESET_SUBDIR = "thurston"  # the settings presets' folder under Blender's prese
 _BLEND_RELATIVE = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
 # The space enum's items before the setting stored the id: .blend files saved then hold an index into
 # this list under the key "space".
-_OLD_SPACE_ITEMS = ("half_turn", "hantzsche_wendt", "poincare", "quarter_turn", "seifert_weber", "sixth_turn",
-                    "third_turn", "torus", FILE)
+_OLD_SPACE_ITEMS = (
+    "half_turn",
+    "hantzsche_wendt",
+    "poincare",
+    "quarter_turn",
+    "seifert_weber",
+    "sixth_turn",
+    "third_turn",
+    "torus",
+    FILE,
+)
 # Blender keeps pointers into the items an enum callback returns: every list handed out stays alive
 # here, one per distinct id list (the presets change rarely).
 _ITEMS: dict[tuple, list] = {}
@@ -71,69 +81,159 @@ class ThurstonStats(bpy.types.PropertyGroup):
     seconds: bpy.props.FloatProperty(name="Time", unit="TIME_ABSOLUTE")
     rays: bpy.props.IntProperty(name="Rays")
     crossings_per_ray: bpy.props.FloatProperty(name="Crossings per Ray")
-    footprint: bpy.props.FloatProperty(name="Pixel Footprint", description="Chart units covered by a pixel sample at the median depth")
-    geodesic_error: bpy.props.FloatProperty(name="Geodesic Error", description="Largest distance, over sampled hits, between a traced hit and the reference geodesic (measured)")
+    footprint: bpy.props.FloatProperty(
+        name="Pixel Footprint", description="Chart units covered by a pixel sample at the median depth"
+    )
+    geodesic_error: bpy.props.FloatProperty(
+        name="Geodesic Error",
+        description="Largest distance, over sampled hits, between a traced hit and the reference geodesic (measured)",
+    )
     chords_per_ray: bpy.props.FloatProperty(name="Chords per Ray", description="Embree queries per ray")
     bound: bpy.props.StringProperty(name="Accuracy", description="The hit-position accuracy the render promises")
-    measured_error: bpy.props.FloatProperty(name="Measured Error", description="Largest hit-position difference, over sampled hits, to the same rays traced at 1/100 of the tolerance (chart units)")
-    noise: bpy.props.FloatProperty(name="Noise", description="RMS over the pixels of the standard error of each "
-                                                             "pixel's mean brightness, from its samples' spread "
-                                                             "(-1: one sample per pixel, not estimated)")
+    measured_error: bpy.props.FloatProperty(
+        name="Measured Error",
+        description="Largest hit-position difference, over sampled hits, to the same rays traced at 1/100 of the tolerance (chart units)",
+    )
+    noise: bpy.props.FloatProperty(
+        name="Noise",
+        description="RMS over the pixels of the standard error of each "
+        "pixel's mean brightness, from its samples' spread "
+        "(-1: one sample per pixel, not estimated)",
+    )
     summary: bpy.props.StringProperty(name="Summary")
-    notes: bpy.props.CollectionProperty(type=ThurstonNote, name="Notes",
-                                        description="What the last render found that can make it look wrong, and what to change")
+    notes: bpy.props.CollectionProperty(
+        type=ThurstonNote,
+        name="Notes",
+        description="What the last render found that can make it look wrong, and what to change",
+    )
 
 
 class ThurstonSettings(bpy.types.PropertyGroup):
     # The space is stored by id: an enum stored by position would change when a preset is added.
-    space_id: bpy.props.StringProperty(name="Space ID", default=DEFAULT_SPACE, update=_space_changed,
-                                       description=f"Preset id of the space, or {FILE} for the space file")
-    space: bpy.props.EnumProperty(name="Space", items=_space_items, get=_get_space, set=_set_space,
-                                  description="The 3-manifold the scene lives in")
-    space_file: bpy.props.StringProperty(name="Space File", subtype="FILE_PATH", update=_space_changed,
-                                         options=_BLEND_RELATIVE, description="A space file (.toml): geometry, generators, defaults")
-    scale: bpy.props.FloatProperty(name="Scale", default=1.0, min=1e-6, soft_max=100.0, update=_space_changed,
-                                   description="Blender units per chart unit")
-    quality: bpy.props.EnumProperty(name="Quality", items=[(k, k.title(), f"{v.samples} sample(s) per pixel; curved geodesics: hit positions within {v.footprint_fraction:g} of a pixel") for k, v in render.QUALITY.items()],
-                                    default="standard")
-    shading: bpy.props.EnumProperty(name="Shading", items=[(k, k.title(), f"{k} shading") for k in render.SHADING], default="lambert")
-    max_distance: bpy.props.FloatProperty(name="Max Distance", default=0.0, min=0.0,
-                                          description="Geodesic length at which rays stop (0: the space's default)")
-    max_crossings: bpy.props.IntProperty(name="Max Crossings", default=-1, min=-1,
-                                         description="Face crossings after which rays stop (-1: the space's default)")
-    fog: bpy.props.FloatProperty(name="Fog", default=0.0, min=0.0, description="Distance at which colour falls to 1/e (0: none)")
-    light_reach: bpy.props.FloatProperty(name="Light Reach", default=0.0, min=0.0,
-                                         description="Each light lights along every geodesic up to this long, to "
-                                                     "every copy of the light (0: the space's default)")
-    light_samples: bpy.props.IntProperty(name="Light Samples", default=render.Settings.light_samples, min=1, max=4096,
-                                         description="Points sampled on the emissive meshes and area lights per "
-                                                     "shaded point and sample")
-    bounces: bpy.props.IntProperty(name="Bounces", default=render.Settings.bounces, min=0, max=render.MAX_BOUNCES,
-                                   description="Bounces after each camera hit: global illumination by path tracing "
-                                               "along geodesics, at any quality (0: direct light only)")
-    tolerance: bpy.props.FloatProperty(name="Tolerance", default=0.0, min=0.0, precision=6, step=0.001,
-                                       description="Where geodesics bend (Nil, Sol, S2xR, H2xR, SL2): how far the traced "
-                                                   "chords may stray from the true geodesic, in Blender units (0: from "
-                                                   "the quality's bound, a fraction of the pixel footprint)")
+    space_id: bpy.props.StringProperty(
+        name="Space ID",
+        default=DEFAULT_SPACE,
+        update=_space_changed,
+        description=f"Preset id of the space, or {FILE} for the space file",
+    )
+    space: bpy.props.EnumProperty(
+        name="Space",
+        items=_space_items,
+        get=_get_space,
+        set=_set_space,
+        description="The 3-manifold the scene lives in",
+    )
+    space_file: bpy.props.StringProperty(
+        name="Space File",
+        subtype="FILE_PATH",
+        update=_space_changed,
+        options=_BLEND_RELATIVE,
+        description="A space file (.toml): geometry, generators, defaults",
+    )
+    scale: bpy.props.FloatProperty(
+        name="Scale",
+        default=1.0,
+        min=1e-6,
+        soft_max=100.0,
+        update=_space_changed,
+        description="Blender units per chart unit",
+    )
+    quality: bpy.props.EnumProperty(
+        name="Quality",
+        items=[
+            (
+                k,
+                k.title(),
+                f"{v.samples} sample(s) per pixel; curved geodesics: hit positions within {v.footprint_fraction:g} of a pixel",
+            )
+            for k, v in render.QUALITY.items()
+        ],
+        default="standard",
+    )
+    shading: bpy.props.EnumProperty(
+        name="Shading", items=[(k, k.title(), f"{k} shading") for k in render.SHADING], default="lambert"
+    )
+    max_distance: bpy.props.FloatProperty(
+        name="Max Distance",
+        default=0.0,
+        min=0.0,
+        description="Geodesic length at which rays stop (0: the space's default)",
+    )
+    max_crossings: bpy.props.IntProperty(
+        name="Max Crossings",
+        default=-1,
+        min=-1,
+        description="Face crossings after which rays stop (-1: the space's default)",
+    )
+    fog: bpy.props.FloatProperty(
+        name="Fog", default=0.0, min=0.0, description="Distance at which colour falls to 1/e (0: none)"
+    )
+    light_reach: bpy.props.FloatProperty(
+        name="Light Reach",
+        default=0.0,
+        min=0.0,
+        description="Each light lights along every geodesic up to this long, to "
+        "every copy of the light (0: the space's default)",
+    )
+    light_samples: bpy.props.IntProperty(
+        name="Light Samples",
+        default=render.Settings.light_samples,
+        min=1,
+        max=4096,
+        description="Points sampled on the emissive meshes and area lights per shaded point and sample",
+    )
+    bounces: bpy.props.IntProperty(
+        name="Bounces",
+        default=render.Settings.bounces,
+        min=0,
+        max=render.MAX_BOUNCES,
+        description="Bounces after each camera hit: global illumination by path tracing "
+        "along geodesics, at any quality (0: direct light only)",
+    )
+    tolerance: bpy.props.FloatProperty(
+        name="Tolerance",
+        default=0.0,
+        min=0.0,
+        precision=6,
+        step=0.001,
+        description="Where geodesics bend (Nil, Sol, S2xR, H2xR, SL2): how far the traced "
+        "chords may stray from the true geodesic, in Blender units (0: from "
+        "the quality's bound, a fraction of the pixel footprint)",
+    )
     passes: bpy.props.EnumProperty(
-        name="Passes", options={"ENUM_FLAG"},
+        name="Passes",
+        options={"ENUM_FLAG"},
         items=[(p.upper(), p.title(), f"Write the {p} pass") for p in render.PASSES],
-        default={p.upper() for p in render.PASSES})
+        default={p.upper() for p in render.PASSES},
+    )
     panorama_width: bpy.props.IntProperty(name="Panorama Width", default=2048, min=16, max=16384)
-    save_path: bpy.props.StringProperty(name="Save To", subtype="FILE_PATH", options=_BLEND_RELATIVE,
-                                        description="Also save renders here (.exr: all passes, .png: colour); empty: don't save")
-    overwrite: bpy.props.BoolProperty(name="Overwrite", default=False, description="Replace the file at Save To if it exists")
+    save_path: bpy.props.StringProperty(
+        name="Save To",
+        subtype="FILE_PATH",
+        options=_BLEND_RELATIVE,
+        description="Also save renders here (.exr: all passes, .png: colour); empty: don't save",
+    )
+    overwrite: bpy.props.BoolProperty(
+        name="Overwrite", default=False, description="Replace the file at Save To if it exists"
+    )
     threads: bpy.props.IntProperty(name="Threads", default=0, min=0, max=render.MAX_THREADS, description="0: all cores")
-    samples: bpy.props.IntProperty(name="Samples", default=0, min=0, max=4096,
-                                   description="Samples per pixel, of F12 renders and of the rendered viewport, "
-                                               "which adds them one by one (0: the quality's)")
+    samples: bpy.props.IntProperty(
+        name="Samples",
+        default=0,
+        min=0,
+        max=4096,
+        description="Samples per pixel, of F12 renders and of the rendered viewport, "
+        "which adds them one by one (0: the quality's)",
+    )
     stats: bpy.props.PointerProperty(type=ThurstonStats)
 
 
 class ThurstonViewLayerSettings(bpy.types.PropertyGroup):
     """The add-on's own passes of a view layer (Blender's own, such as Depth, are on the view layer)."""
-    __annotations__ = {p.flag: bpy.props.BoolProperty(name=p.name, description=p.description)
-                       for p in BLENDER_PASSES if p.addon_flag}
+
+    __annotations__ = {
+        p.flag: bpy.props.BoolProperty(name=p.name, description=p.description) for p in BLENDER_PASSES if p.addon_flag
+    }
 
 
 CLASSES = (ThurstonNote, ThurstonStats, ThurstonSettings, ThurstonViewLayerSettings)

@@ -1,4 +1,5 @@
 """The add-on's registration with Blender: its classes, scene and view-layer settings, handlers."""
+
 import bpy
 
 from .. import operators, panels

@@ -1,5 +1,6 @@
 """Renders into Blender: float image datablocks (kept in the .blend: packed when the file is saved)
 and the World's panorama background."""
+
 import bpy
 
 from . import export
@@ -32,7 +33,7 @@ def _colorspaces(image):
 
 def show_image(context, image):
     screen = getattr(context, "screen", None)
-    for area in (screen.areas if screen else []):
+    for area in screen.areas if screen else []:
         if area.type == "IMAGE_EDITOR":
             area.spaces.active.image = image
             area.tag_redraw()
@@ -48,8 +49,9 @@ def set_world_panorama(bscene, image):
     if bpy.app.version < (5, 0, 0):  # Blender 5 always uses world nodes
         world.use_nodes = True
     nodes, links = world.node_tree.nodes, world.node_tree.links
-    output = next((n for n in nodes if n.type == "OUTPUT_WORLD" and n.is_active_output), None) or \
-        next((n for n in nodes if n.type == "OUTPUT_WORLD"), None)
+    output = next((n for n in nodes if n.type == "OUTPUT_WORLD" and n.is_active_output), None) or next(
+        (n for n in nodes if n.type == "OUTPUT_WORLD"), None
+    )
     if output is None:
         output = nodes.new("ShaderNodeOutputWorld")
     surface = output.inputs["Surface"]

@@ -5,6 +5,7 @@ contract of base.py (ProjectiveGeometry for E3, S3, H3; AffineGeometry for Nil, 
 and SL2 their own); `register` adds one (tests register test-only geometries, `unregister` removes
 them).
 """
+
 from .base import Geometry
 from .euclidean import Euclidean
 from .h2xr import H2xR

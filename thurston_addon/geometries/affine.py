@@ -8,6 +8,7 @@ the origin, so every geodesic is flowed from the origin: a subclass supplies the
 the chart axes at the origin are an orthonormal frame, carried to one at x by `from_origin(x)`.
 Everything is numpy and broadcasts over leading axes.
 """
+
 from __future__ import annotations
 
 import math
@@ -18,9 +19,15 @@ from .shared import SharedGeometry, floats
 
 # Fixed points at which is_isometry compares pulled-back metrics (x and z both vary: Nil's metric
 # depends on x, Sol's on z).
-ISOMETRY_SAMPLE_POINTS = np.array([
-    [0.0, 0.0, 0.0], [1.0, -0.5, 0.25], [-0.75, 1.0, -1.0], [0.5, 0.5, 1.0], [-1.0, -1.0, 0.5],
-])
+ISOMETRY_SAMPLE_POINTS = np.array(
+    [
+        [0.0, 0.0, 0.0],
+        [1.0, -0.5, 0.25],
+        [-0.75, 1.0, -1.0],
+        [0.5, 0.5, 1.0],
+        [-1.0, -1.0, 0.5],
+    ]
+)
 
 
 def apply(M, X):

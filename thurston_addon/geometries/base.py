@@ -15,6 +15,7 @@ H2xR and SL2 their own. Adding a geometry: a subclass that implements every abst
 registry (geometries/__init__.py), a kernel of the core (or an existing one, by `kernel`), a preset;
 tests/geometries/test_contract.py then checks it with the others.
 """
+
 from __future__ import annotations
 
 import abc

@@ -1,8 +1,9 @@
 """E3: Euclidean space, X = (x, 1); isometries are affine maps."""
+
 import numpy as np
 
-from .shared import floats
 from .projective import ProjectiveGeometry
+from .shared import floats
 
 
 class Euclidean(ProjectiveGeometry):

@@ -8,6 +8,7 @@ the geometry's name:
 - Spheres: spheres |x| = e^w0 (S2xR's, plane coordinates (0, 0, w, 1)): a shell between two, with
   no edges, whose spheres may be glued to themselves by reflections.
 """
+
 from __future__ import annotations
 
 import abc
@@ -92,6 +93,8 @@ class Spheres(FaceShape):
         """(w0, whether the domain lies inside it) of a face covector (0, 0, c, d); ValueError where
         it is not a sphere."""
         if c[0] != 0 or c[1] != 0 or c[2] == 0:
-            raise ValueError(f"the face {np.asarray(c, float).tolist()} is not a sphere |x| = const "
-                             f"({self.geometry.name} faces are [0, 0, c, d]: the sphere c log|x| + d = 0)")
+            raise ValueError(
+                f"the face {np.asarray(c, float).tolist()} is not a sphere |x| = const "
+                f"({self.geometry.name} faces are [0, 0, c, d]: the sphere c log|x| + d = 0)"
+            )
         return -c[3] / c[2], bool(c[2] > 0)

@@ -12,14 +12,15 @@ Face planes are chart planes (the sides of a polygon in the disk are chords, the
 so `plane_coordinates` gives chart homogeneous points (x, y, z, 1).
 Geodesics, connecting geodesics and the falloff are closed forms of the product.
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
-from .shared import SharedGeometry, floats
 from .hyperbolic import Hyperbolic
+from .shared import SharedGeometry, floats
 
 DISK = [0, 1, 3]  # the model slots of the hyperboloid
 LINE = 2  # the model slot of e^z
@@ -83,7 +84,7 @@ class H2xR(SharedGeometry):
     # --- charts -------------------------------------------------------------------------------
     def to_chart(self, X):
         X = floats(X)
-        return np.concatenate([X[..., :2] / X[..., 3:4], np.log(X[..., LINE:LINE + 1])], axis=-1)
+        return np.concatenate([X[..., :2] / X[..., 3:4], np.log(X[..., LINE : LINE + 1])], axis=-1)
 
     def to_model(self, x):
         x = floats(x)
@@ -101,7 +102,7 @@ class H2xR(SharedGeometry):
     def tangent_to_chart(self, X, V):
         X, V = floats(X), floats(V)
         disk = (V[..., :2] - X[..., :2] * (V[..., 3:4] / X[..., 3:4])) / X[..., 3:4]
-        return np.concatenate([disk, V[..., LINE:LINE + 1] / X[..., LINE:LINE + 1]], axis=-1)
+        return np.concatenate([disk, V[..., LINE : LINE + 1] / X[..., LINE : LINE + 1]], axis=-1)
 
     def normalize_point(self, X):
         X = floats(X)
@@ -197,7 +198,7 @@ class H2xR(SharedGeometry):
         if not np.all(vertical | ((C[:, 0] == 0) & (C[:, 1] == 0))):
             raise ValueError("H2xR face planes are vertical (a x + b y + d = 0) or horizontal (c z + d = 0)")
         disk = X[..., DISK] @ C[:, [0, 1, 3]].T / np.sqrt(np.abs(C[:, 0] ** 2 + C[:, 1] ** 2 - C[:, 3] ** 2))
-        z = np.log(X[..., LINE:LINE + 1])
+        z = np.log(X[..., LINE : LINE + 1])
         lids = (C[:, 2] * z + C[:, 3]) / np.abs(np.where(vertical, 1.0, C[:, 2]))
         return np.where(vertical, np.arcsinh(disk), lids)
 

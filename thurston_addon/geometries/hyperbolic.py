@@ -1,5 +1,6 @@
 """H3: the hyperboloid <X, X> = -1 of R^{3,1} with curvature -1, authored in the Klein chart
 x = X[:3] / X[3] (the open unit ball)."""
+
 import numpy as np
 
 from .projective import ProjectiveGeometry

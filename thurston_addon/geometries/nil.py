@@ -4,6 +4,7 @@ and the left-invariant metric dx^2 + dy^2 + (dz - x dy)^2 (the paper's coordinat
 Left multiplications are the isometries used; geodesics have a closed form from the origin,
 written here in a form that stays accurate as the vertical component w of the velocity goes to 0.
 """
+
 from __future__ import annotations
 
 import math
@@ -62,8 +63,9 @@ def _seen_from(a, q):
 def multiply(p, q):
     """Group product p . q of chart points (..., 3)."""
     p, q = np.broadcast_arrays(floats(p), floats(q))
-    return np.stack([p[..., 0] + q[..., 0], p[..., 1] + q[..., 1],
-                     p[..., 2] + q[..., 2] + p[..., 0] * q[..., 1]], axis=-1)
+    return np.stack(
+        [p[..., 0] + q[..., 0], p[..., 1] + q[..., 1], p[..., 2] + q[..., 2] + p[..., 0] * q[..., 1]], axis=-1
+    )
 
 
 def inverse(p):
@@ -83,9 +85,9 @@ class Nil(AffineGeometry):
         x = floats(x)
         a = x[..., 0]
         one, zero = np.ones_like(a), np.zeros_like(a)
-        return np.stack([np.stack([one, zero, zero], -1),
-                         np.stack([zero, 1.0 + a * a, -a], -1),
-                         np.stack([zero, -a, one], -1)], -2)
+        return np.stack(
+            [np.stack([one, zero, zero], -1), np.stack([zero, 1.0 + a * a, -a], -1), np.stack([zero, -a, one], -1)], -2
+        )
 
     def christoffel(self, x):
         x = floats(x)

@@ -6,6 +6,7 @@ hyperboloid <X, X> = -1 of R^{3,1} (Klein chart). Isometries are 4x4 matrices ac
 A plane of the chart is a covector c with c . X = 0; the same covector works in every geometry.
 Everything is float64 numpy and broadcasts over leading axes.
 """
+
 from __future__ import annotations
 
 import math

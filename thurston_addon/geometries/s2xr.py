@@ -14,6 +14,7 @@ w = w0, and w is linear in arclength along every geodesic.
 Geodesics (log-spirals in a plane through the origin), connecting geodesics and the falloff are
 closed forms of the product.
 """
+
 from __future__ import annotations
 
 import math
@@ -31,14 +32,14 @@ def antipodal_reflection(x, radius):
     antipodal map and the inversion each reverse it) and fixes no point (the sphere |x| = R goes to
     itself antipodally)."""
     x = floats(x)
-    return -radius**2 * x / np.sum(x * x, axis=-1)[..., None]
+    return -(radius**2) * x / np.sum(x * x, axis=-1)[..., None]
 
 
 def antipodal_reflection_tangent(x, v, radius):
     """Its differential at x: -R^2 (v - 2 x (x . v) / |x|^2) / |x|^2, conformal (normals stay normal)."""
     x, v = floats(x), floats(v)
     r2 = np.sum(x * x, axis=-1)[..., None]
-    return -radius**2 * (v - 2 * x * np.sum(x * v, axis=-1)[..., None] / r2) / r2
+    return -(radius**2) * (v - 2 * x * np.sum(x * v, axis=-1)[..., None] / r2) / r2
 
 
 def _sin_over(a, t):
@@ -81,8 +82,9 @@ class S2xR(AffineGeometry):
         x = floats(x)
         d = -x / np.sum(x * x, axis=-1)[..., None]
         I = np.eye(3)
-        return (np.einsum("ki,...j->...kij", I, d) + np.einsum("kj,...i->...kij", I, d)
-                - np.einsum("ij,...k->...kij", I, d))
+        return (
+            np.einsum("ki,...j->...kij", I, d) + np.einsum("kj,...i->...kij", I, d) - np.einsum("ij,...k->...kij", I, d)
+        )
 
     def volume_density(self, x):
         """sqrt(det g) = |x|^-3."""
@@ -199,7 +201,9 @@ class S2xR(AffineGeometry):
         """Faces are spheres w = w0, covectors (0, 0, c2, c3) on (0, 0, w, 1): M = e^c R moves w by c."""
         c = np.asarray(c, float)
         if c[0] != 0.0 or c[1] != 0.0:
-            raise ValueError(f"the face {c.tolist()} is not a sphere |x| = const: S2xR faces are "
-                             "[0, 0, c, d], the sphere c log|x| + d = 0")
+            raise ValueError(
+                f"the face {c.tolist()} is not a sphere |x| = const: S2xR faces are "
+                "[0, 0, c, d], the sphere c log|x| + d = 0"
+            )
         s, _ = self._scale(M)
         return c + np.array([0.0, 0.0, 0.0, c[2] * math.log(s)])

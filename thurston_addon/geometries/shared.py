@@ -1,4 +1,5 @@
 """The members of the geometry contract (base.py) written once for the geometries that share them."""
+
 from __future__ import annotations
 
 import math

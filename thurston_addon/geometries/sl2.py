@@ -24,23 +24,24 @@ other geometries. The chart's phi is read back in (-2 pi, 2 pi]. Face planes are
 `plane_coordinates` (Klein(w), phi, 1): the sides of the octagon are chords of the Klein disk,
 the lids phi = const.
 """
-from __future__ import annotations
 
-from typing import NamedTuple
+from __future__ import annotations
 
 import math
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
 from . import faces
-from .shared import SharedGeometry, floats
 from .h2xr import polygon_distance
 from .hyperbolic import Hyperbolic
+from .shared import SharedGeometry, floats
 
 
 class Element(NamedTuple):
     """Isometries (w, phi) -> (...) of the module docstring; arrays of one leading shape."""
+
     alpha: np.ndarray  # complex
     beta: np.ndarray  # complex
     phi: np.ndarray  # real
@@ -289,8 +290,7 @@ class SL2(SharedGeometry):
         w, dw, dphi = _w(x), _w(u), u[..., 2]
         alpha, beta = _pair(self.to_model(x))
         radial = np.real(np.conj(w) * dw) / (1 - np.abs(w) ** 2)  # d(-log sqrt(1 - |w|^2))
-        return _model(alpha * (radial + 0.5j * dphi),
-                      beta * (radial - 0.5j * dphi) + dw * np.conj(alpha))
+        return _model(alpha * (radial + 0.5j * dphi), beta * (radial - 0.5j * dphi) + dw * np.conj(alpha))
 
     def tangent_to_chart(self, X, V):
         alpha, beta = _pair(X)
@@ -438,8 +438,11 @@ class SL2(SharedGeometry):
         C = domain.covectors()
         vertical = C[:, 2] == 0  # the octagon's sides (the others are the lids)
         ends = [_klein(_w(domain.vertices[f.vertices])) for f, v in zip(domain.faces, vertical) if v]
-        return polygon_distance(_hyperboloid(_w(self.to_chart(X))), C[vertical][:, [0, 1, 3]],
-                                [np.stack([k.real, k.imag], -1) for k in ends])
+        return polygon_distance(
+            _hyperboloid(_w(self.to_chart(X))),
+            C[vertical][:, [0, 1, 3]],
+            [np.stack([k.real, k.imag], -1) for k in ends],
+        )
 
     # --- isometries -------------------------------------------------------------------------------
     def is_isometry(self, M, tol=1e-9):
@@ -479,12 +482,16 @@ class SL2(SharedGeometry):
         if shift is None:
             return None
         if abs(shift) < 1e-9:
-            return ("is the identity of this model: a fibre translation by a multiple of 4 pi (SL(2,R) identifies "
-                    "phi with phi + 4 pi); the fibre period tau must be 4 pi / n with n >= 2")
+            return (
+                "is the identity of this model: a fibre translation by a multiple of 4 pi (SL(2,R) identifies "
+                "phi with phi + 4 pi); the fibre period tau must be 4 pi / n with n >= 2"
+            )
         n = 4 * math.pi / abs(shift)
         if abs(n - round(n)) > 1e-9 * n:
-            return (f"translates the fibre by {abs(shift):.9g}, which is not 4 pi / n for an integer n: the lifted relator "
-                    "of the octagon group is the fibre translation by -4 pi, so only tau = 4 pi / n give a manifold")
+            return (
+                f"translates the fibre by {abs(shift):.9g}, which is not 4 pi / n for an integer n: the lifted relator "
+                "of the octagon group is the fibre translation by -4 pi, so only tau = 4 pi / n give a manifold"
+            )
         return None
 
     def pull_back_plane(self, c, M):

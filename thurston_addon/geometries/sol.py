@@ -9,6 +9,7 @@ p_y = e^{-2z} y' are constant, so only z needs integrating:
 error control from the decay of the series, ~1e-15 relative over lengths 10); `geodesic_elliptic` is the closed form in
 Jacobi elliptic functions (Troyanov's; derived for this metric below).
 """
+
 from __future__ import annotations
 
 import math

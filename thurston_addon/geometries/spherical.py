@@ -1,4 +1,5 @@
 """S3: the unit sphere of R^4 with curvature +1, authored in the gnomonic chart x = X[:3] / X[3]."""
+
 import numpy as np
 
 from .projective import ProjectiveGeometry

@@ -1,5 +1,6 @@
 """Operators on the domain guide, the scale and the camera: Add Domain Guide, Fit Scale, Bring
 Camera Inside."""
+
 import bpy
 import mathutils
 import numpy as np

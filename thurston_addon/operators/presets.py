@@ -1,4 +1,5 @@
 """Save the Thurston settings as a preset of the presets menu, or remove one."""
+
 import bpy
 from bl_operators.presets import AddPresetBase
 
@@ -13,9 +14,24 @@ class THURSTON_OT_add_preset(AddPresetBase, bpy.types.Operator):
     preset_menu = "THURSTON_MT_presets"
     preset_subdir = properties.PRESET_SUBDIR
     preset_defines = ["settings = bpy.context.scene.thurston"]
-    preset_values = [f"settings.{name}" for name in (
-        "space_id", "space_file", "scale", "quality", "tolerance", "shading", "max_distance", "max_crossings",
-        "fog", "passes", "panorama_width", "samples", "threads")]
+    preset_values = [
+        f"settings.{name}"
+        for name in (
+            "space_id",
+            "space_file",
+            "scale",
+            "quality",
+            "tolerance",
+            "shading",
+            "max_distance",
+            "max_crossings",
+            "fog",
+            "passes",
+            "panorama_width",
+            "samples",
+            "threads",
+        )
+    ]
 
 
 CLASSES = (THURSTON_OT_add_preset,)

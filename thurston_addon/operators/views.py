@@ -1,6 +1,7 @@
 """Operators: Render View to Image, Bake Panorama, Preview. Each runs synchronously in background
 mode (bpy.app.background: no modal handlers tick there) and, in the UI, on a worker thread with
 progress in the status bar and Esc to cancel."""
+
 from __future__ import annotations
 
 import threading
@@ -17,7 +18,9 @@ OVERWRITE_IN_THE_PANEL = "tick Overwrite in the Thurston panel"
 def check_save_path(settings):
     if not settings.save_path:
         return None
-    return files.check_output(bpy.path.abspath(settings.save_path), settings.overwrite, to_replace=OVERWRITE_IN_THE_PANEL)
+    return files.check_output(
+        bpy.path.abspath(settings.save_path), settings.overwrite, to_replace=OVERWRITE_IN_THE_PANEL
+    )
 
 
 def save_if_asked(settings, result: render.Result, report):
@@ -25,8 +28,14 @@ def save_if_asked(settings, result: render.Result, report):
     if out is None:
         return
     names = [p.lower() for p in settings.passes] or ["color"]
-    images.write(out, export.blender_passes(result, settings.scale), names=names, metadata={"summary": result.summary()},
-                 overwrite=settings.overwrite, to_replace=OVERWRITE_IN_THE_PANEL)
+    images.write(
+        out,
+        export.blender_passes(result, settings.scale),
+        names=names,
+        metadata={"summary": result.summary()},
+        overwrite=settings.overwrite,
+        to_replace=OVERWRITE_IN_THE_PANEL,
+    )
     report({"INFO"}, f"Saved {out}")
 
 
@@ -121,7 +130,9 @@ class THURSTON_OT_preview(_ThurstonRenderOperator):
     def make_job(self, context):
         w, h = export.resolution(context.scene)
         k = max(1, max(w, h) // 320)
-        job = export.RenderJob(context.scene, context.evaluated_depsgraph_get(), width=max(1, w // k), height=max(1, h // k))
+        job = export.RenderJob(
+            context.scene, context.evaluated_depsgraph_get(), width=max(1, w // k), height=max(1, h // k)
+        )
         job.settings.quality = "preview"
         return job
 
@@ -135,8 +146,9 @@ class THURSTON_OT_bake_panorama(_ThurstonRenderOperator):
 
     def make_job(self, context):
         w = context.scene.thurston.panorama_width
-        job = export.RenderJob(context.scene, context.evaluated_depsgraph_get(), width=w, height=max(1, w // 2),
-                               projection="equirect")
+        job = export.RenderJob(
+            context.scene, context.evaluated_depsgraph_get(), width=w, height=max(1, w // 2), projection="equirect"
+        )
         # Blender's equirectangular mapping: the image centre looks along +X, the right half of the
         # image towards -Y, up is +Z (world axes)
         job.camera.forward, job.camera.up = np.array([1.0, 0, 0]), np.array([0, 0, 1.0])

@@ -1,4 +1,5 @@
 """The add-on's panels and menus."""
+
 from . import render_properties
 
 CLASSES = render_properties.CLASSES

@@ -1,5 +1,6 @@
 """The add-on's panels: the settings in Render Properties (under the Thurston engine only), its film
 and view layer passes, and the operators in the 3D viewport's sidebar (under any engine)."""
+
 import bpy
 
 from ..blender import domain_guide, export, properties

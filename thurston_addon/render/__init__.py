@@ -3,23 +3,68 @@ with the copies that objects sticking out of the domain need (compilation) and t
 (lights), the C++ tracer (tracer), the camera's rays (camera, by the table of projections), the
 render loop (loop, colourised by the pass table: thurston_addon/passes.py) and the render's
 statistics: cost and accuracy (statistics). This module re-exports the public API."""
+
 from ..passes import PASSES, SHADING, STOP_REASONS
 from .camera import camera_frame, camera_rays, clip_range, view_directions
 from .compilation import compile_scene, geodesic_loop, own_hits
-from .lights import (LIGHT_TILE_LIMIT, cover_copies, default_light_reach, light_copies, light_reach_for,
-                     light_tiles)
+from .lights import LIGHT_TILE_LIMIT, cover_copies, default_light_reach, light_copies, light_reach_for, light_tiles
 from .loop import CENTRE, render, sample_offsets
 from .projections import PROJECTIONS
-from .settings import (BYTES_PER_PIXEL, MAX_BOUNCES, MAX_THREADS, MIN_TOLERANCE, NEAR_FRACTION, QUALITY,
-                       REFERENCE_PIXEL_ANGLE, Cancelled, Quality, RenderError, Settings, footprint, memory_needed)
+from .settings import (
+    BYTES_PER_PIXEL,
+    MAX_BOUNCES,
+    MAX_THREADS,
+    MIN_TOLERANCE,
+    NEAR_FRACTION,
+    QUALITY,
+    REFERENCE_PIXEL_ANGLE,
+    Cancelled,
+    Quality,
+    RenderError,
+    Settings,
+    footprint,
+    memory_needed,
+)
 from .statistics import Result, pixel_noise
 from .tracer import core_scene, make_tracer, trace
 
 __all__ = [
-    "BYTES_PER_PIXEL", "CENTRE", "Cancelled", "LIGHT_TILE_LIMIT", "MAX_BOUNCES", "MAX_THREADS", "MIN_TOLERANCE",
-    "NEAR_FRACTION", "PASSES", "PROJECTIONS", "QUALITY", "Quality", "REFERENCE_PIXEL_ANGLE", "RenderError",
-    "Result", "SHADING", "STOP_REASONS", "Settings", "camera_frame", "camera_rays", "clip_range", "compile_scene",
-    "cover_copies", "default_light_reach", "footprint", "geodesic_loop", "light_copies", "light_reach_for",
-    "light_tiles", "core_scene", "make_tracer", "memory_needed", "own_hits", "pixel_noise", "render", "sample_offsets",
-    "trace", "view_directions",
+    "BYTES_PER_PIXEL",
+    "CENTRE",
+    "Cancelled",
+    "LIGHT_TILE_LIMIT",
+    "MAX_BOUNCES",
+    "MAX_THREADS",
+    "MIN_TOLERANCE",
+    "NEAR_FRACTION",
+    "PASSES",
+    "PROJECTIONS",
+    "QUALITY",
+    "Quality",
+    "REFERENCE_PIXEL_ANGLE",
+    "RenderError",
+    "Result",
+    "SHADING",
+    "STOP_REASONS",
+    "Settings",
+    "camera_frame",
+    "camera_rays",
+    "clip_range",
+    "compile_scene",
+    "cover_copies",
+    "default_light_reach",
+    "footprint",
+    "geodesic_loop",
+    "light_copies",
+    "light_reach_for",
+    "light_tiles",
+    "core_scene",
+    "make_tracer",
+    "memory_needed",
+    "own_hits",
+    "pixel_noise",
+    "render",
+    "sample_offsets",
+    "trace",
+    "view_directions",
 ]

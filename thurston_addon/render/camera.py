@@ -1,5 +1,6 @@
 """The camera: its point and frame in the domain, the view directions of the pixels (by the
 projection's table entry), the rays, and the clip range along them."""
+
 from __future__ import annotations
 
 import math
@@ -26,8 +27,10 @@ def camera_frame(space: Space, camera: Camera):
     f, u = f / np.abs(f).max(), u / np.abs(u).max()  # only the directions count (1e200 or 1e-200 alike)
     r = np.cross(f, u)
     if not np.linalg.norm(r) > 1e-12 * np.linalg.norm(f) * np.linalg.norm(u):
-        raise RenderError(f"camera forward {np.asarray(camera.forward, float).tolist()} and up "
-                          f"{np.asarray(camera.up, float).tolist()} are parallel")
+        raise RenderError(
+            f"camera forward {np.asarray(camera.forward, float).tolist()} and up "
+            f"{np.asarray(camera.up, float).tolist()} are parallel"
+        )
     frame = [g.tangent_to_model(p, v) for v in (f, r, u)]
     try:
         X, _, M = space.bring_inside(space.to_model(p[None], label=None)[0])

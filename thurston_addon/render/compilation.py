@@ -1,6 +1,7 @@
 """The scene compiled for the tracer: the triangles of every object and of its copies g(object)
 that can reach the domain (instanced or flattened), their surfaces, and the lights' and emitters'
 copies."""
+
 from __future__ import annotations
 
 import math
@@ -94,15 +95,17 @@ class _Surfaces:
             return np.ascontiguousarray(np.concatenate(parts) if parts else np.zeros((0, *shape)), np.float32)
 
         out = dict(
-            triangle_material=np.ascontiguousarray(np.concatenate(self.material) if self.material else
-                                                   np.zeros(0), np.int32),
+            triangle_material=np.ascontiguousarray(
+                np.concatenate(self.material) if self.material else np.zeros(0), np.int32
+            ),
             material_color=np.array([m.color for m in self.materials], np.float32).reshape(-1, 3),
             material_emission=np.array([m.emission for m in self.materials], np.float32).reshape(-1, 3),
             material_color_texture=np.array([texture_index(m.color_texture) for m in self.materials], np.int32),
             material_emission_texture=np.array([texture_index(m.emission_texture) for m in self.materials], np.int32),
             material_one_sided=np.array([m.one_sided for m in self.materials], np.int32),
-            material_scattering=np.array([[m.roughness, m.metallic, m.specular, m.ior] for m in self.materials],
-                                         np.float32).reshape(-1, 4),
+            material_scattering=np.array(
+                [[m.roughness, m.metallic, m.specular, m.ior] for m in self.materials], np.float32
+            ).reshape(-1, 4),
             textures=[np.ascontiguousarray(t, np.float32) for t in self.textures.values()],
         )
         if self.with_uvs:
@@ -122,8 +125,13 @@ def _copy_normals(space: Space, obj, Y, kept, M):
     n = _own_normals(obj, kept)
     used, local = np.unique(T, return_inverse=True)
     # the differential's columns: the images of the chart's unit vectors at each used vertex
-    J = np.stack([g.tangent_to_chart(Y[used], g.tangent_to_model(x[used], np.broadcast_to(e, (len(used), 3))) @ M.T)
-                  for e in np.eye(3)], axis=-1)
+    J = np.stack(
+        [
+            g.tangent_to_chart(Y[used], g.tangent_to_model(x[used], np.broadcast_to(e, (len(used), 3))) @ M.T)
+            for e in np.eye(3)
+        ],
+        axis=-1,
+    )
     Jt = np.swapaxes(J, 1, 2)[local.reshape(-1, 3)]  # (m, 3, 3, 3): J^T at each corner
     return _unit(np.linalg.solve(Jt, n[..., None])[..., 0])
 
@@ -148,8 +156,9 @@ def _folded(obj, fold):
     """A flat object's image under a space's fold: its vertices moved by it, its corner normals by
     its differential (the folds are conformal, so normals stay normal), its triangles and surfaces
     kept (the folds preserve orientation)."""
-    normals = None if obj.corner_normals is None else _unit(fold.vectors(
-        obj.vertices[obj.triangles], obj.corner_normals))
+    normals = (
+        None if obj.corner_normals is None else _unit(fold.vectors(obj.vertices[obj.triangles], obj.corner_normals))
+    )
     return replace(obj, vertices=fold.points(obj.vertices), corner_normals=normals)
 
 
@@ -188,10 +197,12 @@ def _instance_copies(space: Space, obj, C):
         exact = ~covered
     missing = beyond = 0
     for j in np.flatnonzero(exact):
-        one = obj.placed(A[j:j + 1])
+        one = obj.placed(A[j : j + 1])
         if not np.all(g.in_chart(one.vertices)):
-            raise SceneError(f"object {obj.name!r}: instance {j} has vertices outside the chart of {g.name} "
-                             f"(the Klein chart is the open unit ball)")
+            raise SceneError(
+                f"object {obj.name!r}: instance {j} has vertices outside the chart of {g.name} "
+                f"(the Klein chart is the open unit ball)"
+            )
         copies, covered = _object_copies(space, one, C)
         missing += not copies
         beyond += bool(copies) and not covered.all()
@@ -236,21 +247,34 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
             meshes += [(index, maps)] if len(maps) else []
             flat += [(index, *copy) for copy in flattened]
             if missing:
-                warnings.warn(f"object {obj.name!r}: {missing} of its {len(obj.instances)} instances lie outside the "
-                              f"domain and its neighbouring copies: not shown", stacklevel=2)
+                warnings.warn(
+                    f"object {obj.name!r}: {missing} of its {len(obj.instances)} instances lie outside the "
+                    f"domain and its neighbouring copies: not shown",
+                    stacklevel=2,
+                )
             if beyond:
-                warnings.warn(f"object {obj.name!r}: {beyond} of its {len(obj.instances)} instances reach beyond the "
-                              f"copies of the domain around them: parts of them are missing", stacklevel=2)
+                warnings.warn(
+                    f"object {obj.name!r}: {beyond} of its {len(obj.instances)} instances reach beyond the "
+                    f"copies of the domain around them: parts of them are missing",
+                    stacklevel=2,
+                )
         for placed in ([] if obj.instances is not None else [obj]) + mirrored:
             if not np.all(g.in_chart(placed.vertices)):
-                raise SceneError(f"object {obj.name!r} has vertices outside the chart of {g.name} (the Klein chart is the open unit ball)")
+                raise SceneError(
+                    f"object {obj.name!r} has vertices outside the chart of {g.name} (the Klein chart is the open unit ball)"
+                )
             copies, covered = _object_copies(space, placed, C)
             flat += [(index, placed, *copy) for copy in copies]
             if not copies and placed is obj:
-                warnings.warn(f"object {obj.name!r} lies outside the domain and its neighbouring copies: not shown", stacklevel=2)
+                warnings.warn(
+                    f"object {obj.name!r} lies outside the domain and its neighbouring copies: not shown", stacklevel=2
+                )
             elif not covered.all():
-                warnings.warn(f"object {obj.name!r} reaches beyond the copies of the domain around it: "
-                              f"{int((~covered).sum())} of its vertices are farther out and parts of it are missing", stacklevel=2)
+                warnings.warn(
+                    f"object {obj.name!r} reaches beyond the copies of the domain around it: "
+                    f"{int((~covered).sum())} of its vertices are farther out and parts of it are missing",
+                    stacklevel=2,
+                )
     # The triangles: the flat copies (mesh 0, placed by the identity), then each instanced mesh.
     verts, tris, owner = [], [], []
     surfaces = _Surfaces(scene.objects)
@@ -277,9 +301,11 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
             maps_of.append(maps)
             object_of += [index] * len(maps)
         instancing = dict(
-            mesh_first_triangle=np.array(first, np.int32), instance_mesh=np.array(mesh_of, np.int32),
+            mesh_first_triangle=np.array(first, np.int32),
+            instance_mesh=np.array(mesh_of, np.int32),
             instance_transform=np.ascontiguousarray(np.vstack([np.reshape(m, (-1, 4, 4)) for m in maps_of])[:, :3]),
-            instance_object=np.array(object_of, np.int32))
+            instance_object=np.array(object_of, np.int32),
+        )
     V = np.vstack(verts) if verts else np.zeros((0, 3))
     T = np.vstack(tris).astype(np.int32) if tris else np.zeros((0, 3), np.int32)
     O = np.concatenate(owner) if owner else np.zeros(0, np.int32)
@@ -292,9 +318,16 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
         if not (math.isfinite(light.power) and light.power >= 0):
             raise SceneError(f"light {i}: power must be a finite number >= 0, got {light.power}")
         # a folded space's double cover holds the light's image under the fold too
-        images = [(light.position, light.spot_direction)] + ([] if space.fold is None else [(
-            space.fold.points(light.position),
-            None if light.spot_direction is None else space.fold.vectors(light.position, light.spot_direction))])
+        images = [(light.position, light.spot_direction)] + (
+            []
+            if space.fold is None
+            else [
+                (
+                    space.fold.points(light.position),
+                    None if light.spot_direction is None else space.fold.vectors(light.position, light.spot_direction),
+                )
+            ]
+        )
         for position, direction in images:
             copies, light_axes = _light_lifts(space, position, direction, i, light_reach)
             lifts += copies
@@ -302,14 +335,22 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
             of_lift += [i] * len(copies)
         radiance.append(np.asarray(light.color, float) * light.power)
     return dict(
-        geometry=g.kernel, face_covectors=np.ascontiguousarray(space.domain.covectors()),
+        geometry=g.kernel,
+        face_covectors=np.ascontiguousarray(space.domain.covectors()),
         face_maps=np.ascontiguousarray(np.array([f.pairing for f in space.domain.faces])),
-        vertices=np.ascontiguousarray(V, np.float64), triangles=np.ascontiguousarray(T),
-        triangle_object=np.ascontiguousarray(O), object_color=colors, object_emission=emission,
-        **surfaces.arrays(len(T)), **instancing,
-        light_lifts=np.array(lifts, np.float64).reshape(-1, 4), light_of_lift=np.array(of_lift, np.int32),
-        light_radiance=np.array(radiance, np.float32).reshape(-1, 3), light_reach=light_reach,
-        geodesic_loop=geodesic_loop(space), **_spot_arrays(scene.lights, axes),
+        vertices=np.ascontiguousarray(V, np.float64),
+        triangles=np.ascontiguousarray(T),
+        triangle_object=np.ascontiguousarray(O),
+        object_color=colors,
+        object_emission=emission,
+        **surfaces.arrays(len(T)),
+        **instancing,
+        light_lifts=np.array(lifts, np.float64).reshape(-1, 4),
+        light_of_lift=np.array(of_lift, np.int32),
+        light_radiance=np.array(radiance, np.float32).reshape(-1, 3),
+        light_reach=light_reach,
+        geodesic_loop=geodesic_loop(space),
+        **_spot_arrays(scene.lights, axes),
         **_emitter_arrays(space, scene, light_reach),
     )
 
@@ -333,8 +374,10 @@ def _spot_arrays(lights, axes) -> dict:
     """The tracer's cones (Cycles' smoothstep, scenes.PointLight.cone) and axes where a light is a spot."""
     if not any(light.spot_direction is not None for light in lights):
         return {}
-    return dict(light_cone=np.array([light.cone() for light in lights], np.float64).reshape(-1, 2),
-                light_axis=np.array(axes, np.float64).reshape(-1, 4))
+    return dict(
+        light_cone=np.array([light.cone() for light in lights], np.float64).reshape(-1, 2),
+        light_axis=np.array(axes, np.float64).reshape(-1, 4),
+    )
 
 
 EMITTER_RADIUS_MARGIN = 1.25  # chart triangles of curved charts bulge a little beyond their corners' distances
@@ -350,10 +393,15 @@ def _emitter_arrays(space: Space, scene: Scene, reach: float) -> dict:
     texture's mean (emission textures light as their average colour)."""
     g = space.geometry
     triangles, radiance, one_sided, group, copies, copy_group = [], [], [], [], [], []
-    for index, obj in enumerate(scene.objects):
+    for obj in scene.objects:
         materials, of_triangle = obj.surface_materials()
-        glow = np.array([m.emission * (1.0 if m.emission_texture is None else
-                                       m.emission_texture[..., :3].reshape(-1, 3).mean(axis=0)) for m in materials])
+        glow = np.array(
+            [
+                m.emission
+                * (1.0 if m.emission_texture is None else m.emission_texture[..., :3].reshape(-1, 3).mean(axis=0))
+                for m in materials
+            ]
+        )
         emitting = np.flatnonzero(np.any(glow[of_triangle] > 0, axis=1))
         if not len(emitting):
             continue
@@ -378,8 +426,11 @@ def _emitter_arrays(space: Space, scene: Scene, reach: float) -> dict:
             copies.append(elements)
     if not triangles:
         return {}
-    return dict(emitter_triangles=np.ascontiguousarray(np.concatenate(triangles), np.float64),
-                emitter_radiance=np.ascontiguousarray(np.concatenate(radiance), np.float32),
-                emitter_one_sided=np.concatenate(one_sided), emitter_group=np.concatenate(group),
-                emitter_copies=np.ascontiguousarray(np.concatenate(copies), np.float64),
-                emitter_copy_group=np.concatenate(copy_group))
+    return dict(
+        emitter_triangles=np.ascontiguousarray(np.concatenate(triangles), np.float64),
+        emitter_radiance=np.ascontiguousarray(np.concatenate(radiance), np.float32),
+        emitter_one_sided=np.concatenate(one_sided),
+        emitter_group=np.concatenate(group),
+        emitter_copies=np.ascontiguousarray(np.concatenate(copies), np.float64),
+        emitter_copy_group=np.concatenate(copy_group),
+    )

@@ -1,5 +1,6 @@
 """Which copies of a light the tracer lights with: the light reach, the copies within it in the
 coordinate domains (cover_copies) and the tiles within it in the projective ones (light_tiles)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -90,8 +91,10 @@ def _walk_cover_copies(space: Space, L, reach: float) -> np.ndarray:
         kept += list(new[walk & (distance <= reach + 1e-9)])
         frontier = new[walk]
         if len(found) > LIGHT_TILE_LIMIT:
-            raise RenderError(f"{space.name}: light reach {reach:g} needs more than {LIGHT_TILE_LIMIT} copies of the "
-                              "light; choose a smaller light reach")
+            raise RenderError(
+                f"{space.name}: light reach {reach:g} needs more than {LIGHT_TILE_LIMIT} copies of the "
+                "light; choose a smaller light reach"
+            )
     # a copy whose key rounded two ways would light twice: keep one of each point
     kept = np.array(kept)
     Y = g.normalize_point(kept @ L)
@@ -137,7 +140,9 @@ def light_tiles(space: Space, reach: float) -> np.ndarray:
         tiles.update((k, m) for k, m, keep in zip(new, M, ok) if keep)
         frontier = M[ok]
         if len(tiles) > LIGHT_TILE_LIMIT:
-            raise RenderError(f"{space.name}: light reach {reach:g} needs more than {LIGHT_TILE_LIMIT} copies of the "
-                              "domain; choose a smaller light reach")
+            raise RenderError(
+                f"{space.name}: light reach {reach:g} needs more than {LIGHT_TILE_LIMIT} copies of the "
+                "domain; choose a smaller light reach"
+            )
     cached[reach] = np.array(list(tiles.values()))
     return cached[reach]

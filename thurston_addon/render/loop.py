@@ -1,5 +1,6 @@
 """The render loop: the sub-pixel samples, each traced and colourised, summed into the passes,
 with the render's statistics."""
+
 from __future__ import annotations
 
 import math
@@ -15,8 +16,7 @@ from .compilation import own_hits
 from .lights import light_reach_for
 from .projections import PROJECTIONS
 from .settings import Cancelled, RenderError, Settings, memory_needed
-from .statistics import (Result, accuracy_bound, error_sample, geodesic_error, light_stats, pixel_noise,
-                         retrace_error)
+from .statistics import Result, accuracy_bound, error_sample, geodesic_error, light_stats, pixel_noise, retrace_error
 from .tracer import make_tracer, trace
 
 
@@ -74,8 +74,9 @@ def sample_offsets(n):
     return offsets
 
 
-def render(space: Space, scene: Scene, settings: Settings, camera: Camera | None = None,
-           progress=None, tracer=None) -> Result:
+def render(
+    space: Space, scene: Scene, settings: Settings, camera: Camera | None = None, progress=None, tracer=None
+) -> Result:
     """Render a view. progress(done, total) -> bool is called during tracing (False cancels).
     Raises RenderError for settings that cannot be rendered, a size too large for this machine's
     memory (checked before anything is allocated) and a MemoryError on the way."""
@@ -83,8 +84,10 @@ def render(space: Space, scene: Scene, settings: Settings, camera: Camera | None
     try:
         return _render(space, scene, settings, camera, progress, tracer)
     except MemoryError:
-        raise RenderError(f"out of memory rendering {settings.width}x{settings.height} "
-                          f"(about {memory_needed(settings.width, settings.height) / 2**30:.1f} GiB needed)") from None
+        raise RenderError(
+            f"out of memory rendering {settings.width}x{settings.height} "
+            f"(about {memory_needed(settings.width, settings.height) / 2**30:.1f} GiB needed)"
+        ) from None
 
 
 def _render(space, scene, settings, camera, progress, tracer) -> Result:
@@ -92,13 +95,17 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     Colour: the average of the stratified samples of sample_offsets. The other passes (depth,
     normal, position, object, crossings, stop): the ray through the pixel centre, traced unshaded
     on its own unless a colour sample lies at the centre (one sample per pixel, odd counts)."""
-    camera = camera or scene.camera or Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
+    camera = (
+        camera or scene.camera or Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
+    )
     if not (0 < camera.fov < 180):
         raise RenderError(f"camera field of view must be between 0 and 180 degrees, got {camera.fov}")
     reach = settings.max_distance or space.max_distance
     if not (0 <= camera.clip_start < min(reach, camera.clip_end or math.inf)):
-        raise RenderError(f"camera clip start {camera.clip_start} must be at least 0 and less than the clip end "
-                          f"({camera.clip_end}) and the distance the rays reach ({reach})")
+        raise RenderError(
+            f"camera clip start {camera.clip_start} must be at least 0 and less than the clip end "
+            f"({camera.clip_end}) and the distance the rays reach ({reach})"
+        )
     max_crossings = space.max_crossings if settings.max_crossings is None else settings.max_crossings
     t0 = time.perf_counter()
     frame = camera_frame(space, camera)  # once: bring_inside and the re-orthonormalised frame
@@ -129,8 +136,18 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         limits = (float(np.max(end - start)), max_crossings, *tolerances)
         base = k * pixels
         report = None if progress is None else (lambda done, _n, base=base: progress(base + done, total))
-        out = trace(tracer, origins, directions, *limits, shade=shaded, progress=report, fog=settings.fog,
-                    light_samples=settings.light_samples, seed=settings.seed + k, bounces=settings.bounces)
+        out = trace(
+            tracer,
+            origins,
+            directions,
+            *limits,
+            shade=shaded,
+            progress=report,
+            fog=settings.fog,
+            light_samples=settings.light_samples,
+            seed=settings.seed + k,
+            bounces=settings.bounces,
+        )
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
         _miss_beyond(out, end - start)
@@ -171,17 +188,26 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     hits = first["stop"] == 0
     median_depth = float(np.median(first["depth"][hits])) if hits.any() else 0.0
     origins, directions = probe
-    measured, measured_pixels, changed = retrace_error(space, tracer, origins, directions, first, sample, first_limits,
-                                                       pixel_angle)
+    measured, measured_pixels, changed = retrace_error(
+        space, tracer, origins, directions, first, sample, first_limits, pixel_angle
+    )
     stats = {
-        "rays": len(offsets) * pixels, "rays_traced": total, "chords": chords, "seconds": seconds,
-        "chords_per_ray": chords / total, "threads": tracer.num_threads,
-        "crossings_per_ray": float(first["crossings"].mean()), "hit_fraction": float(hits.mean()),
-        "samples_per_pixel": len(offsets), "triangles": tracer.num_triangles,
-        "instances": tracer.num_instances, "instanced_triangles": tracer.num_instanced_triangles,
+        "rays": len(offsets) * pixels,
+        "rays_traced": total,
+        "chords": chords,
+        "seconds": seconds,
+        "chords_per_ray": chords / total,
+        "threads": tracer.num_threads,
+        "crossings_per_ray": float(first["crossings"].mean()),
+        "hit_fraction": float(hits.mean()),
+        "samples_per_pixel": len(offsets),
+        "triangles": tracer.num_triangles,
+        "instances": tracer.num_instances,
+        "instanced_triangles": tracer.num_instanced_triangles,
         # angular size of a pixel over sqrt(samples), at the median hit depth, in chart-scale units
         "footprint": pixel_angle / math.sqrt(len(offsets)) * median_depth,
-        "tolerance": tolerances[0], "tolerance_per_distance": tolerances[1],
+        "tolerance": tolerances[0],
+        "tolerance_per_distance": tolerances[1],
         "bound": accuracy_bound(space, settings, tolerances),
         # the per-ray error estimate of the hits: the largest and the median, chart units
         "error_estimate_max": float(np.max(first["error"][hits])) if hits.any() else 0.0,
@@ -189,12 +215,14 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         # measured: sampled hits traced again at 1/RETRACE_FACTOR of the tolerance (the largest
         # distance of a hit from the re-traced geodesic, in chart units and pixel footprints, and
         # the fraction of them that met another object)
-        "measured_error": measured, "measured_error_pixels": measured_pixels, "retrace_changed": changed,
+        "measured_error": measured,
+        "measured_error_pixels": measured_pixels,
+        "retrace_changed": changed,
         # measured: the largest distance of a (sampled) hit point from the reference geodesic
-        "geodesic_error": geodesic_error(space, origins, directions, first["depth"][sample],
-                                         first["position"][sample]),
+        "geodesic_error": geodesic_error(space, origins, directions, first["depth"][sample], first["position"][sample]),
         "light_failures": light_failures,
-        "bounces": settings.bounces, "bounce_paths_per_point": bounce_paths / shaded_points if shaded_points else 0.0,
+        "bounces": settings.bounces,
+        "bounce_paths_per_point": bounce_paths / shaded_points if shaded_points else 0.0,
         "noise": pixel_noise(color_sum, brightness_squares, len(offsets)),
         **light_stats(space, settings, tracer, light_paths, light_energy, shaded_points),
         "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},

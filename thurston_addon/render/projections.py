@@ -1,10 +1,11 @@
 """The camera projections, in one table (PROJECTIONS): how each maps the image to view directions,
 the angle its width spans, and how it clips."""
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -35,11 +36,17 @@ def _equirect(camera, j, i, W, H):
     h, w = len(i), len(j)
     lon = (2 * j - 1) * math.pi
     lat = (0.5 - i) * math.pi
-    return (np.cos(lat)[:, None] * np.cos(lon)[None, :], np.cos(lat)[:, None] * np.sin(lon)[None, :],
-            np.broadcast_to(np.sin(lat)[:, None], (h, w)))
+    return (
+        np.cos(lat)[:, None] * np.cos(lon)[None, :],
+        np.cos(lat)[:, None] * np.sin(lon)[None, :],
+        np.broadcast_to(np.sin(lat)[:, None], (h, w)),
+    )
 
 
-PROJECTIONS = {p.name: p for p in (
-    Projection("perspective", _perspective, lambda camera: math.radians(camera.fov), planar_clip=True),
-    Projection("equirect", _equirect, lambda camera: 2 * math.pi, planar_clip=False),
-)}
+PROJECTIONS = {
+    p.name: p
+    for p in (
+        Projection("perspective", _perspective, lambda camera: math.radians(camera.fov), planar_clip=True),
+        Projection("equirect", _equirect, lambda camera: 2 * math.pi, planar_clip=False),
+    )
+}

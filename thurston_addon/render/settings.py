@@ -1,5 +1,6 @@
 """A render's settings: the quality levels, the Settings a render takes and their checks, the
 limits of what can be rendered, and the errors a render raises."""
+
 from __future__ import annotations
 
 import math
@@ -18,14 +19,19 @@ class Quality:
     """A quality level: samples per pixel (antialiasing), and the bound of the hit-position error
     as a fraction of the pixel footprint at the hit's distance (where geodesics bend in the chart
     and are followed in chords; in E3, S3 and H3 they are exact chart lines)."""
+
     samples: int
     footprint_fraction: float
 
 
 # The same names are used by the add-on. The fractions keep what the chords do to the image below
 # what the sampling does at each quality (benchmarks/bench_curved.py, its image table).
-QUALITY = {"draft": Quality(1, 1.0), "preview": Quality(2, 0.5), "standard": Quality(4, 0.25),
-           "final": Quality(16, 0.1)}
+QUALITY = {
+    "draft": Quality(1, 1.0),
+    "preview": Quality(2, 0.5),
+    "standard": Quality(4, 0.25),
+    "final": Quality(16, 0.1),
+}
 # `thurston trace` has no pixels: its qualities use the pixel of the default view (640 pixels
 # across 90 degrees).
 REFERENCE_PIXEL_ANGLE = math.radians(90.0) / 640
@@ -99,13 +105,24 @@ class Settings:
             raise RenderError(f"image size {self.width}x{self.height} is not usable")
         if self.region is not None:
             x, y, w, h = self.region
-            if not (all(_whole(v) for v in self.region) and w >= 1 and h >= 1 and 0 <= x and x + w <= self.width
-                    and 0 <= y and y + h <= self.height):
-                raise RenderError(f"render region {self.region} is not a window of the {self.width}x{self.height} image")
+            if not (
+                all(_whole(v) for v in self.region)
+                and w >= 1
+                and h >= 1
+                and 0 <= x
+                and x + w <= self.width
+                and 0 <= y
+                and y + h <= self.height
+            ):
+                raise RenderError(
+                    f"render region {self.region} is not a window of the {self.width}x{self.height} image"
+                )
         need, have = memory_needed(self.width, self.height), physical_memory()
         if have is not None and need > MEMORY_FRACTION * have:
-            raise RenderError(f"image size {self.width}x{self.height} needs about {need / 2**30:.1f} GiB of memory "
-                              f"to render, more than {MEMORY_FRACTION:.0%} of this machine's {have / 2**30:.1f} GiB")
+            raise RenderError(
+                f"image size {self.width}x{self.height} needs about {need / 2**30:.1f} GiB of memory "
+                f"to render, more than {MEMORY_FRACTION:.0%} of this machine's {have / 2**30:.1f} GiB"
+            )
         if self.width * self.height > 2**28:
             raise RenderError(f"image size {self.width}x{self.height} is not usable (more than 2^28 pixels)")
         if self.projection not in PROJECTIONS:
@@ -123,19 +140,24 @@ class Settings:
         if self.fog is not None and not (self.fog > 0 and math.isfinite(self.fog)):
             raise RenderError(f"fog distance must be a positive number (None: no fog), got {self.fog}")
         if self.light_reach is not None and not self.light_reach >= 0:
-            raise RenderError(f"light reach must be a distance >= 0 (None: the space's default), got {self.light_reach}")
+            raise RenderError(
+                f"light reach must be a distance >= 0 (None: the space's default), got {self.light_reach}"
+            )
         if not (_whole(self.light_samples) and 1 <= self.light_samples <= 4096):
             raise RenderError(f"light samples must be a whole number between 1 and 4096, got {self.light_samples}")
         if not (_whole(self.bounces) and 0 <= self.bounces <= MAX_BOUNCES):
-            raise RenderError(f"bounces must be a whole number between 0 (direct light only) and {MAX_BOUNCES}, "
-                              f"got {self.bounces}")
+            raise RenderError(
+                f"bounces must be a whole number between 0 (direct light only) and {MAX_BOUNCES}, got {self.bounces}"
+            )
         if not (_whole(self.seed) and 0 <= self.seed < 2**63):
             raise RenderError(f"seed must be a whole number >= 0, got {self.seed}")
         if not (_whole(self.threads) and 0 <= self.threads <= MAX_THREADS):
             raise RenderError(f"threads must be a whole number from 0 (all cores) to {MAX_THREADS}, got {self.threads}")
         if self.tolerance is not None and not (MIN_TOLERANCE <= self.tolerance < math.inf):
-            raise RenderError(f"tolerance must be a number of chart units of at least {MIN_TOLERANCE:g} (None: the "
-                              f"quality's), got {self.tolerance}")
+            raise RenderError(
+                f"tolerance must be a number of chart units of at least {MIN_TOLERANCE:g} (None: the "
+                f"quality's), got {self.tolerance}"
+            )
 
     def tolerances(self, space: Space, pixel_angle: float) -> tuple[float, float]:
         """(tolerance at distance 0, growth per unit of distance) of the chords, chart units (S2xR:

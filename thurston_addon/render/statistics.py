@@ -1,5 +1,6 @@
 """A render's result and statistics: cost, light, the accuracy it promises and the errors measured
 (re-traced rays, the reference geodesic), the noise, and their summary in words."""
+
 from __future__ import annotations
 
 import math
@@ -21,31 +22,45 @@ class Result:
     def summary(self) -> str:
         s = self.stats
         rays = s.get("rays_traced", s["rays"])
-        return (f"{rays} rays, {s['crossings_per_ray']:.2f} crossings/ray, {s['chords_per_ray']:.2f} chords/ray, "
-                f"{s['hit_fraction'] * 100:.1f}% hits, {s['seconds']:.2f} s "
-                f"({rays / max(s['seconds'], 1e-9) / 1e6:.2f} Mrays/s, {s['threads']} threads); "
-                f"accuracy: {s['samples_per_pixel']} samples/pixel, pixel footprint {s['footprint']:.2e} "
-                f"chart units at median depth; {s['bound']}; measured error {s['measured_error']:.1e} "
-                f"chart units = {s['measured_error_pixels']:.2g} pixel footprints (re-traced at 1/{RETRACE_FACTOR} "
-                f"of the tolerance; {s['retrace_changed'] * 100:.1f}% of them met another object), geodesic error "
-                f"{s['geodesic_error']:.1e} (against the reference geodesic); {light_summary(s)}; "
-                f"{illumination_summary(s)}")
+        return (
+            f"{rays} rays, {s['crossings_per_ray']:.2f} crossings/ray, {s['chords_per_ray']:.2f} chords/ray, "
+            f"{s['hit_fraction'] * 100:.1f}% hits, {s['seconds']:.2f} s "
+            f"({rays / max(s['seconds'], 1e-9) / 1e6:.2f} Mrays/s, {s['threads']} threads); "
+            f"accuracy: {s['samples_per_pixel']} samples/pixel, pixel footprint {s['footprint']:.2e} "
+            f"chart units at median depth; {s['bound']}; measured error {s['measured_error']:.1e} "
+            f"chart units = {s['measured_error_pixels']:.2g} pixel footprints (re-traced at 1/{RETRACE_FACTOR} "
+            f"of the tolerance; {s['retrace_changed'] * 100:.1f}% of them met another object), geodesic error "
+            f"{s['geodesic_error']:.1e} (against the reference geodesic); {light_summary(s)}; "
+            f"{illumination_summary(s)}"
+        )
 
 
 def illumination_summary(s: dict) -> str:
-    bounces = (f"path tracing, bounce limit {s['bounces']} ({s['bounce_paths_per_point']:.2f} bounce geodesics per "
-               f"camera hit)" if s["bounces"] else "direct light only")
-    noise = ("noise: one sample per pixel, not estimated" if s["noise"] is None else
-             f"noise {s['noise']:.2e} (RMS standard error of the pixel means, from {s['samples_per_pixel']} samples)")
+    bounces = (
+        f"path tracing, bounce limit {s['bounces']} ({s['bounce_paths_per_point']:.2f} bounce geodesics per camera hit)"
+        if s["bounces"]
+        else "direct light only"
+    )
+    noise = (
+        "noise: one sample per pixel, not estimated"
+        if s["noise"] is None
+        else f"noise {s['noise']:.2e} (RMS standard error of the pixel means, from {s['samples_per_pixel']} samples)"
+    )
     return f"{bounces}, {noise}"
 
 
 def light_summary(s: dict) -> str:
-    emitters = (f"; {s['emitter_triangles']} emissive triangles in {s['emitter_copies']} copies, "
-                f"{s['light_samples']} points sampled on them per shaded point" if s["emitter_triangles"] else "")
-    return (f"light: {s['light_copies']} copies within reach {s['light_reach']:.3g} ({s['light_paths_per_point']:.1f} "
-            f"geodesics per shaded point), energy beyond the reach up to the distance limit about "
-            f"{s['light_energy_left_out']:.3g} x the summed (estimate){emitters}")
+    emitters = (
+        f"; {s['emitter_triangles']} emissive triangles in {s['emitter_copies']} copies, "
+        f"{s['light_samples']} points sampled on them per shaded point"
+        if s["emitter_triangles"]
+        else ""
+    )
+    return (
+        f"light: {s['light_copies']} copies within reach {s['light_reach']:.3g} ({s['light_paths_per_point']:.1f} "
+        f"geodesics per shaded point), energy beyond the reach up to the distance limit about "
+        f"{s['light_energy_left_out']:.3g} x the summed (estimate){emitters}"
+    )
 
 
 def pixel_noise(color_sum, brightness_squares, n: int) -> float | None:
@@ -56,7 +71,7 @@ def pixel_noise(color_sum, brightness_squares, n: int) -> float | None:
     if n < 2:
         return None
     mean = color_sum.mean(axis=1) / n
-    variance = np.maximum(brightness_squares / n - mean ** 2, 0.0) * n / (n - 1)
+    variance = np.maximum(brightness_squares / n - mean**2, 0.0) * n / (n - 1)
     return float(np.sqrt(np.mean(variance / n)))
 
 
@@ -81,10 +96,15 @@ def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: fl
         shell = f * (math.exp(-reach / f) - math.exp(-longest / f)) if f else longest - reach
         left_out = 4 * math.pi * tracer.light_power * shell / space.volume
     summed = energy / shaded if shaded else 0.0
-    return {"light_copies": tracer.num_light_lifts, "light_paths_per_point": paths / shaded if shaded else 0.0,
-            "emitter_triangles": tracer.num_emitter_triangles, "emitter_copies": tracer.num_emitter_copies,
-            "light_samples": settings.light_samples, "light_reach": reach,
-            "light_energy_left_out": left_out / summed if summed > 0 else (0.0 if left_out == 0 else math.inf)}
+    return {
+        "light_copies": tracer.num_light_lifts,
+        "light_paths_per_point": paths / shaded if shaded else 0.0,
+        "emitter_triangles": tracer.num_emitter_triangles,
+        "emitter_copies": tracer.num_emitter_copies,
+        "light_samples": settings.light_samples,
+        "light_reach": reach,
+        "light_energy_left_out": left_out / summed if summed > 0 else (0.0 if left_out == 0 else math.inf),
+    }
 
 
 def accuracy_bound(space: Space, settings: Settings, tolerances) -> str:
@@ -93,8 +113,10 @@ def accuracy_bound(space: Space, settings: Settings, tolerances) -> str:
         return "geodesics exact (chart lines)"
     if settings.tolerance is not None:
         return f"hit positions within {settings.tolerance:.1e} chart units of the geodesic's"
-    return (f"hit positions within {QUALITY[settings.quality].footprint_fraction:g} of the pixel footprint "
-            f"(chord tolerance {tolerances[0]:.1e} + {tolerances[1]:.1e} per unit distance)")
+    return (
+        f"hit positions within {QUALITY[settings.quality].footprint_fraction:g} of the pixel footprint "
+        f"(chord tolerance {tolerances[0]:.1e} + {tolerances[1]:.1e} per unit distance)"
+    )
 
 
 ERROR_SAMPLES = 1000  # hit pixels checked for the measured errors
@@ -140,8 +162,12 @@ def retrace_error(space: Space, tracer, origins, directions, out, sample, limits
     path = make_tracer(space, Scene(), threads=1)  # the geodesics alone, one ray at a time
     paths = np.linspace(0, len(sample) - 1, min(len(sample), PATH_SAMPLES)).astype(int)
     depth = out["depth"][sample][paths]
-    ends = np.array([trace(path, P[i:i + 1], D[i:i + 1], depth[k], max_crossings, *fine, shade=False)["end"][0]
-                     for k, i in enumerate(paths)])
+    ends = np.array(
+        [
+            trace(path, P[i : i + 1], D[i : i + 1], depth[k], max_crossings, *fine, shade=False)["end"][0]
+            for k, i in enumerate(paths)
+        ]
+    )
     error = _image_distance(space, g.to_model(out["position"][sample][paths]), g.to_model(ends))
     return float(error.max()), float((error / footprint(space, pixel_angle, depth)).max()), changed
 

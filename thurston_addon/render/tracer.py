@@ -1,4 +1,5 @@
 """The C++ tracer of a compiled scene, and its trace with what the core rejects raised as RenderError."""
+
 from __future__ import annotations
 
 import math
@@ -14,8 +15,14 @@ def core_scene(data: dict):
     parts take the arrays of their fields' names (a part's optional arrays left out: None)."""
     import thurston_core as core
 
-    kinds = dict(domain=core.Domain, meshes=core.Meshes, surfaces=core.Surfaces, lights=core.Lights,
-                 instances=core.Instances, emitters=core.Emitters)
+    kinds = dict(
+        domain=core.Domain,
+        meshes=core.Meshes,
+        surfaces=core.Surfaces,
+        lights=core.Lights,
+        instances=core.Instances,
+        emitters=core.Emitters,
+    )
     given = {part: {name: value for name, value in data.items() if hasattr(kind, name)} for part, kind in kinds.items()}
     unknown = set(data) - {"geometry"} - set().union(*given.values())
     if unknown:
@@ -37,8 +44,21 @@ def make_tracer(space: Space, scene: Scene, threads: int = 0, light_reach: float
         raise RenderError(f"the tracer rejected the scene: {exc}") from None
 
 
-def trace(tracer, origins, directions, max_distance, max_crossings, tolerance=1e-3, tolerance_per_distance=0.0,
-          shade=True, progress=None, fog=None, light_samples=1, seed=0, bounces=0):
+def trace(
+    tracer,
+    origins,
+    directions,
+    max_distance,
+    max_crossings,
+    tolerance=1e-3,
+    tolerance_per_distance=0.0,
+    shade=True,
+    progress=None,
+    fog=None,
+    light_samples=1,
+    seed=0,
+    bounces=0,
+):
     """tracer.trace, with what the core rejects (ValueError) raised as RenderError. Exceptions
     from the progress callback pass through unchanged (they are the caller's, not the input's)."""
     raised = []
@@ -51,10 +71,20 @@ def trace(tracer, origins, directions, max_distance, max_crossings, tolerance=1e
             raise
 
     try:
-        return tracer.trace(origins, directions, max_distance, max_crossings, shade=shade,
-                            progress=None if progress is None else report, tolerance=tolerance,
-                            tolerance_per_distance=tolerance_per_distance, fog=fog or math.inf,
-                            light_samples=light_samples, seed=seed, bounces=bounces)
+        return tracer.trace(
+            origins,
+            directions,
+            max_distance,
+            max_crossings,
+            shade=shade,
+            progress=None if progress is None else report,
+            tolerance=tolerance,
+            tolerance_per_distance=tolerance_per_distance,
+            fog=fog or math.inf,
+            light_samples=light_samples,
+            seed=seed,
+            bounces=bounces,
+        )
     except ValueError as exc:
         if raised:
             raise

@@ -11,12 +11,41 @@ One job per module: model (the scene's parts and their checks), obj and gltf and
 (each mesh format), meshes (a mesh file by its suffix), scene_file (TOML scene files), default
 (a space's default scene).
 """
+
 from .default import default_scene
 from .meshes import load_mesh_file
-from .model import (FLOAT32_MAX, SCATTERING, Camera, Material, PointLight, Scene, SceneError, SceneObject,
-                    checked_instances, clean, degenerate, flat_light)
+from .model import (
+    FLOAT32_MAX,
+    SCATTERING,
+    Camera,
+    Material,
+    PointLight,
+    Scene,
+    SceneError,
+    SceneObject,
+    checked_instances,
+    clean,
+    degenerate,
+    flat_light,
+)
 from .scene_file import load_scene_file, load_scenes, primitive
 
-__all__ = ["FLOAT32_MAX", "SCATTERING", "Camera", "Material", "PointLight", "Scene", "SceneError", "SceneObject",
-           "checked_instances", "clean", "default_scene", "degenerate", "flat_light", "load_mesh_file",
-           "load_scene_file", "load_scenes", "primitive"]
+__all__ = [
+    "FLOAT32_MAX",
+    "SCATTERING",
+    "Camera",
+    "Material",
+    "PointLight",
+    "Scene",
+    "SceneError",
+    "SceneObject",
+    "checked_instances",
+    "clean",
+    "default_scene",
+    "degenerate",
+    "flat_light",
+    "load_mesh_file",
+    "load_scene_file",
+    "load_scenes",
+    "primitive",
+]

@@ -1,4 +1,5 @@
 """The default scene of a space."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,13 +16,25 @@ def default_scene(space) -> Scene:
     # the domain's size, but no more than twice its inscribed ball (SL2's fibre is long beside its disk)
     size = min(space.extent, 4 * space.chart_inradius)
     radius = 0.012 * size
-    palette = np.array([[0.9, 0.25, 0.2], [0.2, 0.7, 0.3], [0.25, 0.45, 0.95], [0.95, 0.8, 0.2],
-                        [0.8, 0.3, 0.85], [0.2, 0.8, 0.85], [0.95, 0.55, 0.2], [0.6, 0.6, 0.6],
-                        [0.55, 0.35, 0.2], [0.9, 0.5, 0.65]])
+    palette = np.array(
+        [
+            [0.9, 0.25, 0.2],
+            [0.2, 0.7, 0.3],
+            [0.25, 0.45, 0.95],
+            [0.95, 0.8, 0.2],
+            [0.8, 0.3, 0.85],
+            [0.2, 0.8, 0.85],
+            [0.95, 0.55, 0.2],
+            [0.6, 0.6, 0.6],
+            [0.55, 0.35, 0.2],
+            [0.9, 0.5, 0.65],
+        ]
+    )
     objects = []
     for c, segments in enumerate(space.outline(inset=2 * radius)):
-        tubes = trimesh.util.concatenate([trimesh.creation.cylinder(radius=radius, segment=[p, q], sections=10)
-                                          for p, q in segments])
+        tubes = trimesh.util.concatenate(
+            [trimesh.creation.cylinder(radius=radius, segment=[p, q], sections=10) for p, q in segments]
+        )
         objects.append(SceneObject(f"edges {c}", tubes.vertices, tubes.faces, palette[c % len(palette)]))
     inr = space.chart_inradius
     cam = space.camera
@@ -29,12 +42,24 @@ def default_scene(space) -> Scene:
     side = np.cross(forward, cam.up)
     side /= np.linalg.norm(side)
     up = np.cross(side, forward)
-    ring = trimesh.creation.torus(major_radius=0.22 * inr, minor_radius=0.07 * inr, major_sections=48, minor_sections=16)
+    ring = trimesh.creation.torus(
+        major_radius=0.22 * inr, minor_radius=0.07 * inr, major_sections=48, minor_sections=16
+    )
     ring.apply_transform(trimesh.geometry.align_vectors([0, 0, 1], forward + 0.6 * side + 0.4 * up))
-    objects.append(SceneObject("ring", ring.vertices + cam.position + inr * (0.7 * forward + 0.25 * side), ring.faces, (0.95, 0.75, 0.3)))
+    objects.append(
+        SceneObject(
+            "ring", ring.vertices + cam.position + inr * (0.7 * forward + 0.25 * side), ring.faces, (0.95, 0.75, 0.3)
+        )
+    )
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.12 * inr)
-    objects.append(SceneObject("sphere", ball.vertices + cam.position + inr * (0.5 * forward - 0.45 * side - 0.1 * up), ball.faces,
-                               (0.3, 0.6, 0.95)))
+    objects.append(
+        SceneObject(
+            "sphere",
+            ball.vertices + cam.position + inr * (0.5 * forward - 0.45 * side - 0.1 * up),
+            ball.faces,
+            (0.3, 0.6, 0.95),
+        )
+    )
     # behind and above the camera; bright enough to light the walls one domain away
     position = np.asarray(cam.position, float) + 0.3 * inr * (up - 0.5 * forward)
     g = space.geometry

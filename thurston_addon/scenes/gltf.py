@@ -1,5 +1,6 @@
 """What trimesh does not read of a glTF/GLB file: its JSON and binary chunk, its materials' base
 colour textures and their metallic-roughness factors."""
+
 from __future__ import annotations
 
 import json
@@ -22,8 +23,8 @@ def gltf_parts(path: Path) -> tuple[dict, bytes]:
         if len(data) < 20:
             raise SceneError(f"{path}: the GLB file ends inside its header ({len(data)} bytes)")
         length = struct.unpack_from("<I", data, 12)[0]
-        binary = data[28 + length:]
-        data = data[20:20 + length]
+        binary = data[28 + length :]
+        data = data[20 : 20 + length]
     try:
         header = json.loads(data.decode("utf-8"))
     except UnicodeDecodeError as exc:
@@ -59,11 +60,19 @@ def gltf_base_textures(path: Path, header: dict, binary: bytes) -> dict[str, np.
         else:
             view = header["bufferViews"][image["bufferView"]]
             buffer = header["buffers"][view["buffer"]]
-            data = binary if "uri" not in buffer else (
-                base64.b64decode(buffer["uri"].split(",", 1)[1]) if buffer["uri"].startswith("data:")
-                else check_input(path.parent / buffer["uri"], f"{path}: buffer", SceneError, "mesh file").read_bytes())
+            data = (
+                binary
+                if "uri" not in buffer
+                else (
+                    base64.b64decode(buffer["uri"].split(",", 1)[1])
+                    if buffer["uri"].startswith("data:")
+                    else check_input(
+                        path.parent / buffer["uri"], f"{path}: buffer", SceneError, "mesh file"
+                    ).read_bytes()
+                )
+            )
             start = view.get("byteOffset", 0)
-            blob = data[start:start + view["byteLength"]]
+            blob = data[start : start + view["byteLength"]]
         suffix = {"image/png": ".png", "image/jpeg": ".jpg"}.get(image.get("mimeType", ""), ".png")
         with tempfile.TemporaryDirectory() as folder:  # OpenImageIO's Python API reads files
             file = Path(folder) / f"texture{suffix}"
@@ -84,5 +93,9 @@ def gltf_scattering(material) -> dict:
     if not isinstance(material, PBRMaterial):
         return {}
     metallic, roughness = material.metallicFactor, material.roughnessFactor
-    return dict(metallic=1.0 if metallic is None else float(metallic),
-                roughness=1.0 if roughness is None else float(roughness), specular=0.5, ior=1.5)
+    return dict(
+        metallic=1.0 if metallic is None else float(metallic),
+        roughness=1.0 if roughness is None else float(roughness),
+        specular=0.5,
+        ior=1.5,
+    )

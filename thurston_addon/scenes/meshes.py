@@ -1,4 +1,5 @@
 """A mesh file of any supported format, read by its suffix into cleaned scene objects."""
+
 from __future__ import annotations
 
 import struct
@@ -13,9 +14,13 @@ MESH_SUFFIXES = {".obj", ".ply", ".stl", ".glb", ".gltf"}
 
 
 def load_mesh_file(path: str | Path) -> list[SceneObject]:
-    path = check_input(path, "scene file", SceneError, "OBJ file" if Path(path).suffix.lower() == ".obj" else "mesh file")
+    path = check_input(
+        path, "scene file", SceneError, "OBJ file" if Path(path).suffix.lower() == ".obj" else "mesh file"
+    )
     if path.suffix.lower() not in MESH_SUFFIXES:
-        raise SceneError(f"{path}: unsupported file type {path.suffix!r} (mesh files: {', '.join(sorted(MESH_SUFFIXES))}; scenes: .toml)")
+        raise SceneError(
+            f"{path}: unsupported file type {path.suffix!r} (mesh files: {', '.join(sorted(MESH_SUFFIXES))}; scenes: .toml)"
+        )
     try:
         objects = read_obj(path) if path.suffix.lower() == ".obj" else read_trimesh_file(path)
     except SceneError:

@@ -1,6 +1,7 @@
 """The scene model, independent of Blender and of files: materials, meshes (scene objects,
 optionally instanced), point, spot and area lights, the camera and the scene that holds them,
 with the checks every source of a scene shares (finite values within float32, clean meshes)."""
+
 from __future__ import annotations
 
 import math
@@ -32,8 +33,9 @@ def check_float32(values, what: str):
     if not np.all(np.isfinite(a)):
         raise SceneError(f"{what} has NaN or infinite values")
     if a.size and np.abs(a).max() > FLOAT32_MAX:
-        raise SceneError(f"{what} has a value of {np.abs(a).max():.3g}, beyond the {FLOAT32_MAX:.3g} "
-                         "of the tracer's float32 numbers")
+        raise SceneError(
+            f"{what} has a value of {np.abs(a).max():.3g}, beyond the {FLOAT32_MAX:.3g} of the tracer's float32 numbers"
+        )
 
 
 def checked_texture(value, what: str):
@@ -63,6 +65,7 @@ class Material:
     as Blender's Principled BSDF: roughness, metallic, specular (its Specular IOR Level: 0.5 the
     IOR's own reflectance, 0 no specular layer) and ior. The defaults (metallic and specular 0)
     are a Lambert surface."""
+
     color: np.ndarray = field(default_factory=lambda: np.array(DEFAULT_COLOR))
     emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
     color_texture: np.ndarray | str | Path | None = None
@@ -91,9 +94,12 @@ class Material:
 
 # The scattering parameters of a material, their ranges (as Cycles clamps the Principled BSDF's,
 # within the tracer's float32) and what the error says.
-SCATTERING = (("roughness", (0.0, 1.0), "a number in [0, 1]"), ("metallic", (0.0, 1.0), "a number in [0, 1]"),
-              ("specular", (0.0, FLOAT32_MAX), f"a number >= 0 within the tracer's float32 (at most {FLOAT32_MAX:.3g})"),
-              ("ior", (0.0, FLOAT32_MAX), f"a number > 0 within the tracer's float32 (1.4e-45 to {FLOAT32_MAX:.3g})"))
+SCATTERING = (
+    ("roughness", (0.0, 1.0), "a number in [0, 1]"),
+    ("metallic", (0.0, 1.0), "a number in [0, 1]"),
+    ("specular", (0.0, FLOAT32_MAX), f"a number >= 0 within the tracer's float32 (at most {FLOAT32_MAX:.3g})"),
+    ("ior", (0.0, FLOAT32_MAX), f"a number > 0 within the tracer's float32 (1.4e-45 to {FLOAT32_MAX:.3g})"),
+)
 
 
 @dataclass
@@ -128,23 +134,29 @@ class SceneObject:
         self.corner_uvs = self._per_triangle("corner_uvs", self.corner_uvs, (m, 3, 2), np.float64)
         self.triangle_material = self._per_triangle("triangle_material", self.triangle_material, (m,), np.int32)
         self.instances = None if self.instances is None else checked_instances(self.instances, self.name)
-        if self.triangle_material is not None and m and not (
-                0 <= self.triangle_material.min() and self.triangle_material.max() < max(len(self.materials), 1)):
-            raise SceneError(f"object {self.name!r}: triangle_material refers to a material it does not have "
-                             f"(it has {len(self.materials)})")
+        if (
+            self.triangle_material is not None
+            and m
+            and not (0 <= self.triangle_material.min() and self.triangle_material.max() < max(len(self.materials), 1))
+        ):
+            raise SceneError(
+                f"object {self.name!r}: triangle_material refers to a material it does not have "
+                f"(it has {len(self.materials)})"
+            )
 
     def _per_triangle(self, what, value, shape, dtype):
         if value is None:
             return None
         a = np.asarray(value, dtype=dtype)
         if a.shape != shape:
-            raise SceneError(f"object {self.name!r}: {what} must have shape {shape} (one row per triangle), "
-                             f"got {a.shape}")
+            raise SceneError(
+                f"object {self.name!r}: {what} must have shape {shape} (one row per triangle), got {a.shape}"
+            )
         if not np.all(np.isfinite(a)):
             raise SceneError(f"object {self.name!r}: {what} has NaN or infinite values")
         return a
 
-    def placed(self, transforms=None) -> "SceneObject":
+    def placed(self, transforms=None) -> SceneObject:
         """The object with the copies of its mesh by `transforms` (default: its instances) as its
         own triangles, in one object without instances: what the instances show, flattened. Corner
         normals are covectors: they move by the inverse of each map's linear part."""
@@ -154,17 +166,30 @@ class SceneObject:
         k, n = len(A), len(self.vertices)
         L, t = A[:, :3, :3], A[:, :3, 3]
         tiled = lambda a: None if a is None else np.concatenate([a] * k)
-        normals = None if self.corner_normals is None else np.einsum(
-            "mcj,kji->kmci", self.corner_normals, np.linalg.inv(L)).reshape(-1, 3, 3)
+        normals = (
+            None
+            if self.corner_normals is None
+            else np.einsum("mcj,kji->kmci", self.corner_normals, np.linalg.inv(L)).reshape(-1, 3, 3)
+        )
         return SceneObject(
-            self.name, (np.einsum("kij,nj->kni", L, self.vertices) + t[:, None]).reshape(-1, 3),
-            (self.triangles[None] + (n * np.arange(k))[:, None, None]).reshape(-1, 3), self.color, self.emission,
-            self.pass_index, normals, tiled(self.corner_uvs), tiled(self.triangle_material), self.materials)
+            self.name,
+            (np.einsum("kij,nj->kni", L, self.vertices) + t[:, None]).reshape(-1, 3),
+            (self.triangles[None] + (n * np.arange(k))[:, None, None]).reshape(-1, 3),
+            self.color,
+            self.emission,
+            self.pass_index,
+            normals,
+            tiled(self.corner_uvs),
+            tiled(self.triangle_material),
+            self.materials,
+        )
 
     def surface_materials(self) -> tuple[list[Material], np.ndarray]:
         """The materials and each triangle's index into them (one material where none are given)."""
         materials = self.materials or [Material(self.color, self.emission, name=self.name)]
-        index = self.triangle_material if self.triangle_material is not None else np.zeros(len(self.triangles), np.int32)
+        index = (
+            self.triangle_material if self.triangle_material is not None else np.zeros(len(self.triangles), np.int32)
+        )
         return materials, index
 
 
@@ -180,7 +205,9 @@ def checked_instances(value, name: str) -> np.ndarray:
         if not np.all(np.isfinite(M)):
             raise SceneError(f"object {name!r}: instance {j} has a NaN or infinite transform")
         if not np.array_equal(M[3], [0.0, 0.0, 0.0, 1.0]):
-            raise SceneError(f"object {name!r}: instance {j} is not affine (its last row must be 0 0 0 1, got {M[3].tolist()})")
+            raise SceneError(
+                f"object {name!r}: instance {j} is not affine (its last row must be 0 0 0 1, got {M[3].tolist()})"
+            )
         L = M[:3, :3]
         if not abs(np.linalg.det(L)) > 1e-12 * np.prod(np.linalg.norm(L, axis=1)):
             raise SceneError(f"object {name!r}: instance {j} has a singular transform (it flattens the mesh)")
@@ -193,6 +220,7 @@ class PointLight:
     angle theta from the axis is scaled by smoothstep((cos theta - cos(spot_size / 2)) / ((1 -
     cos(spot_size / 2)) spot_blend)), 0 outside the cone (blend 0: a sharp edge). In a curved space
     the axis is a direction at the light, and theta the angle there of each geodesic leaving it."""
+
     position: np.ndarray  # chart coordinates
     color: np.ndarray = field(default_factory=lambda: np.ones(3))
     power: float = 1.0  # radiant intensity scale: radiance at unit "area distance"
@@ -210,14 +238,20 @@ class PointLight:
             return
         self.spot_direction = np.asarray(self.spot_direction, np.float64).reshape(3)
         if not (np.all(np.isfinite(self.spot_direction)) and np.linalg.norm(self.spot_direction) > 0):
-            raise SceneError(f"spot light at {np.asarray(self.position).tolist()}: its direction must be a "
-                             f"non-zero vector, got {self.spot_direction.tolist()}")
+            raise SceneError(
+                f"spot light at {np.asarray(self.position).tolist()}: its direction must be a "
+                f"non-zero vector, got {self.spot_direction.tolist()}"
+            )
         if not 0 < self.spot_size <= math.pi:
-            raise SceneError(f"spot light at {np.asarray(self.position).tolist()}: spot size must be an angle in "
-                             f"(0, pi], got {self.spot_size}")
+            raise SceneError(
+                f"spot light at {np.asarray(self.position).tolist()}: spot size must be an angle in "
+                f"(0, pi], got {self.spot_size}"
+            )
         if not 0 <= self.spot_blend <= 1:
-            raise SceneError(f"spot light at {np.asarray(self.position).tolist()}: spot blend must be in [0, 1], "
-                             f"got {self.spot_blend}")
+            raise SceneError(
+                f"spot light at {np.asarray(self.position).tolist()}: spot blend must be in [0, 1], "
+                f"got {self.spot_blend}"
+            )
 
     def cone(self) -> tuple[float, float]:
         """(cos of the half angle, 1 / ((1 - that) blend)) as the tracer takes it; (-1, inf): no cone."""
@@ -261,7 +295,7 @@ class Scene:
     lights: list[PointLight] = field(default_factory=list)
     camera: Camera | None = None
 
-    def extend(self, other: "Scene"):
+    def extend(self, other: Scene):
         self.objects += other.objects
         self.lights += other.lights
         self.camera = other.camera or self.camera
@@ -276,14 +310,18 @@ def clean(obj: SceneObject, where: str) -> SceneObject:
         raise SceneError(f"{where}: object {obj.name!r} has a NaN or infinite vertex (vertex {int(np.argmax(bad))})")
     far = np.abs(V).max(axis=1, initial=0.0) > FLOAT32_MAX
     if far.any():
-        raise SceneError(f"{where}: object {obj.name!r}: vertex {int(np.argmax(far))} {V[np.argmax(far)].tolist()} is "
-                         f"beyond the {FLOAT32_MAX:.3g} of the tracer's float32 numbers")
+        raise SceneError(
+            f"{where}: object {obj.name!r}: vertex {int(np.argmax(far))} {V[np.argmax(far)].tolist()} is "
+            f"beyond the {FLOAT32_MAX:.3g} of the tracer's float32 numbers"
+        )
     if len(T) and (T.min() < 0 or T.max() >= len(V)):
         raise SceneError(f"{where}: object {obj.name!r} has a triangle index out of range")
     if len(T):
         keep = ~degenerate(V[T])
         if not keep.all():
-            warnings.warn(f"{where}: object {obj.name!r}: skipped {int((~keep).sum())} degenerate triangle(s)", stacklevel=2)
+            warnings.warn(
+                f"{where}: object {obj.name!r}: skipped {int((~keep).sum())} degenerate triangle(s)", stacklevel=2
+            )
             obj.triangles = T[keep]
             for name in ("corner_normals", "corner_uvs", "triangle_material"):
                 if getattr(obj, name) is not None:
@@ -313,4 +351,3 @@ def degenerate(corners) -> np.ndarray:
         area2 = np.linalg.norm(np.cross(edges[:, 0], -edges[:, 2]), axis=1)
         longest = np.max(np.sum(edges * edges, axis=2), axis=1)
         return ~(area2 > 1e-14 * longest)
-

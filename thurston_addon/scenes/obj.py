@@ -1,5 +1,6 @@
 """OBJ mesh files and their MTL material libraries, read here (trimesh regroups OBJ objects by
 material and loses their order)."""
+
 from __future__ import annotations
 
 import math
@@ -89,9 +90,19 @@ def read_obj(path: Path) -> list[SceneObject]:
         names = list(dict.fromkeys(face_mtl))
         mats = [materials.get(m) or Material(name=m or "") for m in names]
         try:
-            out.append(SceneObject(name, V[used], T, mats[0].color, mats[0].emission, corner_normals=normals,
-                                   corner_uvs=uvs, triangle_material=[names.index(m) for m in face_mtl],
-                                   materials=mats))
+            out.append(
+                SceneObject(
+                    name,
+                    V[used],
+                    T,
+                    mats[0].color,
+                    mats[0].emission,
+                    corner_normals=normals,
+                    corner_uvs=uvs,
+                    triangle_material=[names.index(m) for m in face_mtl],
+                    materials=mats,
+                )
+            )
         except SceneError as exc:
             raise SceneError(f"{path}: {exc}") from None
     return out
@@ -134,7 +145,9 @@ def _read_mtl(path: Path) -> dict[str, Material]:
         color = np.ones(3) if texture is not None else spec.get("Kd", DEFAULT_COLOR)
         scattering = {}
         if "Pr" in spec or "Ns" in spec:
-            scattering["roughness"] = spec["Pr"] if "Pr" in spec else 1 - math.sqrt(min(max(spec["Ns"], 0), 1000) / 1000)
+            scattering["roughness"] = (
+                spec["Pr"] if "Pr" in spec else 1 - math.sqrt(min(max(spec["Ns"], 0), 1000) / 1000)
+            )
         if "Pm" in spec:
             scattering["metallic"] = spec["Pm"]
         if "Ks" in spec:

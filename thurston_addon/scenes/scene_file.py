@@ -1,5 +1,6 @@
 """TOML scene files: objects (mesh files or primitives, optionally instanced), point, spot and
 area lights and the camera, each table checked against its keys."""
+
 from __future__ import annotations
 
 import math
@@ -11,8 +12,20 @@ import numpy as np
 
 from ..files import check_keys, read_text
 from .meshes import load_mesh_file
-from .model import (SCATTERING, Camera, Material, PointLight, Scene, SceneError, SceneObject, checked_instances,
-                    clean, colour, flat_light, is_number)
+from .model import (
+    SCATTERING,
+    Camera,
+    Material,
+    PointLight,
+    Scene,
+    SceneError,
+    SceneObject,
+    checked_instances,
+    clean,
+    colour,
+    flat_light,
+    is_number,
+)
 
 MAX_SUBDIVISIONS = 7  # an icosphere's: 20 * 4^7 = 327680 triangles
 MAX_PRIMITIVE_TRIANGLES = 2**24  # of a scene file's primitives together (copies: `transforms`)
@@ -79,36 +92,36 @@ def _tables(data: dict, key: str, path: Path) -> list[dict]:
 def load_scene_file(path: str | Path) -> Scene:
     """A mesh file, or a TOML scene file:
 
-        [[object]]            # file = "mesh.obj" (relative to the scene file) or primitive = "sphere"
-        file = "knot.glb"     # every object of the file, in its order
-        color = [0.9, 0.3, 0.2]      # optional: overrides the file's materials and textures
-        emission = [0, 0, 0]
-        roughness = 0.3       # optional, as Blender's Principled BSDF (overriding the file's):
-        metallic = 1.0        # roughness, metallic, specular (its Specular IOR Level; 0: no
-        specular = 0.5        # specular layer) and ior; without them (and in files without
-        ior = 1.5             # them) a Lambert surface
-        [[object]]
-        primitive = "sphere"  # sphere (radius), box (size), torus (radius, tube)
-        center = [0.2, 0, 0]
-        radius = 0.1
-        transforms = [[[1, 0, 0, 0.3], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], ...]
-                              # optional: the object instanced by these 4x4 chart-affine maps
-        [[light]]
-        position = [0, 0, 0.3]
-        color = [1, 1, 1]
-        power = 1.0
-        type = "spot"         # optional: a spot light (point: the default), with
-        direction = [0, 0, -1]  # its axis,
-        spot_size = 45          # its cone's full angle (degrees) and blend, as Blender's
-        spot_blend = 0.15
-        [[light]]
-        type = "area"         # an emissive rectangle or disc (an object, one-sided, black)
-        position = [0, 0, 0.4]; direction = [0, 0, -1]; x_axis = [1, 0, 0]
-        size = [0.2, 0.1]; shape = "rectangle"  # or "disc" (size: its diameters)
-        emission = [4, 4, 4]  # radiance
-        [camera]
-        position = [0, 0, 0]; forward = [0, 1, 0]; up = [0, 0, 1]; fov = 90
-        shift = [0, 0]; clip_start = 0  # lens shift in image widths; clip_end (absent: none)
+    [[object]]            # file = "mesh.obj" (relative to the scene file) or primitive = "sphere"
+    file = "knot.glb"     # every object of the file, in its order
+    color = [0.9, 0.3, 0.2]      # optional: overrides the file's materials and textures
+    emission = [0, 0, 0]
+    roughness = 0.3       # optional, as Blender's Principled BSDF (overriding the file's):
+    metallic = 1.0        # roughness, metallic, specular (its Specular IOR Level; 0: no
+    specular = 0.5        # specular layer) and ior; without them (and in files without
+    ior = 1.5             # them) a Lambert surface
+    [[object]]
+    primitive = "sphere"  # sphere (radius), box (size), torus (radius, tube)
+    center = [0.2, 0, 0]
+    radius = 0.1
+    transforms = [[[1, 0, 0, 0.3], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], ...]
+                          # optional: the object instanced by these 4x4 chart-affine maps
+    [[light]]
+    position = [0, 0, 0.3]
+    color = [1, 1, 1]
+    power = 1.0
+    type = "spot"         # optional: a spot light (point: the default), with
+    direction = [0, 0, -1]  # its axis,
+    spot_size = 45          # its cone's full angle (degrees) and blend, as Blender's
+    spot_blend = 0.15
+    [[light]]
+    type = "area"         # an emissive rectangle or disc (an object, one-sided, black)
+    position = [0, 0, 0.4]; direction = [0, 0, -1]; x_axis = [1, 0, 0]
+    size = [0.2, 0.1]; shape = "rectangle"  # or "disc" (size: its diameters)
+    emission = [4, 4, 4]  # radiance
+    [camera]
+    position = [0, 0, 0]; forward = [0, 1, 0]; up = [0, 0, 1]; fov = 90
+    shift = [0, 0]; clip_start = 0  # lens shift in image widths; clip_end (absent: none)
     """
     path = Path(path)
     if path.suffix.lower() != ".toml":
@@ -141,10 +154,14 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
             objs = [primitive(spec, where)]
             primitive_triangles += len(objs[0].triangles)
             if primitive_triangles > MAX_PRIMITIVE_TRIANGLES:
-                raise SceneError(f"{where}: the file's primitives have more than {MAX_PRIMITIVE_TRIANGLES} triangles; "
-                                 "place copies of one with `transforms` (instances) instead")
+                raise SceneError(
+                    f"{where}: the file's primitives have more than {MAX_PRIMITIVE_TRIANGLES} triangles; "
+                    "place copies of one with `transforms` (instances) instead"
+                )
         else:  # a misspelt file or primitive: the error names the nearest of every object key
-            every_object_key = sorted({*OBJECT_KEYS, *FILE_OBJECT_KEYS, *(k for keys in PRIMITIVE_KEYS.values() for k in keys)})
+            every_object_key = sorted(
+                {*OBJECT_KEYS, *FILE_OBJECT_KEYS, *(k for keys in PRIMITIVE_KEYS.values() for k in keys)}
+            )
             check_keys(spec, every_object_key, where, SceneError)
             raise SceneError(f"{where}: needs 'file' or 'primitive'")
         for o in objs:  # overrides apply to every material of the file (textures included)
@@ -181,13 +198,19 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
         power = _number(spec, "power", 1.0, where)
         if power < 0:
             raise SceneError(f"{where}: power must be >= 0, got {power:g}")
-        spot = {} if kind == "point" else dict(
-            spot_direction=_vec(spec.get("direction"), f"{where}: direction"),
-            spot_size=math.radians(_number(spec, "spot_size", 45.0, where)),
-            spot_blend=_number(spec, "spot_blend", 0.15, where))
+        spot = (
+            {}
+            if kind == "point"
+            else dict(
+                spot_direction=_vec(spec.get("direction"), f"{where}: direction"),
+                spot_size=math.radians(_number(spec, "spot_size", 45.0, where)),
+                spot_blend=_number(spec, "spot_blend", 0.15, where),
+            )
+        )
         try:
-            scene.lights.append(PointLight(position, colour(spec.get("color", [1, 1, 1]), f"{where}: color"), power,
-                                           **spot))
+            scene.lights.append(
+                PointLight(position, colour(spec.get("color", [1, 1, 1]), f"{where}: color"), power, **spot)
+            )
         except SceneError as exc:
             raise SceneError(f"{where}: {exc}") from None
     if "camera" in data:
@@ -204,8 +227,11 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
             _vec(c.get("position", [0, 0, 0]), f"{where}.position"),
             _vec(c.get("forward", [0, 1, 0]), f"{where}.forward"),
             _vec(c.get("up", [0, 0, 1]), f"{where}.up"),
-            fov, shift=tuple(_vec(c.get("shift", [0, 0]), f"{where}.shift", 2)),
-            clip_start=clip_start, clip_end=clip_end)
+            fov,
+            shift=tuple(_vec(c.get("shift", [0, 0]), f"{where}.shift", 2)),
+            clip_start=clip_start,
+            clip_end=clip_end,
+        )
     return scene
 
 
@@ -224,8 +250,10 @@ def _area_light(spec: dict, position, where: str) -> SceneObject:
     """A TOML area light: a rectangle or disc of `size` (width, height; diameters for a disc) at
     `position`, emitting `emission` (radiance) towards `direction`, its width along `x_axis`."""
     direction = _vec(spec.get("direction", [0, 0, -1]), f"{where}: direction")
-    x_axis = _vec(spec.get("x_axis", [1, 0, 0] if abs(direction[0]) < 0.9 * np.linalg.norm(direction) else [0, 1, 0]),
-                  f"{where}: x_axis")
+    x_axis = _vec(
+        spec.get("x_axis", [1, 0, 0] if abs(direction[0]) < 0.9 * np.linalg.norm(direction) else [0, 1, 0]),
+        f"{where}: x_axis",
+    )
     size = _vec(spec.get("size", [0.1, 0.1]), f"{where}: size", 2)
     shape = spec.get("shape", "rectangle")
     if shape not in ("rectangle", "disc"):
@@ -234,7 +262,9 @@ def _area_light(spec: dict, position, where: str) -> SceneObject:
     w = direction / max(np.linalg.norm(direction), 1e-300)
     u = x_axis - (x_axis @ w) * w
     if not (np.linalg.norm(direction) > 0 and np.linalg.norm(u) > 1e-9 * np.linalg.norm(x_axis)) or np.any(size <= 0):
-        raise SceneError(f"{where}: an area light needs a non-zero direction, an x_axis not along it and a positive size")
+        raise SceneError(
+            f"{where}: an area light needs a non-zero direction, an x_axis not along it and a positive size"
+        )
     u = u / np.linalg.norm(u) * size[0] / 2
     v = np.cross(w, u) / np.linalg.norm(u) * size[1] / 2  # u x v along the direction it emits to
     return flat_light(f"area light {where}", position, u, v, emission, disc=shape == "disc")
@@ -254,16 +284,20 @@ def primitive(spec: dict, where: str) -> SceneObject:
     if not isinstance(name, str):
         raise SceneError(f"{where}: name must be a string, got {name!r}")
     if kind == "sphere":
-        mesh = trimesh.creation.icosphere(subdivisions=_whole(spec, "subdivisions", 3, where, 0, MAX_SUBDIVISIONS),
-                                          radius=_number(spec, "radius", 0.1, where, positive=True))
+        mesh = trimesh.creation.icosphere(
+            subdivisions=_whole(spec, "subdivisions", 3, where, 0, MAX_SUBDIVISIONS),
+            radius=_number(spec, "radius", 0.1, where, positive=True),
+        )
     elif kind == "box":
         size = _vec(spec.get("size", [0.2, 0.2, 0.2]), f"{where}: size")
         if not np.all(size > 0):
             raise SceneError(f"{where}: size must be positive, got {size.tolist()}")
         mesh = trimesh.creation.box(extents=size)
     else:
-        mesh = trimesh.creation.torus(major_radius=_number(spec, "radius", 0.15, where, positive=True),
-                                      minor_radius=_number(spec, "tube", 0.05, where, positive=True))
+        mesh = trimesh.creation.torus(
+            major_radius=_number(spec, "radius", 0.15, where, positive=True),
+            minor_radius=_number(spec, "tube", 0.05, where, positive=True),
+        )
     return clean(SceneObject(name, mesh.vertices + center, mesh.faces), where)
 
 

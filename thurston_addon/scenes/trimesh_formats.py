@@ -1,4 +1,5 @@
 """The mesh files trimesh reads: PLY, STL and glTF/GLB."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -40,8 +41,11 @@ def read_trimesh_file(path: Path) -> list[SceneObject]:
         name = str(getattr(material, "name", ""))
         try:
             materials = [Material(color, emission, texture, name=name, **gltf_scattering(material))]
-            out.append(SceneObject(str(node), V, F, color, emission, corner_normals=normals, corner_uvs=uvs,
-                                   materials=materials))
+            out.append(
+                SceneObject(
+                    str(node), V, F, color, emission, corner_normals=normals, corner_uvs=uvs, materials=materials
+                )
+            )
         except SceneError as exc:
             raise SceneError(f"{path}: {exc}") from None
     return out

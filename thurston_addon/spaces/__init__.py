@@ -15,6 +15,7 @@ g^-1. A space that fails validation raises SpaceError naming the file and the pr
 values.py reads a file's values, domains.py holds the domain and its faces, space.py the Space base
 class, catalog.py the loading and the presets.
 """
+
 from .catalog import PRESET_DIR, SPACE_KEYS, SPACE_PATH_VARIABLE, from_data, load, preset_dirs, preset_ids, preset_path
 from .coordinate import CoordinateSpace
 from .dirichlet import DirichletSpace
@@ -22,5 +23,19 @@ from .shells import FoldedShellSpace, ShellSpace
 from .space import Space
 from .values import SpaceError
 
-__all__ = ["PRESET_DIR", "SPACE_KEYS", "SPACE_PATH_VARIABLE", "CoordinateSpace", "DirichletSpace",
-           "FoldedShellSpace", "ShellSpace",           "Space", "SpaceError", "from_data", "load", "preset_dirs", "preset_ids", "preset_path"]
+__all__ = [
+    "PRESET_DIR",
+    "SPACE_KEYS",
+    "SPACE_PATH_VARIABLE",
+    "CoordinateSpace",
+    "DirichletSpace",
+    "FoldedShellSpace",
+    "ShellSpace",
+    "Space",
+    "SpaceError",
+    "from_data",
+    "load",
+    "preset_dirs",
+    "preset_ids",
+    "preset_path",
+]

@@ -1,5 +1,6 @@
 """Where spaces come from: a space file's fields (from_data picks the kind of space), a file by
 path, and the presets by id (the built-in folder and the user's, $THURSTON_SPACE_PATH)."""
+
 from __future__ import annotations
 
 import os
@@ -18,8 +19,18 @@ PRESET_DIR = Path(__file__).parent.parent / "presets"
 # Folders of a user's own presets (os.pathsep-separated), searched before the built-in ones.
 SPACE_PATH_VARIABLE = "THURSTON_SPACE_PATH"
 # The keys of a space file's tables (any other key is an error naming the nearest valid one).
-SPACE_KEYS = ("id", "name", "description", "geometry", "scale", "max_distance", "max_crossings", "covolume",
-              "camera", "generator")
+SPACE_KEYS = (
+    "id",
+    "name",
+    "description",
+    "geometry",
+    "scale",
+    "max_distance",
+    "max_crossings",
+    "covolume",
+    "camera",
+    "generator",
+)
 CAMERA_KEYS = ("position", "forward", "up", "fov")
 GENERATOR_KEYS = ("name", "matrix", "face", "antipodal")
 
@@ -72,7 +83,9 @@ def load(path_or_id: str | Path) -> Space:
     if not path.suffix and not path.exists():
         path = preset_path(str(path_or_id))
         if path is None:
-            raise SpaceError(f"unknown space {str(path_or_id)!r}: not a preset ({', '.join(preset_ids())}) and not a file")
+            raise SpaceError(
+                f"unknown space {str(path_or_id)!r}: not a preset ({', '.join(preset_ids())}) and not a file"
+            )
     text = read_text(path, "space file", SpaceError, "space file")
     try:
         data = tomllib.loads(text)

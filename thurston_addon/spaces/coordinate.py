@@ -1,5 +1,6 @@
 """Coordinate spaces: the domain is given by the file, each generator naming the face beyond which
 its copy of the domain lies; validated by discreteness, unique reduction and the covolume."""
+
 from __future__ import annotations
 
 from functools import cached_property
@@ -28,14 +29,18 @@ class CoordinateSpace(Space):
         covectors, elements = [], []
         for (name, M), gen in zip(zip(self.generator_names, self.generators), gens):
             if "face" not in gen:
-                raise SpaceError(f"{where}: generator {name!r} has no 'face', but others do: "
-                                 "give every generator of a coordinate domain its face")
+                raise SpaceError(
+                    f"{where}: generator {name!r} has no 'face', but others do: "
+                    "give every generator of a coordinate domain its face"
+                )
             c = vector(gen["face"], 4, f"{where}: generator {name!r} face")
             if not np.linalg.norm(c[:3]) > 0:
                 raise SpaceError(f"{where}: generator {name!r} face {c.tolist()} is not a plane")
             if not c[3] < 0:
-                raise SpaceError(f"{where}: generator {name!r} face {c.tolist()} must have the chart origin "
-                                 "strictly inside (its last entry < 0)")
+                raise SpaceError(
+                    f"{where}: generator {name!r} face {c.tolist()} must have the chart origin "
+                    "strictly inside (its last entry < 0)"
+                )
             if is_identity(M):
                 raise SpaceError(f"{where}: generator {name!r} is the identity: it pairs its face with no other")
             try:
@@ -46,8 +51,10 @@ class CoordinateSpace(Space):
             elements += [M, np.linalg.inv(M)]
         self.domain = self._face_domain(covectors, elements)
         if len(self.domain.faces) != len(covectors):
-            raise SpaceError(f"{where}: {len(covectors) - len(self.domain.faces)} of the generators' faces "
-                             "do not bound the domain (each face and its image must be faces of it)")
+            raise SpaceError(
+                f"{where}: {len(covectors) - len(self.domain.faces)} of the generators' faces "
+                "do not bound the domain (each face and its image must be faces of it)"
+            )
         keys = {self.geometry.element_key(f.element): i for i, f in enumerate(self.domain.faces)}
         for face in self.domain.faces:
             face.partner = keys[self.geometry.element_key(np.linalg.inv(face.element))]
@@ -57,10 +64,12 @@ class CoordinateSpace(Space):
         """The polyhedron of the faces (each generator's, then its image), around the chart origin."""
         for k, image in enumerate(covectors[1::2]):
             if not image[3] < 0:
-                raise SpaceError(f"{self.source}: generator {self.generator_names[k]!r} carries its face "
-                                 f"{np.round(covectors[2 * k], 12).tolist()} to {np.round(image, 12).tolist()}, which does "
-                                 "not have the chart origin inside: the face must lie between the domain and the "
-                                 "generator's copy of it")
+                raise SpaceError(
+                    f"{self.source}: generator {self.generator_names[k]!r} carries its face "
+                    f"{np.round(covectors[2 * k], 12).tolist()} to {np.round(image, 12).tolist()}, which does "
+                    "not have the chart origin inside: the face must lie between the domain and the "
+                    "generator's copy of it"
+                )
         return halfspace_domain(covectors, elements, self.source, self.geometry)
 
     group_order = None  # lattices and bundles: infinite
@@ -103,7 +112,11 @@ class CoordinateSpace(Space):
                 # the point of the face at distance `inset` from both sides: ring[i] + x a + y b
                 G = np.array([[a @ a, a @ b], [a @ b, b @ b]])
                 corners.append(ring[i] + np.linalg.solve(G, [inset, inset]) @ np.array([a, b]))
-            groups[c] += [piece for i in range(k) for piece in self.geometry.face_shape.chart_segments(corners[i], corners[(i + 1) % k])]
+            groups[c] += [
+                piece
+                for i in range(k)
+                for piece in self.geometry.face_shape.chart_segments(corners[i], corners[(i + 1) % k])
+            ]
         return groups
 
     @cached_property
@@ -136,8 +149,10 @@ class CoordinateSpace(Space):
         words = [*self.generators, *(np.linalg.inv(M) for M in self.generators)]
         for (i, a), b in ((p, b) for p in enumerate(self.generators) for b in words):
             if not self.reduces_to_identity(b @ a @ np.linalg.inv(b), probes):
-                raise SpaceError(f"{where}: the conjugate of generator {self.generator_names[i]!r} by another generator "
-                                 "is not in the group the domain tiles by: the group is not discrete with this domain")
+                raise SpaceError(
+                    f"{where}: the conjugate of generator {self.generator_names[i]!r} by another generator "
+                    "is not in the group the domain tiles by: the group is not discrete with this domain"
+                )
         # p and w(p) reduce to one point for random words w
         points = g.to_model(self._interior_points(rng, 64))
         for _ in range(8):
@@ -147,10 +162,13 @@ class CoordinateSpace(Space):
             Y, _, _ = self.move_inside(points @ W.T)
             # the float64 generators satisfy the group's relations to rounding of the word's size
             if not np.allclose(g.to_chart(Y), g.to_chart(points), atol=1e-8 * max(1.0, np.abs(W).max())):
-                raise SpaceError(f"{where}: points and their images under the group reduce to different points of "
-                                 "the domain: the faces do not bound a fundamental domain of the group")
+                raise SpaceError(
+                    f"{where}: points and their images under the group reduce to different points of "
+                    "the domain: the faces do not bound a fundamental domain of the group"
+                )
         if "covolume" in data:
             covolume = evaluate(data["covolume"], f"{where}: covolume")
             if abs(self.volume - covolume) > 1e-6 * max(1.0, covolume):
-                raise SpaceError(f"{where}: the domain's volume {self.volume:.9g} is not the covolume {covolume:.9g} "
-                                 "the file states")
+                raise SpaceError(
+                    f"{where}: the domain's volume {self.volume:.9g} is not the covolume {covolume:.9g} the file states"
+                )

@@ -3,6 +3,7 @@ generators (the intersection of the half-spaces closer to the origin O than to g
 elements g, which are planes of the chart where geodesics are chart lines) and validated by
 Poincaré's polyhedron theorem (pairings are isometries that map faces onto faces, edge cycles sum
 to 2 pi)."""
+
 from __future__ import annotations
 
 import itertools
@@ -27,8 +28,10 @@ class DirichletSpace(Space):
 
     def _build_domain(self, data: dict):
         if not self.geometry.projective:
-            raise SpaceError(f"{self.source}: {self.geometry.name} has no Dirichlet domains in its chart: "
-                             "give each [[generator]] the 'face' its copy of the domain lies beyond")
+            raise SpaceError(
+                f"{self.source}: {self.geometry.name} has no Dirichlet domains in its chart: "
+                "give each [[generator]] the 'face' its copy of the domain lies beyond"
+            )
         self._elements: list[np.ndarray] = [np.eye(4)]
         self._radius = 0.0
         self._dirichlet_domain()
@@ -59,6 +62,7 @@ class DirichletSpace(Space):
             def reaches(M):
                 self._check_moves_centre(M, "a word in the generators")
                 return g.distance(O, M[:, 3]) <= horizon + 1e-9
+
         found = self._search([np.eye(4)], steps, reaches, f"near the ball of radius {radius:.3g}")
         self._elements = sorted(found, key=lambda M: g.distance(O, M[:, 3]))
         self._radius = radius
@@ -93,8 +97,11 @@ class DirichletSpace(Space):
         shortened, moved = self._shortened(self._steps)
         # (the shortened ones too where shortening changed them: else theirs is the polyhedron just tried)
         for generators in (self._steps, shortened) if moved else (self._steps,):
-            distinct = {g.element_key(N): N for M in generators + [np.linalg.inv(M) for M in generators]
-                        for N in [g.reorthonormalize(M)]}
+            distinct = {
+                g.element_key(N): N
+                for M in generators + [np.linalg.inv(M) for M in generators]
+                for N in [g.reorthonormalize(M)]
+            }
             try:
                 self._bisector_domain(sorted(distinct.values(), key=lambda M: g.distance(O, M[:, 3])))
                 self._check_pairings()
@@ -188,16 +195,22 @@ class DirichletSpace(Space):
         if X[3] < 0 or moved >= CENTRE_RESOLUTION:  # (X[3] < 0: O's antipode in S3)
             return
         if moved < 1e-12:
-            raise SpaceError(f"{self.source}: {what} fixes the domain centre (the chart origin) without being the "
-                             "identity: the group does not act freely, so the space is not a manifold")
+            raise SpaceError(
+                f"{self.source}: {what} fixes the domain centre (the chart origin) without being the "
+                "identity: the group does not act freely, so the space is not a manifold"
+            )
         if generator:
-            raise SpaceError(f"{self.source}: {what} moves the domain centre by only {moved:.3g}, less than the "
-                             f"{CENTRE_RESOLUTION:g} the domain's computation resolves (a flat space can be written "
-                             "in larger chart units, with `scale` set to match)")
-        raise SpaceError(f"{self.source}: {what} moves the domain centre by only {moved:.3g}, less than the "
-                         f"{CENTRE_RESOLUTION:g} the domain's computation resolves: a word in the generators that "
-                         "should be the identity is not (their entries disagree at that level: give them exactly, "
-                         "e.g. 'sqrt(3)/2'), or the group is not discrete")
+            raise SpaceError(
+                f"{self.source}: {what} moves the domain centre by only {moved:.3g}, less than the "
+                f"{CENTRE_RESOLUTION:g} the domain's computation resolves (a flat space can be written "
+                "in larger chart units, with `scale` set to match)"
+            )
+        raise SpaceError(
+            f"{self.source}: {what} moves the domain centre by only {moved:.3g}, less than the "
+            f"{CENTRE_RESOLUTION:g} the domain's computation resolves: a word in the generators that "
+            "should be the identity is not (their entries disagree at that level: give them exactly, "
+            "e.g. 'sqrt(3)/2'), or the group is not discrete"
+        )
 
     def _pair_faces(self, domain: Domain):
         g = self.geometry
@@ -215,7 +228,9 @@ class DirichletSpace(Space):
                 d = np.linalg.norm(domain.vertices[target] - p, axis=1)
                 k = int(np.argmin(d))
                 if d[k] > 1e-7 * (1 + np.linalg.norm(p)):
-                    raise SpaceError(f"{where}: the pairing of face {i} does not map its vertex {v} onto a vertex of face {j}")
+                    raise SpaceError(
+                        f"{where}: the pairing of face {i} does not map its vertex {v} onto a vertex of face {j}"
+                    )
                 face.vertex_map[v] = target[k]
             if sorted(face.vertex_map.values()) != sorted(target):
                 raise SpaceError(f"{where}: the pairing of face {i} does not map it onto face {j}")

@@ -1,11 +1,12 @@
 """A fundamental domain: its faces (covectors, the elements whose copies lie beyond them, vertex
 rings, partners), the domain (vertices, faces, edges, the inside test), a fold, and the convex
 polyhedron that half-spaces of the chart cut out."""
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Callable
 
 import numpy as np
 from scipy.optimize import linprog
@@ -76,6 +77,7 @@ class Fold:
     model of the geometry holds it with them (S2xR's antipodal reflections): the space is traced
     through its double cover, whose domain is D and f(D), with the scene and the lights doubled by f
     (render.compile_scene); what is seen in f(D) is reported at its image in D."""
+
     points: Callable  # chart points -> their images
     vectors: Callable  # (chart points, chart vectors there) -> the vectors' images
     mirrored: Callable  # chart points of the double cover's domain -> whether they lie in f(D)
@@ -88,14 +90,18 @@ def halfspace_domain(covectors, elements, source, geometry) -> Domain:
     C /= np.linalg.norm(C[:, :3], axis=1)[:, None]
     away = _unbounded_direction(C)
     if away is not None:
-        raise SpaceError(f"{source}: the domain is not compact: it reaches out of every bound along "
-                         f"{np.round(away, 6).tolist()} in the chart (the group has too few generators to close it)")
+        raise SpaceError(
+            f"{source}: the domain is not compact: it reaches out of every bound along "
+            f"{np.round(away, 6).tolist()} in the chart (the group has too few generators to close it)"
+        )
     try:
         hs = HalfspaceIntersection(C, np.zeros(3))
     except (QhullError, ValueError):
-        raise SpaceError(f"{source}: the faces of the domain cannot be intersected: some of them are parallel or "
-                         "coincide to rounding (generators given to too few digits, or a group that is not "
-                         "discrete)") from None
+        raise SpaceError(
+            f"{source}: the faces of the domain cannot be intersected: some of them are parallel or "
+            "coincide to rounding (generators given to too few digits, or a group that is not "
+            "discrete)"
+        ) from None
     pts = hs.intersections
     if not np.all(np.isfinite(pts)) or not np.all(geometry.in_chart(pts)):
         raise SpaceError(f"{source}: the domain is not compact (the group has too few generators)")

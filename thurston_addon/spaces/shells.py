@@ -1,5 +1,6 @@
 """Shell spaces: coordinate domains whose faces are spheres |x| = const (S2xR's), the shell
 between two of them, and the folded shells whose spheres are glued to themselves."""
+
 from __future__ import annotations
 
 import math
@@ -38,11 +39,15 @@ class ShellSpace(CoordinateSpace):
         if not inner < outer < math.inf:
             raise SpaceError(f"{where}: the faces do not bound a shell between two spheres")
         if any(abs(w - (outer if s else inner)) > 1e-12 * (1 + abs(w)) for w, s in bounds):
-            raise SpaceError(f"{where}: a face sphere does not bound the shell between |x| = e^{inner:g} and e^{outer:g}")
+            raise SpaceError(
+                f"{where}: a face sphere does not bound the shell between |x| = e^{inner:g} and e^{outer:g}"
+            )
         axes = np.vstack([np.eye(3), -np.eye(3)])
         vertices = np.vstack([math.exp(inner) * axes, math.exp(outer) * axes])
-        faces = [Face(covector=np.asarray(c, float) / np.linalg.norm(c[:3]), element=M, vertices=[])
-                 for c, M in zip(covectors, elements)]
+        faces = [
+            Face(covector=np.asarray(c, float) / np.linalg.norm(c[:3]), element=M, vertices=[])
+            for c, M in zip(covectors, elements)
+        ]
         self.radii = (math.exp(inner), math.exp(outer))
         return Domain(vertices=vertices, faces=faces, plane_coordinates=self.geometry.plane_coordinates)
 
@@ -135,28 +140,43 @@ class FoldedShellSpace(ShellSpace):
             name = gen.get("name", f"g{i}") if isinstance(gen, dict) else f"g{i}"
             where = f"{source}: generator {name!r}"
             if not isinstance(gen, dict) or gen.get("antipodal") is not True:
-                raise SpaceError(f"{where}: in a shell whose spheres are glued to themselves every generator is "
-                                 "'antipodal = true' with its sphere as the face")
+                raise SpaceError(
+                    f"{where}: in a shell whose spheres are glued to themselves every generator is "
+                    "'antipodal = true' with its sphere as the face"
+                )
             if "matrix" in gen:
-                raise SpaceError(f"{where}: an antipodal reflection has no matrix (no 4x4 linear map is one); "
-                                 "give only its face")
+                raise SpaceError(
+                    f"{where}: an antipodal reflection has no matrix (no 4x4 linear map is one); give only its face"
+                )
             faces.append(_sphere_face(vector(gen.get("face"), 4, f"{where} face"), where, g))
         if len(faces) != 2:
-            raise SpaceError(f"{source}: a shell glued to itself has two antipodal reflections, one in each sphere; "
-                             f"got {len(faces)}")
+            raise SpaceError(
+                f"{source}: a shell glued to itself has two antipodal reflections, one in each sphere; got {len(faces)}"
+            )
         (a, a_outer), (b, b_outer) = sorted(faces)
         if not (b > a and b_outer and not a_outer):
-            raise SpaceError(f"{source}: the two reflections' faces do not bound a shell (the inner sphere's face is "
-                             "[0, 0, -1, log R_in], the outer's [0, 0, 1, -log R_out], R_in < R_out)")
+            raise SpaceError(
+                f"{source}: the two reflections' faces do not bound a shell (the inner sphere's face is "
+                "[0, 0, -1, log R_in], the outer's [0, 0, 1, -log R_out], R_in < R_out)"
+            )
         self.folded_radii = (math.exp(a), math.exp(b))
         shape = g.face_shape
-        self.fold = Fold(points=lambda x: shape.reflection(x, self.folded_radii[0]),
-                         vectors=lambda x, v: shape.reflection_tangent(x, v, self.folded_radii[0]),
-                         mirrored=lambda x: np.sum(np.asarray(x) ** 2, axis=-1) < self.folded_radii[0] ** 2)
+        self.fold = Fold(
+            points=lambda x: shape.reflection(x, self.folded_radii[0]),
+            vectors=lambda x, v: shape.reflection_tangent(x, v, self.folded_radii[0]),
+            mirrored=lambda x: np.sum(np.asarray(x) ** 2, axis=-1) < self.folded_radii[0] ** 2,
+        )
         period = 2 * (b - a)
-        cover = dict(data, generator=[{
-            "name": "reflections",  # the outer reflection after the inner: the dilation by e^period
-            "matrix": np.diag([math.exp(period)] * 3 + [1.0]).tolist(), "face": [0, 0, 1, -b]}])
+        cover = dict(
+            data,
+            generator=[
+                {
+                    "name": "reflections",  # the outer reflection after the inner: the dilation by e^period
+                    "matrix": np.diag([math.exp(period)] * 3 + [1.0]).tolist(),
+                    "face": [0, 0, 1, -b],
+                }
+            ],
+        )
         super().__init__(cover, source)
 
     def _face_domain(self, covectors, elements) -> Domain:
@@ -178,12 +198,16 @@ class FoldedShellSpace(ShellSpace):
             pulled = np.einsum("nki,nkl,nlj->nij", J, g.metric(image), J)
             want = g.metric(p)
             if not np.allclose(pulled, want, rtol=0, atol=1e-9 * np.abs(want).max()):
-                raise SpaceError(f"{self.source}: the antipodal reflection in |x| = {r:g} is not an isometry of {g.name}")
+                raise SpaceError(
+                    f"{self.source}: the antipodal reflection in |x| = {r:g} is not an isometry of {g.name}"
+                )
         for _ in range(6):  # words in the reflections reduce to the point itself
             y = x.copy()
             for k in rng.integers(0, 2, 5):
                 y = reflections[k](y)
             back, _ = self.unfolded(g.to_chart(self.move_inside(g.to_model(y))[0]))
             if not np.allclose(back, x, rtol=1e-8, atol=1e-8):
-                raise SpaceError(f"{self.source}: points and their images under the reflections reduce to different "
-                                 "points of the shell: the faces do not bound its fundamental domain")
+                raise SpaceError(
+                    f"{self.source}: points and their images under the reflections reduce to different "
+                    "points of the shell: the faces do not bound its fundamental domain"
+                )

@@ -1,5 +1,6 @@
 """What every space has: a geometry, generators, defaults, a fundamental domain with face pairings,
 and the walk of points into it (the Space base class of the kinds of space)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -39,7 +40,9 @@ class Space:
         self.description = text(data, "description", "", where)
         self.scale = evaluate(data.get("scale", 1.0), f"{where}: scale")
         if not self.scale > 0:
-            raise SpaceError(f"{where}: scale must be a positive number (Blender units per chart unit), got {self.scale:g}")
+            raise SpaceError(
+                f"{where}: scale must be a positive number (Blender units per chart unit), got {self.scale:g}"
+            )
         self.max_distance = evaluate(data.get("max_distance", 20.0), f"{where}: max_distance")
         if not self.max_distance > 0:  # evaluate() already rejects non-finite values
             raise SpaceError(f"{where}: max_distance must be a positive number, got {self.max_distance:g}")
@@ -50,8 +53,10 @@ class Space:
             self.generators.append(M)
             self.generator_names.append(name)
         if all(map(is_identity, self.generators)):
-            raise SpaceError(f"{where}: every generator is the identity: the group is trivial, and the space would be "
-                             f"all of {self.geometry.name}, which no domain in its chart holds")
+            raise SpaceError(
+                f"{where}: every generator is the identity: the group is trivial, and the space would be "
+                f"all of {self.geometry.name}, which no domain in its chart holds"
+            )
         self.camera = self._camera(data.get("camera", {}), f"{where}: camera")
         self._build_domain(data)
 
@@ -98,10 +103,12 @@ class Space:
                     found[key] = N
                     nxt.append(N)
                     if len(found) > _GROUP_LIMIT:
-                        raise SpaceError(f"{self.source}: more than {_GROUP_LIMIT} group elements {what}: the "
-                                         "group is not discrete, or its domain is far thinner than some generators "
-                                         "are long, even after shortening them (give generators that pair the "
-                                         "domain's faces)")
+                        raise SpaceError(
+                            f"{self.source}: more than {_GROUP_LIMIT} group elements {what}: the "
+                            "group is not discrete, or its domain is far thinner than some generators "
+                            "are long, even after shortening them (give generators that pair the "
+                            "domain's faces)"
+                        )
             frontier = nxt
         return list(found.values())
 
@@ -180,7 +187,9 @@ class Space:
     def bring_inside(self, X, V=None):
         """One model point (and a tangent vector) moved into the domain: (X, V, M) with M the
         accumulated isometry; raises SpaceError if it cannot be."""
-        X, V, M = self.move_inside(np.asarray(X, float)[None], None if V is None else np.asarray(V, float)[None], label=None)
+        X, V, M = self.move_inside(
+            np.asarray(X, float)[None], None if V is None else np.asarray(V, float)[None], label=None
+        )
         return X[0], (None if V is None else V[0]), self.geometry.reorthonormalize(M[0])
 
     def to_model(self, x, label="point"):
@@ -192,8 +201,10 @@ class Space:
             overflows = ~np.all(np.isfinite(g.normalize_point(X)), axis=-1)
         if overflows.any():
             i = int(np.argmax(overflows))
-            raise SpaceError(f"{_point_name(label, i)} ({np.asarray(x[i], float).tolist()}) is too far out in the "
-                             f"chart of {g.name} (its model point overflows)")
+            raise SpaceError(
+                f"{_point_name(label, i)} ({np.asarray(x[i], float).tolist()}) is too far out in the "
+                f"chart of {g.name} (its model point overflows)"
+            )
         return X
 
     def move_inside(self, X, V=None, max_steps=10000, label="point"):
@@ -210,8 +221,9 @@ class Space:
         def refuse(i, why):
             with np.errstate(all="ignore"):
                 where = np.asarray(g.to_chart(np.asarray(given[i])), float).tolist()
-            raise SpaceError(f"{_point_name(label, i)} ({where}) {why}; it cannot be brought into the domain of "
-                             f"{self.id!r}")
+            raise SpaceError(
+                f"{_point_name(label, i)} ({where}) {why}; it cannot be brought into the domain of {self.id!r}"
+            )
 
         with np.errstate(all="ignore"):
             X = g.normalize_point(np.array(X, copy=True))
@@ -290,8 +302,13 @@ class Space:
 
     def summary(self) -> dict:
         return {
-            "id": self.id, "name": self.name, "geometry": self.geometry.name, "description": self.description,
-            "faces": len(self.domain.faces), "vertices": len(self.domain.vertices), "source": self.source,
+            "id": self.id,
+            "name": self.name,
+            "geometry": self.geometry.name,
+            "description": self.description,
+            "faces": len(self.domain.faces),
+            "vertices": len(self.domain.vertices),
+            "source": self.source,
         }
 
 

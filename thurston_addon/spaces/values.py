@@ -1,5 +1,6 @@
 """The values of a space file: arithmetic strings such as "sqrt(3)/2", vectors, counts and texts,
 each read or refused with a SpaceError naming where it is."""
+
 from __future__ import annotations
 
 import ast
@@ -14,9 +15,36 @@ class SpaceError(ValueError):
 
 
 # --- safe arithmetic for matrix entries such as "sqrt(3)/2" ------------------------------------
-_FUNCS = {n: getattr(math, n) for n in ("sqrt", "sin", "cos", "tan", "asin", "acos", "atan", "sinh", "cosh", "tanh", "asinh", "acosh", "atanh", "exp", "log")}
+_FUNCS = {
+    n: getattr(math, n)
+    for n in (
+        "sqrt",
+        "sin",
+        "cos",
+        "tan",
+        "asin",
+        "acos",
+        "atan",
+        "sinh",
+        "cosh",
+        "tanh",
+        "asinh",
+        "acosh",
+        "atanh",
+        "exp",
+        "log",
+    )
+}
 _CONSTS = {"pi": math.pi, "phi": (1 + math.sqrt(5)) / 2, "e": math.e}
-_OPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv, ast.Pow: operator.pow, ast.USub: operator.neg, ast.UAdd: operator.pos}
+_OPS = {
+    ast.Add: operator.add,
+    ast.Sub: operator.sub,
+    ast.Mult: operator.mul,
+    ast.Div: operator.truediv,
+    ast.Pow: operator.pow,
+    ast.USub: operator.neg,
+    ast.UAdd: operator.pos,
+}
 
 
 def evaluate(value, where: str) -> float:
@@ -37,7 +65,12 @@ def evaluate(value, where: str) -> float:
             return _OPS[type(node.op)](ev(node.left), ev(node.right))
         if isinstance(node, ast.UnaryOp) and type(node.op) in _OPS:
             return _OPS[type(node.op)](ev(node.operand))
-        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in _FUNCS and len(node.args) == 1:
+        if (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Name)
+            and node.func.id in _FUNCS
+            and len(node.args) == 1
+        ):
             return _FUNCS[node.func.id](ev(node.args[0]))
         raise SpaceError(f"{where}: cannot evaluate {value!r} (numbers, + - * / **, pi, phi, sqrt, sin, cos, ... only)")
 

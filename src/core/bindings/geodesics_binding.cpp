@@ -19,8 +19,9 @@ namespace thurston::bindings {
 namespace {
 
 nb::tuple flow_rows(const std::string& geometry, const Array& points, const Array& velocities,
-                        const Array& lengths, double accuracy) {
-  if (!has_geometry(geometry)) throw nb::value_error(("unknown geometry '" + geometry + "'").c_str());
+                    const Array& lengths, double accuracy) {
+  if (!has_geometry(geometry))
+    throw nb::value_error(("unknown geometry '" + geometry + "'").c_str());
   check_rays(points, velocities, "points", "velocities", 3, "row");
   check<double>(lengths, "lengths", {std::int64_t(points.shape(0))}, "(N,) with N = len(points)");
   const std::size_t n = points.shape(0);
@@ -31,7 +32,8 @@ nb::tuple flow_rows(const std::string& geometry, const Array& points, const Arra
     Vec3 x, u;
     if (!thurston::geodesic_flow(geometry, {p(i, 0), p(i, 1), p(i, 2)}, {v(i, 0), v(i, 1), v(i, 2)},
                                  t[i * lengths.stride(0)], accuracy, x, u))
-      throw nb::value_error((geometry + " has no marching flow (its geodesics are chart lines)").c_str());
+      throw nb::value_error(
+          (geometry + " has no marching flow (its geodesics are chart lines)").c_str());
     for (int a = 0; a < 3; ++a) {
       xt[3 * i + a] = x[a];
       vt[3 * i + a] = u[a];
@@ -50,7 +52,8 @@ nb::tuple connect_points(const ConnectionsHandle& self, const std::array<double,
   std::vector<LightPath> paths;
   const int missed = self.connections->connect(h, l, paths);
   const std::size_t n = paths.size();
-  std::unique_ptr<double[]> directions(new double[3 * n]), lengths(new double[n]), falloffs(new double[n]);
+  std::unique_ptr<double[]> directions(new double[3 * n]), lengths(new double[n]),
+      falloffs(new double[n]);
   for (std::size_t i = 0; i < n; ++i) {
     for (int a = 0; a < 3; ++a) directions[3 * i + a] = paths[i].direction[a];
     lengths[i] = paths[i].distance;
@@ -70,17 +73,19 @@ void bind_geodesics(nb::module_& m) {
         "chart velocities (float64 (N,3)) after arclengths (float64 (N,)), asked for `accuracy` "
         "(chart units). Returns (points, velocities), float64 (N,3) each.");
 
-  nb::class_<ConnectionsHandle>(m, "Connections",
-                                "The tracer's light paths of a marching geometry (Nil, Sol, H2xR, S2xR, SL2) "
-                                "within a reach: Connections(geometry, reach)(h, l) gives every geodesic from "
-                                "the chart point h to the chart point l no longer than the reach, as (directions "
-                                "float64 (n,3): unit chart tangents at h, lengths float64 (n,), falloffs float64 "
-                                "(n,): the inverse area density of the geodesic sphere along each, missed: how "
-                                "many the search could tell it missed).")
+  nb::class_<ConnectionsHandle>(
+      m, "Connections",
+      "The tracer's light paths of a marching geometry (Nil, Sol, H2xR, S2xR, SL2) "
+      "within a reach: Connections(geometry, reach)(h, l) gives every geodesic from "
+      "the chart point h to the chart point l no longer than the reach, as (directions "
+      "float64 (n,3): unit chart tangents at h, lengths float64 (n,), falloffs float64 "
+      "(n,): the inverse area density of the geodesic sphere along each, missed: how "
+      "many the search could tell it missed).")
       .def(
           "__init__",
           [](ConnectionsHandle* self, const std::string& geometry, double reach) {
-            if (!has_geometry(geometry)) throw nb::value_error(("unknown geometry '" + geometry + "'").c_str());
+            if (!has_geometry(geometry))
+              throw nb::value_error(("unknown geometry '" + geometry + "'").c_str());
             if (!(reach >= 0.0) || !std::isfinite(reach))
               throw nb::value_error("reach must be a finite distance >= 0");
             std::unique_ptr<Connections> connections = make_connections(geometry, reach);

@@ -1,17 +1,19 @@
 // The compiled-scene record's parts, each bound once: its arrays as given (no conversion: a wrong
 // dtype is a ValueError when the Tracer checks the record), read-only fields of the same names.
+#include "scene_record.hpp"
+
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 
 #include "bind.hpp"
-#include "scene_record.hpp"
 
 namespace thurston::bindings {
 
 namespace {
 
-const char* const kSceneDoc = R"(The compiled scene that a Tracer renders (render.compile_scene's arrays by part).
+const char* const kSceneDoc =
+    R"(The compiled scene that a Tracer renders (render.compile_scene's arrays by part).
 
 geometry: "E3", "S3" (gnomonic chart), "H3" (Klein chart): points are model 4-vectors X whose
 chart point is X[:3] / X[3] and geodesics are exact chart lines; the marching geometries ("Nil",
@@ -26,7 +28,8 @@ face_covectors: float64 (F,4); the fundamental domain is {X : c_f . X <= 0 for a
 face_maps: float64 (F,4,4); a ray leaving through face f continues from M_f X (then, for the
 marching geometries, reduced into the domain by the maps of the faces it lies outside of).)";
 
-const char* const kMeshesDoc = R"(The triangles: meshes one after the other, each stored and built once.
+const char* const kMeshesDoc =
+    R"(The triangles: meshes one after the other, each stored and built once.
 
 vertices: float64 (NV,3) chart coordinates (with instances: the meshes' coordinates);
 triangles: int32 (NT,3); triangle_object: int32 (NT,).
@@ -77,7 +80,8 @@ angle, smoothness 1 / ((1 - cos) blend)), light leaving at angle theta from the 
 smoothstep((cos theta - cos) * smoothness) as in Cycles (cos -1: no cone); light_axis float64
 (K,4) the unit axis (a model tangent vector) at each lift of a light with a cone.)";
 
-const char* const kEmittersDoc = R"(Emissive triangles sampled as lights at every shaded point (trace's light_samples points each).
+const char* const kEmittersDoc =
+    R"(Emissive triangles sampled as lights at every shaded point (trace's light_samples points each).
 
 Together: emitter_triangles float64 (E,3,3) chart triangles of one copy of each emitter,
 emitter_radiance float32 (E,3), emitter_one_sided int32 (E,) (1: emits from the side of its
@@ -92,7 +96,8 @@ auto optional(const char* name) { return nb::arg(name).noconvert().none() = nb::
 
 void bind_scene_record(nb::module_& m) {
   nb::class_<DomainArrays>(m, "Domain", kDomainDoc)
-      .def(nb::init<Array, Array>(), nb::arg("face_covectors").noconvert(), nb::arg("face_maps").noconvert())
+      .def(nb::init<Array, Array>(), nb::arg("face_covectors").noconvert(),
+           nb::arg("face_maps").noconvert())
       .def_ro("face_covectors", &DomainArrays::face_covectors)
       .def_ro("face_maps", &DomainArrays::face_maps);
 
@@ -113,14 +118,15 @@ void bind_scene_record(nb::module_& m) {
       .def_ro("instance_object", &InstanceArrays::instance_object);
 
   nb::class_<SurfaceArrays>(m, "Surfaces", kSurfacesDoc)
-      .def(nb::init<Array, Array, OptionalArray, OptionalArray, OptionalArray, OptionalArray, OptionalArray,
-                    OptionalArray, OptionalArray, OptionalArray, OptionalArray, std::vector<Array>>(),
+      .def(nb::init<Array, Array, OptionalArray, OptionalArray, OptionalArray, OptionalArray,
+                    OptionalArray, OptionalArray, OptionalArray, OptionalArray, OptionalArray,
+                    std::vector<Array>>(),
            nb::arg("object_color").noconvert(), nb::arg("object_emission").noconvert(),
-           optional("corner_normals"), optional("corner_uvs"),
-           optional("triangle_material"), optional("material_color"),
-           optional("material_emission"), optional("material_color_texture"),
-           optional("material_emission_texture"), optional("material_one_sided"),
-           optional("material_scattering"), nb::arg("textures") = std::vector<Array>())
+           optional("corner_normals"), optional("corner_uvs"), optional("triangle_material"),
+           optional("material_color"), optional("material_emission"),
+           optional("material_color_texture"), optional("material_emission_texture"),
+           optional("material_one_sided"), optional("material_scattering"),
+           nb::arg("textures") = std::vector<Array>())
       .def_ro("object_color", &SurfaceArrays::object_color)
       .def_ro("object_emission", &SurfaceArrays::object_emission)
       .def_ro("corner_normals", &SurfaceArrays::corner_normals)
@@ -137,8 +143,8 @@ void bind_scene_record(nb::module_& m) {
   nb::class_<LightArrays>(m, "Lights", kLightsDoc)
       .def(nb::init<Array, Array, Array, OptionalArray, OptionalArray, double, double>(),
            nb::arg("light_lifts").noconvert(), nb::arg("light_of_lift").noconvert(),
-           nb::arg("light_radiance").noconvert(), optional("light_cone"),
-           optional("light_axis"), nb::arg("light_reach") = kInf, nb::arg("geodesic_loop") = kInf)
+           nb::arg("light_radiance").noconvert(), optional("light_cone"), optional("light_axis"),
+           nb::arg("light_reach") = kInf, nb::arg("geodesic_loop") = kInf)
       .def_ro("light_lifts", &LightArrays::light_lifts)
       .def_ro("light_of_lift", &LightArrays::light_of_lift)
       .def_ro("light_radiance", &LightArrays::light_radiance)
@@ -148,10 +154,11 @@ void bind_scene_record(nb::module_& m) {
       .def_ro("geodesic_loop", &LightArrays::geodesic_loop);
 
   nb::class_<EmitterArrays>(m, "Emitters", kEmittersDoc)
-      .def(nb::init<OptionalArray, OptionalArray, OptionalArray, OptionalArray, OptionalArray, OptionalArray>(),
+      .def(nb::init<OptionalArray, OptionalArray, OptionalArray, OptionalArray, OptionalArray,
+                    OptionalArray>(),
            optional("emitter_triangles"), optional("emitter_radiance"),
-           optional("emitter_one_sided"), optional("emitter_group"),
-           optional("emitter_copies"), optional("emitter_copy_group"))
+           optional("emitter_one_sided"), optional("emitter_group"), optional("emitter_copies"),
+           optional("emitter_copy_group"))
       .def_ro("emitter_triangles", &EmitterArrays::emitter_triangles)
       .def_ro("emitter_radiance", &EmitterArrays::emitter_radiance)
       .def_ro("emitter_one_sided", &EmitterArrays::emitter_one_sided)
@@ -160,10 +167,10 @@ void bind_scene_record(nb::module_& m) {
       .def_ro("emitter_copy_group", &EmitterArrays::emitter_copy_group);
 
   nb::class_<SceneRecord>(m, "Scene", kSceneDoc)
-      .def(nb::init<std::string, DomainArrays, MeshArrays, SurfaceArrays, LightArrays, InstanceArrays,
-                    EmitterArrays>(),
-           nb::arg("geometry"), nb::arg("domain"), nb::arg("meshes"), nb::arg("surfaces"), nb::arg("lights"),
-           nb::arg("instances").sig("Instances()") = InstanceArrays{},
+      .def(nb::init<std::string, DomainArrays, MeshArrays, SurfaceArrays, LightArrays,
+                    InstanceArrays, EmitterArrays>(),
+           nb::arg("geometry"), nb::arg("domain"), nb::arg("meshes"), nb::arg("surfaces"),
+           nb::arg("lights"), nb::arg("instances").sig("Instances()") = InstanceArrays{},
            nb::arg("emitters").sig("Emitters()") = EmitterArrays{})
       .def_ro("geometry", &SceneRecord::geometry)
       .def_ro("domain", &SceneRecord::domain)

@@ -1,5 +1,5 @@
-// The compiled-scene record that Python hands the core (thurston_core.Scene): numpy arrays as given,
-// grouped into the parts of the core's SceneData (scene.hpp), each part a struct bound once
+// The compiled-scene record that Python hands the core (thurston_core.Scene): numpy arrays as
+// given, grouped into the parts of the core's SceneData (scene.hpp), each part a struct bound once
 // (scene_record.cpp) and checked into its SceneData part by scene_from_record (scene_checks.cpp).
 // Field names are the arrays' names in the compiled scene (render.compile_scene) and in errors.
 #pragma once

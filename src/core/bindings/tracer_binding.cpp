@@ -9,9 +9,9 @@
 #include <string>
 #include <utility>
 
+#include "bind.hpp"
 #include "registry.hpp"
 #include "scene_record.hpp"
-#include "bind.hpp"
 
 namespace thurston::bindings {
 
@@ -23,15 +23,19 @@ struct TracerHandle {
   std::string geometry;
 };
 
-nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directions, double max_distance,
-               int max_crossings, bool shade, nb::object progress, bool record_segments,
-               double tolerance, double tolerance_per_distance, bool skip_empty, double fog,
-               int light_samples, std::uint64_t seed, int bounces, const std::string& emitter_sampling) {
+nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directions,
+               double max_distance, int max_crossings, bool shade, nb::object progress,
+               bool record_segments, double tolerance, double tolerance_per_distance,
+               bool skip_empty, double fog, int light_samples, std::uint64_t seed, int bounces,
+               const std::string& emitter_sampling) {
   if (light_samples < 1) throw nb::value_error("light_samples must be >= 1");
   const char* const sampling_names[] = {"mis", "light", "bounce"};
-  const auto sampling = std::find(std::begin(sampling_names), std::end(sampling_names), emitter_sampling);
+  const auto sampling =
+      std::find(std::begin(sampling_names), std::end(sampling_names), emitter_sampling);
   if (sampling == std::end(sampling_names))
-    throw nb::value_error(("emitter_sampling must be 'mis', 'light' or 'bounce', got '" + emitter_sampling + "'").c_str());
+    throw nb::value_error(
+        ("emitter_sampling must be 'mis', 'light' or 'bounce', got '" + emitter_sampling + "'")
+            .c_str());
   if (bounces < 0) throw nb::value_error("bounces must be >= 0 (0: direct light only)");
   check_rays(origins, directions, "origins", "directions", 4, "ray");
   if (!(fog > 0.0)) throw nb::value_error("fog must be a positive distance (inf: none)");
@@ -50,12 +54,15 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
   std::unique_ptr<std::int32_t[]> object(new std::int32_t[n]), crossings(new std::int32_t[n]),
       chords(new std::int32_t[n]);
   std::unique_ptr<std::uint8_t[]> stop(new std::uint8_t[n]);
-  const TraceOutputs out{color.get(), depth.get(),    position.get(), normal.get(),
-                         object.get(), crossings.get(), stop.get(),   distance.get(),
-                         chords.get(), error.get(), end.get()};
-  const TraceOptions options{max_distance, max_crossings, shade, record_segments, tolerance,
-                             tolerance_per_distance, skip_empty, fog, light_samples, seed, bounces,
-                             EmitterSampling(sampling - std::begin(sampling_names))};
+  const TraceOutputs out{color.get(),  depth.get(),     position.get(), normal.get(),
+                         object.get(), crossings.get(), stop.get(),     distance.get(),
+                         chords.get(), error.get(),     end.get()};
+  const TraceOptions options{max_distance,  max_crossings,
+                             shade,         record_segments,
+                             tolerance,     tolerance_per_distance,
+                             skip_empty,    fog,
+                             light_samples, seed,
+                             bounces,       EmitterSampling(sampling - std::begin(sampling_names))};
 
   // The callback runs on this thread with the GIL re-acquired; its exception is kept until the
   // workers have stopped.
@@ -104,13 +111,16 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
   result["light_paths"] = to_numpy(std::move(paths), {});
   std::unique_ptr<double[]> energy(new double[1]{stats.light_energy});
   result["light_energy"] = to_numpy(std::move(energy), {});
-  std::unique_ptr<std::int64_t[]> emitter_paths(new std::int64_t[1]{std::int64_t(stats.emitter_paths)});
+  std::unique_ptr<std::int64_t[]> emitter_paths(
+      new std::int64_t[1]{std::int64_t(stats.emitter_paths)});
   result["emitter_paths"] = to_numpy(std::move(emitter_paths), {});
   std::unique_ptr<double[]> emitter_energy(new double[1]{stats.emitter_energy});
   result["emitter_energy"] = to_numpy(std::move(emitter_energy), {});
-  std::unique_ptr<std::int64_t[]> bounce_paths(new std::int64_t[1]{std::int64_t(stats.bounce_paths)});
+  std::unique_ptr<std::int64_t[]> bounce_paths(
+      new std::int64_t[1]{std::int64_t(stats.bounce_paths)});
   result["bounce_paths"] = to_numpy(std::move(bounce_paths), {});
-  std::unique_ptr<std::int64_t[]> emitter_hits(new std::int64_t[1]{std::int64_t(stats.emitter_hits)});
+  std::unique_ptr<std::int64_t[]> emitter_hits(
+      new std::int64_t[1]{std::int64_t(stats.emitter_hits)});
   result["emitter_hits"] = to_numpy(std::move(emitter_hits), {});
   if (record_segments) {
     std::size_t s = 0;
@@ -136,14 +146,15 @@ nb::tuple query_segments(TracerHandle& handle, const Array& starts, const Array&
   std::unique_ptr<std::int32_t[]> prim(new std::int32_t[n]), instance(new std::int32_t[n]);
   {
     nb::gil_scoped_release release;
-    handle.tracer->query_segments(n, view2<double>(starts), view2<double>(ends), t.get(), prim.get(),
-                                  instance.get());
+    handle.tracer->query_segments(n, view2<double>(starts), view2<double>(ends), t.get(),
+                                  prim.get(), instance.get());
   }
   return nb::make_tuple(to_numpy(std::move(t), {n}), to_numpy(std::move(prim), {n}),
                         to_numpy(std::move(instance), {n}));
 }
 
-const char* const kTracerDoc = R"(Ray tracer for inside views of quotient manifolds of Thurston's geometries.
+const char* const kTracerDoc =
+    R"(Ray tracer for inside views of quotient manifolds of Thurston's geometries.
 
 Tracer(scene, threads=0): the compiled scene (a thurston_core.Scene), checked as it is taken:
 every array as it is (no conversion); wrong dtypes, shapes, indices or values raise ValueError
@@ -194,9 +205,11 @@ void bind_tracer(nb::module_& m) {
       .def(
           "__init__",
           [](TracerHandle* self, const SceneRecord& scene, int threads) {
-            if (threads < 0) throw nb::value_error("threads must be >= 0 (0: all hardware threads)");
-            new (self) TracerHandle{make_tracer(scene.geometry, scene_from_record(scene), unsigned(threads)),
-                                    scene.geometry};
+            if (threads < 0)
+              throw nb::value_error("threads must be >= 0 (0: all hardware threads)");
+            new (self) TracerHandle{
+                make_tracer(scene.geometry, scene_from_record(scene), unsigned(threads)),
+                scene.geometry};
           },
           nb::arg("scene"), nb::arg("threads") = 0)
       .def("trace", &trace,
@@ -213,36 +226,46 @@ void bind_tracer(nb::module_& m) {
            nb::arg("progress").none() = nb::none(), nb::arg("record_segments") = false,
            nb::arg("tolerance") = 1e-3, nb::arg("tolerance_per_distance") = 0.0,
            nb::arg("skip_empty") = true, nb::arg("fog") = kInf, nb::arg("light_samples") = 1,
-           nb::arg("seed") = 0, nb::arg("bounces") = 0, nb::arg("emitter_sampling") = "mis", kTraceDoc)
-      .def("cancel", [](TracerHandle& t) { t.tracer->cancel(); },
-           "Stops a running trace(); callable from any Python thread.")
+           nb::arg("seed") = 0, nb::arg("bounces") = 0, nb::arg("emitter_sampling") = "mis",
+           kTraceDoc)
+      .def(
+          "cancel", [](TracerHandle& t) { t.tracer->cancel(); },
+          "Stops a running trace(); callable from any Python thread.")
       .def("query_segments", &query_segments,
            nb::sig("def query_segments(self, starts: numpy.ndarray, ends: numpy.ndarray) -> "
                    "tuple[numpy.ndarray, numpy.ndarray, numpy.ndarray]"),
-           nb::arg("starts").noconvert(),
-           nb::arg("ends").noconvert(),
+           nb::arg("starts").noconvert(), nb::arg("ends").noconvert(),
            "Bare Embree first hit of the chart "
            "segments (float64 (N,3) each) on the same BVH and threads: chord parameter t float32 "
            "(N,) in [0, 1] (inf: none), the mesh triangle prim int32 (N,) and its instance int32 "
            "(N,) (-1: none).")
       .def_prop_ro("geometry", [](const TracerHandle& t) { return t.geometry; })
-      .def_prop_ro("light_reach", [](const TracerHandle& t) { return t.tracer->light_reach(); },
-                   "Light paths longer than this are not summed (E3, S3, H3, H2xR, S2xR).")
-      .def_prop_ro("num_light_lifts", [](const TracerHandle& t) { return t.tracer->num_light_lifts(); })
-      .def_prop_ro("light_power", [](const TracerHandle& t) { return t.tracer->light_power(); },
-                   "The sum over lights of their radiance's mean over RGB.")
-      .def_prop_ro("num_emitter_triangles", [](const TracerHandle& t) { return t.tracer->num_emitter_triangles(); })
-      .def_prop_ro("num_emitter_copies", [](const TracerHandle& t) { return t.tracer->num_emitter_copies(); })
-      .def_prop_ro("num_unmatched_emitters", [](const TracerHandle& t) { return t.tracer->num_unmatched_emitters(); },
-                   "Emissive triangles (per instance) not found among the emitters' copies: bounces "
-                   "that meet them add nothing (their light comes from the emitters' samples).")
+      .def_prop_ro(
+          "light_reach", [](const TracerHandle& t) { return t.tracer->light_reach(); },
+          "Light paths longer than this are not summed (E3, S3, H3, H2xR, S2xR).")
+      .def_prop_ro("num_light_lifts",
+                   [](const TracerHandle& t) { return t.tracer->num_light_lifts(); })
+      .def_prop_ro(
+          "light_power", [](const TracerHandle& t) { return t.tracer->light_power(); },
+          "The sum over lights of their radiance's mean over RGB.")
+      .def_prop_ro("num_emitter_triangles",
+                   [](const TracerHandle& t) { return t.tracer->num_emitter_triangles(); })
+      .def_prop_ro("num_emitter_copies",
+                   [](const TracerHandle& t) { return t.tracer->num_emitter_copies(); })
+      .def_prop_ro(
+          "num_unmatched_emitters",
+          [](const TracerHandle& t) { return t.tracer->num_unmatched_emitters(); },
+          "Emissive triangles (per instance) not found among the emitters' copies: bounces "
+          "that meet them add nothing (their light comes from the emitters' samples).")
       .def_prop_ro("num_threads", [](const TracerHandle& t) { return t.tracer->num_threads(); })
-      .def_prop_ro("num_triangles", [](const TracerHandle& t) { return t.tracer->num_triangles(); },
-                   "The meshes' own triangles (each stored once).")
+      .def_prop_ro(
+          "num_triangles", [](const TracerHandle& t) { return t.tracer->num_triangles(); },
+          "The meshes' own triangles (each stored once).")
       .def_prop_ro("num_instances", [](const TracerHandle& t) { return t.tracer->num_instances(); })
-      .def_prop_ro("num_instanced_triangles",
-                   [](const TracerHandle& t) { return t.tracer->num_instanced_triangles(); },
-                   "The triangles the instances place, each instance counting its mesh's.");
+      .def_prop_ro(
+          "num_instanced_triangles",
+          [](const TracerHandle& t) { return t.tracer->num_instanced_triangles(); },
+          "The triangles the instances place, each instance counting its mesh's.");
 }
 
 }  // namespace thurston::bindings

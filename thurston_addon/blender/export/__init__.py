@@ -1,5 +1,6 @@
 """Blender -> Thurston: the space, the scene (from the evaluated depsgraph), the camera and the
 render settings. Only translation happens here; everything else lives in the Blender-free layers."""
+
 from __future__ import annotations
 
 import math
@@ -10,8 +11,8 @@ import bpy
 import numpy as np
 
 from ... import checks, render, scenes, spaces
-from . import surfaces
 from ...passes import BLENDER_PASSES, LENGTHS, BlenderPass
+from . import surfaces
 
 GUIDE_TAG = "thurston_guide"
 FILE = "FILE"  # space_id of a user's space file (space_file)
@@ -32,8 +33,10 @@ def load_space(settings) -> spaces.Space:
         path = spaces.preset_path(settings.space_id)
         if path is None:
             dirs = ", ".join(str(d) for d in spaces.preset_dirs())
-            raise ExportError(f"space preset {settings.space_id!r} not found (searched {dirs}): "
-                              f"restore its file, or choose another space")
+            raise ExportError(
+                f"space preset {settings.space_id!r} not found (searched {dirs}): "
+                f"restore its file, or choose another space"
+            )
     try:
         key = (str(path), os.path.getmtime(path))
     except OSError:
@@ -46,17 +49,28 @@ def load_space(settings) -> spaces.Space:
     return _space_cache[key]
 
 
-def render_settings(settings, width: int, height: int, projection: str = render.Settings.projection, region=None,
-                    transparent=False) -> render.Settings:
+def render_settings(
+    settings, width: int, height: int, projection: str = render.Settings.projection, region=None, transparent=False
+) -> render.Settings:
     return render.Settings(
-        width=width, height=height, projection=projection, quality=settings.quality, shading=settings.shading,
-        samples=settings.samples or None, region=region, transparent=transparent,
+        width=width,
+        height=height,
+        projection=projection,
+        quality=settings.quality,
+        shading=settings.shading,
+        samples=settings.samples or None,
+        region=region,
+        transparent=transparent,
         # the panel's distances are in Blender units; the tracer's in chart units
         max_distance=settings.max_distance / settings.scale or None,
         max_crossings=None if settings.max_crossings < 0 else settings.max_crossings,
-        fog=settings.fog / settings.scale or None, light_reach=settings.light_reach / settings.scale or None,
-        light_samples=settings.light_samples, bounces=settings.bounces, threads=settings.threads,
-        tolerance=settings.tolerance / settings.scale or None)
+        fog=settings.fog / settings.scale or None,
+        light_reach=settings.light_reach / settings.scale or None,
+        light_samples=settings.light_samples,
+        bounces=settings.bounces,
+        threads=settings.threads,
+        tolerance=settings.tolerance / settings.scale or None,
+    )
 
 
 def _is_guide(obj) -> bool:
@@ -68,7 +82,9 @@ def _render_disabled(inst, hidden_collections) -> bool:
     instance is as visible as its instancer: a collection instance shows also when its source
     collection is excluded from the view layer (as in Cycles)."""
     obj = (inst.parent if inst.is_instance else inst.object).original
-    return obj.hide_render or (bool(obj.users_collection) and all(c in hidden_collections for c in obj.users_collection))
+    return obj.hide_render or (
+        bool(obj.users_collection) and all(c in hidden_collections for c in obj.users_collection)
+    )
 
 
 def _hidden_collections(view_layer):
@@ -156,7 +172,9 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
 
 # A sun is light from infinitely far away; a closed space has no such distance (every far light is
 # a copy of a near one), so it is left out, and said so.
-SUN_NOTE = "sun lights (a closed space has no infinity for parallel light to come from: use a point, spot or area light)"
+SUN_NOTE = (
+    "sun lights (a closed space has no infinity for parallel light to come from: use a point, spot or area light)"
+)
 
 
 def export_light(light, world: np.ndarray, scale: float):
@@ -171,8 +189,11 @@ def export_light(light, world: np.ndarray, scale: float):
     strength = light.energy * 2.0 ** getattr(light, "exposure", 0.0)
     position = world[:3, 3] / scale
     if light.type in ("POINT", "SPOT"):
-        spot = {} if light.type == "POINT" else dict(spot_direction=-world[:3, 2], spot_size=light.spot_size,
-                                                     spot_blend=light.spot_blend)
+        spot = (
+            {}
+            if light.type == "POINT"
+            else dict(spot_direction=-world[:3, 2], spot_size=light.spot_size, spot_blend=light.spot_blend)
+        )
         return scenes.PointLight(position, color, strength / (4 * math.pi**2) / scale**2, **spot)
     width = light.size
     height = light.size_y if light.shape in ("RECTANGLE", "ELLIPSE") else light.size
@@ -203,14 +224,22 @@ def export_camera(bscene, depsgraph, scale: float, width: int, height: int, came
     vertical = fit == "VERTICAL" or (fit == "AUTO" and height > width)
     fov = 2 * math.atan(math.tan(data.angle / 2) * width / height) if vertical else data.angle
     per_width = height / width if vertical else 1.0
-    return scenes.Camera(position, forward, up, math.degrees(fov),
-                         shift=(data.shift_x * per_width, data.shift_y * per_width),
-                         clip_start=data.clip_start / scale, clip_end=data.clip_end / scale)
+    return scenes.Camera(
+        position,
+        forward,
+        up,
+        math.degrees(fov),
+        shift=(data.shift_x * per_width, data.shift_y * per_width),
+        clip_start=data.clip_start / scale,
+        clip_end=data.clip_end / scale,
+    )
 
 
 def resolution(bscene) -> tuple[int, int]:
     r = bscene.render
-    return max(1, r.resolution_x * r.resolution_percentage // 100), max(1, r.resolution_y * r.resolution_percentage // 100)
+    return max(1, r.resolution_x * r.resolution_percentage // 100), max(
+        1, r.resolution_y * r.resolution_percentage // 100
+    )
 
 
 def border_region(bscene, width: int, height: int) -> tuple[int, int, int, int] | None:
@@ -244,8 +273,16 @@ class RenderJob:
     data is read there), traced by run() on any thread. `notes` gathers everything the user should
     hear about: what was skipped or cut, and the checks before and after the render."""
 
-    def __init__(self, bscene, depsgraph, width=None, height=None, projection=render.Settings.projection, camera_object=None,
-                 region=None):
+    def __init__(
+        self,
+        bscene,
+        depsgraph,
+        width=None,
+        height=None,
+        projection=render.Settings.projection,
+        camera_object=None,
+        region=None,
+    ):
         settings = bscene.thurston
         self.notes: list[checks.Note] = []
         self.space = load_space(settings)
@@ -255,14 +292,17 @@ class RenderJob:
             warnings.simplefilter("always")
             self.scene = export_scene(depsgraph, settings.scale, self.notes)
             if not self.scene.objects:
-                raise ExportError("nothing to render: the scene has no visible mesh objects (the domain guide does not count)")
+                raise ExportError(
+                    "nothing to render: the scene has no visible mesh objects (the domain guide does not count)"
+                )
             self.camera = export_camera(bscene, depsgraph, settings.scale, w, h, camera_object)
             self.settings = render_settings(settings, w, h, projection, region, bscene.render.film_transparent)
             lambert = self.settings.shading == "lambert"
             self.notes += checks.before_render(self.space, self.scene, self.camera, lambert)
             try:
-                self.tracer = render.make_tracer(self.space, self.scene, self.settings.threads,
-                                                 render.light_reach_for(self.space, self.settings))
+                self.tracer = render.make_tracer(
+                    self.space, self.scene, self.settings.threads, render.light_reach_for(self.space, self.settings)
+                )
             except scenes.SceneError as exc:
                 raise ExportError(str(exc)) from None
         self.notes += [checks.Note(checks.DROPPED, str(w.message)) for w in caught]
@@ -278,8 +318,14 @@ class RenderJob:
     def run(self, progress=None):
         """Trace; the result (or the exception: cancelled or failed) is kept for the main thread."""
         try:
-            self.result = render.render(self.space, self.scene, self.settings, camera=self.camera,
-                                        progress=progress or self.progress, tracer=self.tracer)
+            self.result = render.render(
+                self.space,
+                self.scene,
+                self.settings,
+                camera=self.camera,
+                progress=progress or self.progress,
+                tracer=self.tracer,
+            )
             self.notes += checks.after_render(self.scene, self.result.passes, self.settings.shading == "lambert")
         except Exception as exc:
             self.error = exc
@@ -330,8 +376,9 @@ def pass_values(job: RenderJob) -> dict[str, np.ndarray]:
         "IndexOB": pass_index[passes["object"]],
         "Crossings": passes["crossings"],
     }
-    return {p.name: np.asarray(values[p.name], np.float32).reshape(*values[p.name].shape[:2], -1)
-            for p in BLENDER_PASSES}
+    return {
+        p.name: np.asarray(values[p.name], np.float32).reshape(*values[p.name].shape[:2], -1) for p in BLENDER_PASSES
+    }
 
 
 def store_stats(settings, job: RenderJob):

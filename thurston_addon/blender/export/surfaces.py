@@ -3,6 +3,7 @@ normals (shade smooth/flat, sharp edges, custom normals), the active render UV m
 material per material slot (Principled BSDF or Emission node; an Image Texture node feeding the
 base or emission colour gives a texture; the Principled BSDF's Roughness, Metallic, Specular IOR
 Level and IOR where they are constants)."""
+
 from __future__ import annotations
 
 import bpy
@@ -54,9 +55,21 @@ def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
     index = np.clip(_get(mesh.loop_triangles, "material_index", nt, np.int32), 0, len(materials) - 1)
     name = original.name if not inst.is_instance else f"{original.name} ({inst.parent.original.name})"
     first = materials[index[0]]
-    return scenes.clean(scenes.SceneObject(
-        name, co / scale, tri, first.color, first.emission, pass_index=original.pass_index,
-        corner_normals=normals, corner_uvs=uvs, triangle_material=index, materials=materials), "Blender")
+    return scenes.clean(
+        scenes.SceneObject(
+            name,
+            co / scale,
+            tri,
+            first.color,
+            first.emission,
+            pass_index=original.pass_index,
+            corner_normals=normals,
+            corner_uvs=uvs,
+            triangle_material=index,
+            materials=materials,
+        ),
+        "Blender",
+    )
 
 
 def _get(collection, attribute, count, dtype):
@@ -95,8 +108,11 @@ def material(mat, object_name: str) -> scenes.Material:
                 if em is not None:
                     value, emission_texture = _input(em, np.zeros(3), where)
                     emission = value * (strength.default_value if strength else 1.0)
-                scattering = {key: _clamped(key, node.inputs[name].default_value)
-                              for key, name in SCATTERING_INPUTS.items() if name in node.inputs}
+                scattering = {
+                    key: _clamped(key, node.inputs[name].default_value)
+                    for key, name in SCATTERING_INPUTS.items()
+                    if name in node.inputs
+                }
                 break
             if node.type == "EMISSION":
                 color = np.zeros(3)
@@ -112,7 +128,7 @@ def material(mat, object_name: str) -> scenes.Material:
 def _clamped(key: str, value: float) -> float:
     """A scattering input as Cycles takes it: roughness and metallic within [0, 1], the specular
     level at least 0, the IOR at least 1e-5 (below 1 it reflects as its inverse does)."""
-    (low, high), = [bounds for name, bounds, _ in scenes.SCATTERING if name == key]
+    ((low, high),) = [bounds for name, bounds, _ in scenes.SCATTERING if name == key]
     return float(np.clip(value, max(low, 1e-5) if key == "ior" else low, high))
 
 
@@ -133,7 +149,9 @@ def image_texture(image, where: str) -> np.ndarray:
     w, h = image.size
     count = len(image.pixels)  # reading the pixels loads the image's file
     if w * h == 0 or count != w * h * image.channels:
-        raise scenes.SceneError(f"{where}: image {image.name!r} has no pixels (is its file {image.filepath!r} missing?)")
+        raise scenes.SceneError(
+            f"{where}: image {image.name!r} has no pixels (is its file {image.filepath!r} missing?)"
+        )
     pixels = _get(image.pixels, None, count, np.float32)
     pixels = pixels.reshape(h, w, image.channels)[::-1]  # Blender's rows are bottom-up
     rgb = pixels[..., :3] if image.channels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
