@@ -3,6 +3,7 @@ scene and camera (as scripts/render_gallery.py renders them) through each build'
 a multi-pass EXR, and every channel's pixels compared exactly. For a change that must not change images
 (a restructure): build the tree before it in another checkout, then
     .venv/bin/python scripts/compare_builds.py --baseline ../before/.venv [--size 320x180 --quality standard]
+        [--samples N --bounces N]   (path traced, as the gallery's --gi)
 Prints a table (preset, channels, differing pixels, largest difference) and exits 1 if any differ."""
 
 from __future__ import annotations
@@ -38,21 +39,23 @@ def main():
     ap.add_argument("--build", type=Path, default=HERE / ".venv", help="this build's virtualenv")
     ap.add_argument("--size", default="320x180")
     ap.add_argument("--quality", default="standard")
+    ap.add_argument("--samples", help="samples per pixel (default: the quality's)")
+    ap.add_argument("--bounces", help="path-traced bounces (default: direct light only)")
     args = ap.parse_args()
     presets = [p["id"] for p in json.loads(thurston(args.build, "spaces", "--json"))]
     baseline_presets = [p["id"] for p in json.loads(thurston(args.baseline, "spaces", "--json"))]
     if presets != baseline_presets:
         sys.exit(f"compare_builds: the builds list different presets: {presets} and {baseline_presets}")
     print("| preset | channels | differing pixels | largest difference |\n|---|---|---|---|")
+    options = ["--size", args.size, "--quality", args.quality]
+    options += [f"--{name}={value}" for name in ("samples", "bounces") if (value := getattr(args, name))]
     differ = 0
     with tempfile.TemporaryDirectory() as tmp:
         for sid in presets:
             renders = []
             for name, venv in (("build", args.build), ("baseline", args.baseline)):
                 out = Path(tmp) / f"{sid}_{name}.exr"
-                thurston(
-                    venv, "render", "--space", sid, "--size", args.size, "--quality", args.quality, "--out", str(out)
-                )
+                thurston(venv, "render", "--space", sid, *options, "--out", str(out))
                 renders.append(channels(out))
             (names, a), (baseline_names, b) = renders
             if names != baseline_names or a.shape != b.shape:
