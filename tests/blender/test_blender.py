@@ -6,8 +6,6 @@ files written here from the Blender data, closed-form distances, and Blender's o
 import functools
 import math
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +22,6 @@ from thurston_addon.blender import batch, domain_guide, export, properties  # no
 from thurston_addon.blender.engine import ThurstonRenderEngine  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
-THURSTON = Path(sys.executable).with_name("thurston")
 CURVED = presets(
     lambda space: not space.geometry.projective
 )  # geodesics bend in the chart: traced in chords within a tolerance
@@ -842,8 +839,7 @@ def test_render_blend_subprocess(tmp_path):
 
     out = tmp_path / "out"
     out.mkdir()
-    cmd = [str(THURSTON), "render-blend", str(blend), "--frames", "1..2", "--out", str(out)]
-    run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    run = bh.render_blend(blend, out, frames="1..2")
     assert run.returncode == 0, run.stderr
     frames = [out / "anim_0001.exr", out / "anim_0002.exr"]
     assert sorted(out.iterdir()) == frames
@@ -858,7 +854,7 @@ def test_render_blend_subprocess(tmp_path):
     assert np.abs(bh.rgb(one, L) - bh.rgb(two, L)).max() > 0.05  # the camera moved
 
     stamp = [(f.read_bytes(), f.stat().st_mtime_ns) for f in frames]
-    run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    run = bh.render_blend(blend, out, frames="1..2")
     assert run.returncode == 2
     assert "exists" in run.stderr and "Traceback" not in run.stderr
     assert [(f.read_bytes(), f.stat().st_mtime_ns) for f in frames] == stamp
@@ -872,12 +868,7 @@ def test_render_blend_in_the_curved_geometries(tmp_path, space):
     blend = tmp_path / "walk.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
     truth = bh.rgb(cli_render(tmp_path, bh.write_scene_files(sc, tmp_path, 1.0), space, "truth"))
-    run = subprocess.run(
-        [str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    run = bh.render_blend(blend, tmp_path)
     assert run.returncode == 0, run.stderr
     close(bh.rgb(bh.read_exr(tmp_path / "walk_0001.exr"), "ViewLayer.Combined."), truth)
     assert "chords/ray" in run.stdout and "pixel footprint" in run.stdout  # the frame's stats line
@@ -980,12 +971,7 @@ def test_render_blend_renders_what_blender_renders(tmp_path):
     sc.thurston.passes = {"COLOR", "DEPTH"}
     blend = tmp_path / "vis.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
-    run = subprocess.run(
-        [str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    run = bh.render_blend(blend, tmp_path)
     assert run.returncode == 0, run.stderr
     z = bh.read_exr(tmp_path / "vis_0001.exr")["ViewLayer.Depth.Z"]
     assert z[4, 4] == pytest.approx(0.29, abs=1e-6)

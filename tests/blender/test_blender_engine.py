@@ -4,8 +4,6 @@ camera's lens shift, sensor fit and clip distances (against Cycles rendering the
 universal cover), Blender's own panels."""
 
 import math
-import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -21,8 +19,6 @@ from support.outputs import PREVIOUS, error_line, fill, listing, tmpfs  # noqa: 
 import thurston_addon  # noqa: E402
 from thurston_addon import checks  # noqa: E402
 from thurston_addon.blender import engine  # noqa: E402
-
-THURSTON = Path(sys.executable).with_name("thurston")
 
 
 def note_kinds(sc):
@@ -112,12 +108,7 @@ def test_region_in_render_blend(tmp_path):
     r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = 0.25, 0.75, 0.25, 0.75
     blend = tmp_path / "region.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
-    run = subprocess.run(
-        [str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path), "--format", "exr"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    run = bh.render_blend(blend, tmp_path, "--format", "exr")
     assert run.returncode == 0, run.stderr
     image = bh.read_exr(tmp_path / "region_0001.exr")
     color = bh.rgb(image, "ViewLayer.Combined.")
@@ -175,12 +166,7 @@ def test_render_blend_prints_notes_and_fails_on_a_failed_frame(tmp_path):
     bh.camera((0, -0.1, 0), lens=30.0)
     blend = tmp_path / "dark.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
-    run = subprocess.run(
-        [str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    run = bh.render_blend(blend, tmp_path)
     assert run.returncode == 0, run.stderr
     assert "warning: the scene has no lights" in run.stdout + run.stderr
 
@@ -189,12 +175,7 @@ def test_render_blend_prints_notes_and_fails_on_a_failed_frame(tmp_path):
     bh.camera((3, 0, 0))  # not a point of H3's chart
     blend = tmp_path / "broken.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
-    run = subprocess.run(
-        [str(THURSTON), "render-blend", str(blend), "--frames", "1", "--out", str(tmp_path)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    run = bh.render_blend(blend, tmp_path)
     assert run.returncode != 0
     assert "frame 1" in run.stderr and "camera" in run.stderr and "Traceback" not in run.stderr
     assert not (tmp_path / "broken_0001.exr").exists()
@@ -215,23 +196,7 @@ def test_render_blend_on_a_full_disk_keeps_the_previous_frame(tmp_path, suffix):
         frame = disk / f"full_0001.{suffix}"
         frame.write_bytes(PREVIOUS)
         fill(disk)
-        run = subprocess.run(
-            [
-                str(THURSTON),
-                "render-blend",
-                str(blend),
-                "--frames",
-                "1",
-                "--out",
-                str(disk),
-                "--format",
-                suffix,
-                "--overwrite",
-            ],
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        run = bh.render_blend(blend, disk, "--format", suffix, "--overwrite")
         assert run.returncode == 2, run.stderr
         assert error_line(run.stderr).startswith(
             f"thurston: error: cannot write {str(frame)!r}: No space left on "

@@ -4,6 +4,8 @@ independent export of a Blender scene to OBJ+MTL and a TOML scene file for `thur
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -309,3 +311,12 @@ def interior(mask):
     m[:, 1:] &= mask[:, :-1]
     m[:, :-1] &= mask[:, 1:]
     return m
+
+
+THURSTON = Path(sys.executable).with_name("thurston")
+
+
+def render_blend(blend, out, *options: str, frames: str = "1") -> subprocess.CompletedProcess:
+    """`thurston render-blend` on a saved .blend file, in a child process, as a user runs it."""
+    argv = [str(THURSTON), "render-blend", str(blend), "--frames", frames, "--out", str(out), *map(str, options)]
+    return subprocess.run(argv, capture_output=True, text=True, timeout=120)
