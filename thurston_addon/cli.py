@@ -128,6 +128,9 @@ def cmd_render(args):
         bounces=args.bounces,
         threads=args.threads,
         tolerance=args.tolerance,
+        noise_threshold=args.noise_threshold,
+        min_samples=args.min_samples,
+        time_limit=args.time_limit,
     )
     lambert = settings.shading == "lambert"
     render.camera_frame(space, camera)  # a camera that cannot be used is refused before the notes on it
@@ -298,6 +301,24 @@ def build_parser():
         "--passes", type=_passes, help=f"EXR passes, comma separated (default all: {','.join(render.PASSES)})"
     )
     r.add_argument("--samples", type=int, help="samples per pixel (overrides --quality)")
+    r.add_argument(
+        "--noise-threshold",
+        type=float,
+        default=render.Settings.noise_threshold,
+        help="adaptive sampling: a pixel stops taking samples once the standard error of its mean "
+        "brightness is below this, after --min-samples (default 0: off)",
+    )
+    r.add_argument(
+        "--min-samples",
+        type=int,
+        default=render.Settings.min_samples,
+        help="samples every pixel takes before adaptive sampling may stop it (default 0: automatic, 4)",
+    )
+    r.add_argument(
+        "--time-limit",
+        type=float,
+        help="seconds: no sample pass starts after this (the pass under way finishes; default: none)",
+    )
     r.add_argument("--shading", choices=render.SHADING, default="lambert")
     r.add_argument("--fog", type=float, help="distance at which colour falls to 1/e")
     r.add_argument(

@@ -16,7 +16,17 @@ from .compilation import own_hits
 from .lights import light_reach_for
 from .projections import PROJECTIONS
 from .settings import Cancelled, RenderError, Settings, memory_needed
-from .statistics import Result, accuracy_bound, error_sample, geodesic_error, light_stats, pixel_noise, retrace_error
+from .statistics import (
+    Result,
+    accuracy_bound,
+    error_sample,
+    geodesic_error,
+    light_stats,
+    noise_of,
+    pixel_errors,
+    pixel_noise,
+    retrace_error,
+)
 from .tracer import make_tracer, trace
 
 
@@ -126,6 +136,13 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     brightness_squares = np.zeros(w * h)  # per pixel: the sum over samples of (mean of RGB)^2
     hit_sum = np.zeros(w * h)
     first = None
+    adaptive = settings.noise_threshold > 0
+    limit = settings.time_limit or None
+    # per pixel: the colour samples it took (all of them unless adaptive sampling or the time limit stopped it)
+    taken = np.zeros(w * h, np.int64)
+    active = None  # adaptive: the pixels still taking samples
+    passes_done = 0
+    limit_reached = False
     chords = light_failures = light_paths = shaded_points = bounce_paths = 0
     light_energy = 0.0
     for k, (jitter, shaded, colour) in enumerate(jobs):
@@ -163,21 +180,39 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
             probe = (origins[sample], directions[sample])
         del origins, directions
         if colour:
-            hit_sum += out["stop"] == 0
             color = colorize(out, settings, space)
+            if active is not None:  # stopped pixels take no more samples
+                color[~active] = 0
+                hit_sum += (out["stop"] == 0) & active
+                taken += active
+            else:
+                hit_sum += out["stop"] == 0
+                taken += 1
             brightness_squares += color.mean(axis=1) ** 2
             if color_sum is None:
                 color_sum = color
             else:
                 color_sum += color
             del color
+            passes_done += 1
+            if adaptive and passes_done >= settings.min_samples_per_pixel and passes_done < len(offsets):
+                error = pixel_errors(color_sum, brightness_squares, taken)
+                active = (
+                    error >= settings.noise_threshold
+                    if active is None
+                    else active & (error >= settings.noise_threshold)
+                )
         del out
+        if limit is not None and colour and passes_done < len(offsets) and time.perf_counter() - t0 >= limit:
+            limit_reached = True
+            break
     seconds = time.perf_counter() - t0
+    full = bool(np.all(taken == len(offsets)))
     position, normal = own_hits(space, first)
     passes = {
-        "color": (color_sum / len(offsets)).reshape(h, w, 3).astype(np.float32),
+        "color": (color_sum / taken[:, None]).reshape(h, w, 3).astype(np.float32),
         # the colour of a miss is 0, so the colour is premultiplied by this alpha
-        "alpha": (hit_sum / len(offsets) if settings.transparent else np.ones(w * h)).reshape(h, w).astype(np.float32),
+        "alpha": (hit_sum / taken if settings.transparent else np.ones(w * h)).reshape(h, w).astype(np.float32),
         "depth": (first["depth"] + first_start).reshape(h, w),
         "normal": normal.reshape(h, w, 3),
         "position": position.reshape(h, w, 3),
@@ -223,8 +258,15 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "light_failures": light_failures,
         "bounces": settings.bounces,
         "bounce_paths_per_point": bounce_paths / shaded_points if shaded_points else 0.0,
-        "noise": pixel_noise(color_sum, brightness_squares, len(offsets)),
+        "noise": pixel_noise(color_sum, brightness_squares, len(offsets))
+        if full
+        else noise_of(color_sum, brightness_squares, taken),
+        "samples_mean": float(taken.mean()),
+        "samples_max": int(taken.max()),
+        "noise_threshold": settings.noise_threshold,
+        "time_limit": settings.time_limit or None,
+        "time_limit_reached": limit_reached,
         **light_stats(space, settings, tracer, light_paths, light_energy, shaded_points),
         "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},
     }
-    return Result(passes, stats)
+    return Result(passes, stats, taken.reshape(h, w))

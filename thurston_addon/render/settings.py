@@ -90,6 +90,13 @@ class Settings:
     # (x, y, w, h): render only this window of the width x height image, x, y its top-left pixel
     # (rows top-down); None: the whole image
     region: tuple[int, int, int, int] | None = None
+    # adaptive sampling (Cycles' meaning): a pixel stops taking samples once the standard error of
+    # its mean brightness is below noise_threshold, after min_samples (0: automatic, min(4, samples));
+    # 0: off, every pixel takes every sample
+    noise_threshold: float = 0.0
+    min_samples: int = 0
+    # seconds: no sample pass starts after this much time (the pass under way finishes); None: no limit
+    time_limit: float | None = None
 
     @property
     def window(self) -> tuple[int, int, int, int]:
@@ -99,6 +106,11 @@ class Settings:
     def samples_per_pixel(self) -> int:
         """The samples per pixel: the given count, else the quality's."""
         return self.samples or QUALITY[self.quality].samples
+
+    @property
+    def min_samples_per_pixel(self) -> int:
+        """The samples a pixel takes before adaptive sampling may stop it."""
+        return min(self.min_samples or 4, self.samples_per_pixel)
 
     def check(self):
         if self.width < 1 or self.height < 1:
@@ -158,6 +170,18 @@ class Settings:
                 f"tolerance must be a number of chart units of at least {MIN_TOLERANCE:g} (None: the "
                 f"quality's), got {self.tolerance}"
             )
+
+        if not (isinstance(self.noise_threshold, (int, float)) and 0 <= self.noise_threshold < math.inf):
+            raise RenderError(f"noise threshold must be a number >= 0 (0: off), got {self.noise_threshold}")
+        if not (_whole(self.min_samples) and 0 <= self.min_samples <= self.samples_per_pixel):
+            raise RenderError(
+                f"min samples must be a whole number from 0 (automatic) to the samples per pixel "
+                f"({self.samples_per_pixel}), got {self.min_samples}"
+            )
+        if self.time_limit is not None and not (
+            isinstance(self.time_limit, (int, float)) and 0 <= self.time_limit < math.inf
+        ):
+            raise RenderError(f"time limit must be a number of seconds >= 0 (None or 0: none), got {self.time_limit}")
 
     def tolerances(self, space: Space, pixel_angle: float) -> tuple[float, float]:
         """(tolerance at distance 0, growth per unit of distance) of the chords, chart units (S2xR:

@@ -18,6 +18,9 @@ from .tracer import make_tracer, trace
 class Result:
     passes: dict  # name -> (h, w, C) or (h, w) arrays of the rendered window, rows top-down
     stats: dict = field(default_factory=dict)
+    # (h, w): the colour samples each pixel took (fewer than the samples per pixel where adaptive
+    # sampling or the time limit stopped it); None where not recorded
+    samples_taken: np.ndarray | None = None
 
     def summary(self) -> str:
         s = self.stats
@@ -46,6 +49,12 @@ def illumination_summary(s: dict) -> str:
         if s["noise"] is None
         else f"noise {s['noise']:.2e} (RMS standard error of the pixel means, from {s['samples_per_pixel']} samples)"
     )
+    if s.get("noise_threshold") or s.get("time_limit_reached"):
+        noise += f"; samples per pixel used: mean {s['samples_mean']:.2f}, max {s['samples_max']}"
+        if s.get("noise_threshold"):
+            noise += f" (adaptive, noise threshold {s['noise_threshold']:g})"
+        if s.get("time_limit_reached"):
+            noise += f"; time limit {s['time_limit']:g} s reached"
     return f"{bounces}, {noise}"
 
 
@@ -73,6 +82,25 @@ def pixel_noise(color_sum, brightness_squares, n: int) -> float | None:
     mean = color_sum.mean(axis=1) / n
     variance = np.maximum(brightness_squares / n - mean**2, 0.0) * n / (n - 1)
     return float(np.sqrt(np.mean(variance / n)))
+
+
+def pixel_errors(color_sum, brightness_squares, taken) -> np.ndarray:
+    """Per pixel: the standard error of its mean brightness from the spread of the `taken` samples it
+    took (inf where it took fewer than 2)."""
+    n = np.asarray(taken, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mean = color_sum.mean(axis=1) / n
+        variance = np.maximum(brightness_squares / n - mean**2, 0.0) * n / (n - 1)
+        error = np.sqrt(variance / n)
+    return np.where(n >= 2, error, np.inf)
+
+
+def noise_of(color_sum, brightness_squares, taken) -> float | None:
+    """pixel_noise for pixels that took different numbers of samples: the RMS of their standard
+    errors (None where a pixel took one sample)."""
+    if np.min(taken) < 2:
+        return None
+    return float(np.sqrt(np.mean(pixel_errors(color_sum, brightness_squares, taken) ** 2)))
 
 
 def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: float, shaded: int) -> dict:
