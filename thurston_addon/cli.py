@@ -125,6 +125,7 @@ def cmd_render(args):
         fog=args.fog,
         light_reach=args.light_reach,
         light_samples=args.light_samples,
+        light_paths=args.light_paths,
         bounces=args.bounces,
         threads=args.threads,
         tolerance=args.tolerance,
@@ -332,6 +333,13 @@ def build_parser():
         type=int,
         default=render.Settings.light_samples,
         help="points sampled on the emissive meshes (and area lights) per shaded point and sample",
+    )
+    r.add_argument(
+        "--light-paths",
+        type=int,
+        help="shadow walks per shaded point for direct light: the strongest geodesics to the lights' "
+        "copies always, the rest sampled in proportion to their light (unbiased); 0: every geodesic, "
+        "the exact sum (default: the quality's, see docs/lighting.md)",
     )
     r.add_argument(
         "--bounces",

@@ -17,7 +17,8 @@ namespace {
 template <class Kernel>
 inline typename KernelTracer<Kernel>::Vertex KernelTracer<Kernel>::vertex_at(
     const Vec4& X, const Surface& s, int depth, const TraceOptions& options) const {
-  Vertex v{X, s.N, s.S, !s.material->emits(), depth < options.bounces, s.base, {}, std::nullopt};
+  Vertex v{X,          s.N,    s.S, !s.material->emits(), depth < options.bounces,
+           depth == 0, s.base, {},  std::nullopt};
   const Principled& scattering = s.material->scattering;
   if (scattering.glossy()) {
     v.frame = frame_at(X, s.S);
@@ -111,18 +112,23 @@ inline Rgb KernelTracer<Kernel>::bounce(const WalkContext& context, Vertex v,
   return sum;
 }
 
-// Sum over lights and over the geodesics from the vertex to each of them, each geodesic with its
-// own shadow ray; then the emitters' light, from options.light_samples points sampled on them.
+// The direct light at a vertex: every geodesic to every copy of the point lights, and to the
+// copies of options.light_samples points sampled on the emitters, gathered as candidates; then
+// the shadow walks of those choose_light_paths picks (all of them for the exact sum), each chosen
+// one's light weighted by 1 / its probability.
 template <class Kernel>
 inline typename KernelTracer<Kernel>::Reflected KernelTracer<Kernel>::illumination(
     const WalkContext& context, const Vertex& v, const TraceOptions& options, TraceStats& stats,
     LightBuffers& buffers, Random& random) const {
-  Reflected sum;
   const Vec4& H = v.X;
+  std::vector<Candidate>& candidates = buffers.candidates;
+  candidates.clear();
   std::vector<LightPath>& paths = buffers.paths;
+  const bool learn = v.camera_hit && !buffers.visible.empty();
   for (std::size_t l = 0; l < light_lifts_.size(); ++l) {
     paths.clear();
     stats.light_failures += kernel_.light_paths(H, light_lifts_[l], light_reach_, paths);
+    if (learn) buffers.arcs.assign(light_lifts_[l].size(), 0);
     const Rgb& radiance = light_radiance_[l];
     const SpotCone& cone = light_cone_[l];
     const double mean_radiance = mean_rgb(radiance);
@@ -134,17 +140,110 @@ inline typename KernelTracer<Kernel>::Reflected KernelTracer<Kernel>::illuminati
       ++stats.light_paths;
       stats.light_energy += weight * mean_radiance;
       const double cosine = kernel_.dot(H, v.S, path.direction);
-      if (!(cosine > 0.0) || !(weight > 0.0) || (v.opaque && path.distance > geodesic_loop_) ||
-          shadow(context, occluders_, H, path.direction, path.distance * (1.0 - 1e-6),
-                 options.max_crossings) == kHit)
+      if (!(cosine > 0.0) || !(weight > 0.0) || (v.opaque && path.distance > geodesic_loop_))
         continue;
-      reflect(sum, v, path.direction, cosine * weight, radiance);
+      add_candidate(v, path, radiance, cosine * weight, 0.0, false,
+                    learn ? visibility_slot(light_slots_[l], path.lift, buffers.arcs) : -1,
+                    buffers);
     }
   }
   if (!emitters_.triangles.empty() && options.emitter_sampling != EmitterSampling::kBounces)
     for (int s = 0; s < options.light_samples; ++s)
-      sample_emitters(context, v, options, stats, buffers, random, sum);
+      sample_emitters(v, options, stats, buffers, random);
+  choose_light_paths(buffers, options.light_budget, random);
+  Reflected sum;
+  for (const Candidate& c : candidates) {
+    if (!(c.weight > 0.0)) continue;
+    ++stats.shadow_walks;
+    // Point lights are hidden by the occluders; an emitter's sample by every triangle, emitters
+    // too (so that a closed emitter's far side is hidden by its near side), up to just short of it.
+    const Stop stop = c.emitter ? shadow(context, scene_.get(), H, c.path.direction,
+                                         c.path.distance * (1.0 - 1e-6) - kSelfSkip * scale_,
+                                         options.max_crossings)
+                                : shadow(context, occluders_, H, c.path.direction,
+                                         c.path.distance * (1.0 - 1e-6), options.max_crossings);
+    if (c.slot >= 0) {
+      float& seen = buffers.visible[std::size_t(c.slot)];
+      seen += kVisibilityRate * ((stop == kHit ? 0.0f : 1.0f) - seen);
+    }
+    if (stop == kHit) {
+      ++stats.shadowed_walks;
+      continue;
+    }
+    double mis = 1.0;
+    // a bounce meets the emitter's point along this geodesic if it is drawn and its walk gets there
+    if (c.sample_density > 0.0 && stop != kCrossingLimit && c.path.distance <= options.max_distance)
+      mis = power_weight(c.sample_density, bounce_density(v, c.path.direction));
+    reflect(sum, v, c.path.direction, c.term * c.weight * mis, *c.radiance);
+  }
   return sum;
+}
+
+// A geodesic to a light, facing the vertex, as a candidate for a shadow walk: its strength is the
+// mean over RGB of the colour it adds unshadowed (the BSDF's diffuse part and its specular part).
+template <class Kernel>
+inline void KernelTracer<Kernel>::add_candidate(const Vertex& v, const LightPath& path,
+                                                const Rgb& radiance, double term,
+                                                double sample_density, bool emitter,
+                                                std::int32_t slot, LightBuffers& buffers) const {
+  const Rgb albedo = diffuse_albedo(v);
+  double strength = 0.0;
+  for (int a = 0; a < 3; ++a) strength += double(albedo[a]) * radiance[a];
+  if (v.bsdf) {
+    const Color f = v.bsdf->specular(local(v.X, v.frame, path.direction));
+    for (int a = 0; a < 3; ++a) strength += kPi * f[a] * radiance[a];
+  }
+  buffers.candidates.push_back(
+      {path, &radiance, term, term * strength / 3.0, sample_density, emitter, slot});
+}
+
+// Picks the candidates whose shadow walks are traced, with at most `budget` walks (0: all of
+// them, each of weight 1: the exact sum). A candidate's weight for the choice is its strength
+// times the visibility its slot has learnt (at least kLeastVisibility; 1 without a slot). Each is
+// traced with probability q = min(1, budget' weight / rest): the strongest always (q = 1; budget'
+// and rest are what is left of the budget and of the weights after them), the others by one comb
+// of budget' evenly spaced teeth, with a random offset, over their weights laid end to end
+// (stratified: exactly budget' are traced, each with its own probability q). A traced one's light
+// is weighted by 1 / q, so that the sum stays unbiased (q depends on earlier pixels' walks, never
+// on its own); a candidate of strength 0 adds nothing and is never traced.
+template <class Kernel>
+inline void KernelTracer<Kernel>::choose_light_paths(LightBuffers& buffers, int budget,
+                                                     Random& random) {
+  std::vector<Candidate>& candidates = buffers.candidates;
+  if (budget <= 0 || candidates.size() <= std::size_t(budget)) return;
+  std::vector<std::uint32_t>& order = buffers.order;
+  order.resize(candidates.size());
+  double rest = 0.0;
+  for (std::uint32_t i = 0; i < order.size(); ++i) {
+    Candidate& c = candidates[i];
+    if (c.slot >= 0) c.strength *= std::max(buffers.visible[std::size_t(c.slot)], kLeastVisibility);
+    order[i] = i;
+    rest += c.strength;
+  }
+  std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+    return candidates[a].strength > candidates[b].strength;
+  });
+  std::size_t k = 0;
+  int left = budget;
+  for (; k < order.size() && left > 0; ++k, --left) {
+    const double strength = candidates[order[k]].strength;
+    if (!(left * strength >= rest)) break;
+    rest -= strength;  // weight 1: traced always
+  }
+  if (left == 0 || !(rest > 0.0)) {
+    for (; k < order.size(); ++k) candidates[order[k]].weight = 0.0;
+    return;
+  }
+  const double step = rest / left, offset = random.uniform() * step;
+  double below = 0.0;  // the weights laid before this candidate
+  for (; k < order.size(); ++k) {
+    Candidate& c = candidates[order[k]];
+    const double above = below + c.strength;
+    // a tooth offset + j step in [below, above)
+    const bool traced = std::floor((above - offset) / step) > std::floor((below - offset) / step);
+    c.weight = traced ? step / c.strength : 0.0;
+    below = above;
+  }
 }
 
 // Adds one geodesic's light (term: everything but the BSDF and the radiance) to the sums.
@@ -210,15 +309,13 @@ inline double KernelTracer<Kernel>::emitted_cosine(std::size_t t, const Vec4& li
 // point light of radiance Le cos' / pi per unit area would: the estimate of
 // (1 / pi) integral Le cos cos' falloff dA is Le cos cos' falloff dA/dA_chart A_chart / pi, over
 // light_samples (cos' at the emitter's copy, towards the vertex: one-sided emitters light only
-// their front, the others both sides). The shadow rays meet every triangle, emitters too (so that
-// a closed emitter's far side is hidden by its near side), and stop just short of the sample.
-// Where a bounce leaves the vertex and could meet the same point along the same geodesic, the
-// two estimates are weighed by the power heuristic.
+// their front, the others both sides). Each geodesic becomes a candidate for illumination's
+// shadow walks; where a bounce leaves the vertex and could meet the same point along the same
+// geodesic, the two estimates are weighed by the power heuristic (the samples' density kept).
 template <class Kernel>
-inline void KernelTracer<Kernel>::sample_emitters(const WalkContext& context, const Vertex& v,
-                                                  const TraceOptions& options, TraceStats& stats,
-                                                  LightBuffers& buffers, Random& random,
-                                                  Reflected& sum) const {
+inline void KernelTracer<Kernel>::sample_emitters(const Vertex& v, const TraceOptions& options,
+                                                  TraceStats& stats, LightBuffers& buffers,
+                                                  Random& random) const {
   const Vec4& H = v.X;
   const std::size_t t = pick_emitter(random.uniform());
   const std::array<Vec3, 3>& p = emitters_.triangles[t];
@@ -234,6 +331,8 @@ inline void KernelTracer<Kernel>::sample_emitters(const WalkContext& context, co
   const Rgb& radiance = emitters_.radiance[t];
   const double mean_radiance = mean_rgb(radiance);
   const bool weighed = v.bounce_follows && options.emitter_sampling == EmitterSampling::kMis;
+  const bool learn = v.camera_hit && !buffers.visible.empty();
+  if (learn) buffers.arcs.assign(buffers.lifts.size(), 0);
   for (const LightPath& path : paths) {
     const double emitted = emitted_cosine(t, buffers.lifts[path.lift], buffers.normals[path.lift],
                                           kernel_.arrival(H, path));
@@ -241,18 +340,13 @@ inline void KernelTracer<Kernel>::sample_emitters(const WalkContext& context, co
     ++stats.emitter_paths;
     stats.emitter_energy += weight * std::max(emitted, 0.0) * mean_radiance;
     const double cosine = kernel_.dot(H, v.S, path.direction);
-    const double short_of = path.distance * (1.0 - 1e-6) - kSelfSkip * scale_;
     if (!(cosine > 0.0) || !(emitted > 0.0) || (v.opaque && path.distance > geodesic_loop_))
       continue;
-    const Stop stop =
-        shadow(context, scene_.get(), H, path.direction, short_of, options.max_crossings);
-    if (stop == kHit) continue;
-    double mis = 1.0;
-    // a bounce meets the point along this geodesic if it is drawn and its walk gets there
-    if (weighed && stop != kCrossingLimit && path.distance <= options.max_distance)
-      mis = power_weight(emitter_density(area_density, emitted, path, options),
-                         bounce_density(v, path.direction));
-    reflect(sum, v, path.direction, cosine * emitted * weight * mis, radiance);
+    add_candidate(
+        v, path, radiance, cosine * emitted * weight,
+        weighed ? emitter_density(area_density, emitted, path, options) : 0.0, true,
+        learn ? visibility_slot(emitter_slots_[emitters_.group[t]], path.lift, buffers.arcs) : -1,
+        buffers);
   }
 }
 

@@ -53,16 +53,66 @@ class KernelTracer final : public Tracer {
     if (!light_lifts_.empty() || !emitters_.triangles.empty())
       kernel_.prepare_light_paths(light_reach_);
     match_emitters();
+    // the visibility slots: kArcsPerCopy per copy of each light, then of each emitters' group
+    for (const auto& lifts : light_lifts_) {
+      light_slots_.push_back(slots_);
+      slots_ += kArcsPerCopy * lifts.size();
+    }
+    for (const auto& copies : emitter_copies_) {
+      emitter_slots_.push_back(slots_);
+      slots_ += kArcsPerCopy * copies.size();
+    }
   }
 
  private:
   using Chord = typename Kernel::Chord;
   // Per chunk, reused from point to point: the buffers of one point's light paths and of an
   // emitter sample's copies (points and their unit normals).
+  struct LightBuffers;
+  // One geodesic from a shaded point to a light (a point light's copy, or a copy of a point
+  // sampled on the emitters) before its shadow walk: `term`, what it brings unshadowed but for the
+  // BSDF and the radiance (cos falloff fog, times the cone, or cos' over the sampling density);
+  // `strength`, its unshadowed share of the colour (the selection's weight); the emitters' samples'
+  // density along it where a bounce may meet the same point (MIS; 0: not weighed); `weight`, set by
+  // choose_light_paths: 1 / the probability that it is traced (0: not traced).
+  struct Candidate {
+    LightPath path;
+    const Rgb* radiance;
+    double term, strength, sample_density;
+    bool emitter;
+    std::int32_t slot;  // its visibility slot (-1: none)
+    double weight = 1.0;
+  };
+  // A shaded point's candidates for shadow walks, and what the chunk has learnt of their
+  // visibility: per slot (a copy of a light, the k-th geodesic to it), a running average of
+  // whether the walks from the chunk's previous camera hits were unshadowed (1 until one is
+  // traced). The chunk's rays are neighbouring pixels, whose shadows mostly agree.
   struct LightBuffers {
     std::vector<LightPath> paths;
     std::vector<Vec4> lifts, normals;
+    std::vector<Candidate> candidates;
+    std::vector<std::uint32_t> order;
+    std::vector<std::uint8_t> arcs;  // per copy: the geodesics to it met so far
+    std::vector<float> visible;      // per visibility slot
   };
+  // Slots per copy of a light: its first geodesics (S3's two arcs, the branches of Nil, Sol and
+  // SL2~); further ones share the last.
+  static constexpr std::size_t kArcsPerCopy = 4;
+  // How fast a slot's visibility follows the walks (the weight of the newest), and the least
+  // visibility a slot is sampled with (so that a light path learnt shadowed is still traced now
+  // and then: the estimate stays unbiased, its weight bounded).
+  static constexpr float kVisibilityRate = 0.3f, kLeastVisibility = 0.5f;
+  std::vector<std::size_t> light_slots_, emitter_slots_;  // the first slot per light / group
+  std::size_t slots_ = 0;
+  // The slot of the geodesic to copy `lift` of a light or group whose first slot is `first`,
+  // counting the geodesics to each copy in `arcs` (cleared per light or sample).
+  static std::int32_t visibility_slot(std::size_t first, std::int32_t lift,
+                                      std::vector<std::uint8_t>& arcs) {
+    std::uint8_t& k = arcs[std::size_t(lift)];
+    const std::size_t arc = std::min<std::size_t>(k, kArcsPerCopy - 1);
+    k = std::uint8_t(std::min<std::size_t>(k + 1, kArcsPerCopy));
+    return std::int32_t(first + kArcsPerCopy * std::size_t(lift) + arc);
+  }
 
   void trace_range(std::size_t begin, std::size_t end, Strided2<double> origins,
                    Strided2<double> directions, const TraceOptions& options,
@@ -70,6 +120,7 @@ class KernelTracer final : public Tracer {
                    TraceStats& stats) const override {
     const WalkContext context = this->context(options);
     LightBuffers buffers;
+    if (options.light_budget > 0) buffers.visible.assign(slots_, 1.0f);
     for (std::size_t i = begin; i < end; ++i) {
       const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
       const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
@@ -285,6 +336,7 @@ class KernelTracer final : public Tracer {
   struct Vertex {
     Vec4 X, N, S;
     bool opaque, bounce_follows;
+    bool camera_hit;  // the camera ray's (its light paths' visibility is learnt chunk-wide)
     Rgb base;
     Frame frame{};
     std::optional<Bsdf> bsdf;
@@ -345,9 +397,12 @@ class KernelTracer final : public Tracer {
   double emitted_cosine(std::size_t t, const Vec4& lift, const Vec4& normal,
                         const Vec4& arrival) const;
 
-  void sample_emitters(const WalkContext& context, const Vertex& v, const TraceOptions& options,
-                       TraceStats& stats, LightBuffers& buffers, Random& random,
-                       Reflected& sum) const;
+  void sample_emitters(const Vertex& v, const TraceOptions& options, TraceStats& stats,
+                       LightBuffers& buffers, Random& random) const;
+  void add_candidate(const Vertex& v, const LightPath& path, const Rgb& radiance, double term,
+                     double sample_density, bool emitter, std::int32_t slot,
+                     LightBuffers& buffers) const;
+  static void choose_light_paths(LightBuffers& buffers, int budget, Random& random);
 
   double emission_weight(const Vertex& v, const Vec4& V, double density, double length,
                          const Found& f, const Surface& s, const TraceOptions& options,

@@ -127,7 +127,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   // Kept by chunk, so that the recording does not depend on the thread count.
   std::vector<std::vector<double>> chunk_segments(options.record_segments ? chunks : 0);
   std::atomic<std::uint64_t> chords{0}, light_failures{0}, light_paths{0}, emitter_paths{0},
-      bounce_paths{0}, emitter_hits{0};
+      bounce_paths{0}, emitter_hits{0}, shadow_walks{0}, shadowed_walks{0};
   // summed in chunk order: the same for any threads
   std::vector<double> chunk_energy(chunks, 0.0), chunk_emitter_energy(chunks, 0.0);
   const std::size_t traced = run_chunks(
@@ -142,6 +142,8 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
         emitter_paths.fetch_add(local.emitter_paths);
         bounce_paths.fetch_add(local.bounce_paths);
         emitter_hits.fetch_add(local.emitter_hits);
+        shadow_walks.fetch_add(local.shadow_walks);
+        shadowed_walks.fetch_add(local.shadowed_walks);
         chunk_energy[chunk] = local.light_energy;
         chunk_emitter_energy[chunk] = local.emitter_energy;
       },
@@ -154,6 +156,8 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   stats.emitter_paths = emitter_paths.load();
   stats.bounce_paths = bounce_paths.load();
   stats.emitter_hits = emitter_hits.load();
+  stats.shadow_walks = shadow_walks.load();
+  stats.shadowed_walks = shadowed_walks.load();
   for (const double e : chunk_energy) stats.light_energy += e;
   for (const double e : chunk_emitter_energy) stats.emitter_energy += e;
   stats.segments = std::move(chunk_segments);

@@ -54,6 +54,10 @@ struct TraceOptions {
   std::uint64_t seed;  // of the samples' random numbers (a ray's depend on it and its index)
   int bounces;         // bounces after the camera ray's hit (0: direct light only)
   EmitterSampling emitter_sampling = EmitterSampling::kMis;
+  // Shadow walks per shaded point for direct light (integrator.hpp, choose_light_paths): the
+  // strongest geodesics to the lights' copies and the emitters' samples always, the rest sampled
+  // in proportion to their unshadowed light; 0: every geodesic (the exact sum).
+  int light_budget = 0;
 };
 
 // Caller-allocated per-ray outputs (N rows each).
@@ -100,8 +104,10 @@ struct TraceStats {
   // radiance times cos' (at the emitter) times falloff (and fog) over the sampling density.
   std::uint64_t emitter_paths = 0;
   double emitter_energy = 0.0;
-  std::uint64_t bounce_paths = 0;  // geodesics traced for bounces (path tracing)
-  std::uint64_t emitter_hits = 0;  // bounces that met an emitter (its light weighted by MIS)
+  std::uint64_t shadow_walks = 0;    // shadow walks traced for direct light (the sampled paths)
+  std::uint64_t shadowed_walks = 0;  // of them, those that met a blocker
+  std::uint64_t bounce_paths = 0;    // geodesics traced for bounces (path tracing)
+  std::uint64_t emitter_hits = 0;    // bounces that met an emitter (its light weighted by MIS)
   // Recorded chords by chunk of rays, in ray order: 6 doubles each, start xyz and end xyz.
   std::vector<std::vector<double>> segments;
 };

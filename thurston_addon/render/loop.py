@@ -143,7 +143,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     active = None  # adaptive: the pixels still taking samples
     passes_done = 0
     limit_reached = False
-    chords = light_failures = light_paths = shaded_points = bounce_paths = 0
+    chords = light_failures = light_paths = shaded_points = bounce_paths = shadow_walks = shadowed = 0
     light_energy = 0.0
     for k, (jitter, shaded, colour) in enumerate(jobs):
         view = view_directions(camera, settings, jitter)
@@ -164,6 +164,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
             light_samples=settings.light_samples,
             seed=settings.seed + k,
             bounces=settings.bounces,
+            light_budget=settings.light_budget,
         )
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
@@ -173,6 +174,8 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         light_paths += int(out["light_paths"]) + int(out["emitter_paths"])
         light_energy += float(out["light_energy"]) + float(out["emitter_energy"])
         bounce_paths += int(out["bounce_paths"])
+        shadow_walks += int(out["shadow_walks"])
+        shadowed += int(out["shadowed_walks"])
         shaded_points += int(np.sum(out["stop"] == 0)) if shaded else 0
         if jitter == CENTRE:
             first, first_start, first_limits = out, start, limits
@@ -266,7 +269,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "noise_threshold": settings.noise_threshold,
         "time_limit": settings.time_limit or None,
         "time_limit_reached": limit_reached,
-        **light_stats(space, settings, tracer, light_paths, light_energy, shaded_points),
+        **light_stats(space, settings, tracer, light_paths, light_energy, shaded_points, shadow_walks, shadowed),
         "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},
     }
     return Result(passes, stats, taken.reshape(h, w))

@@ -22,15 +22,16 @@ class Quality:
 
     samples: int
     footprint_fraction: float
+    light_paths: int  # shadow walks per shaded point (Settings.light_paths); 0: the exact sum
 
 
 # The same names are used by the add-on. The fractions keep what the chords do to the image below
 # what the sampling does at each quality (benchmarks/bench_curved.py, its image table).
 QUALITY = {
-    "draft": Quality(1, 1.0),
-    "preview": Quality(2, 0.5),
-    "standard": Quality(4, 0.25),
-    "final": Quality(16, 0.1),
+    "draft": Quality(1, 1.0, 0),
+    "preview": Quality(2, 0.5, 0),
+    "standard": Quality(4, 0.25, 0),
+    "final": Quality(16, 0.1, 0),
 }
 # `thurston trace` has no pixels: its qualities use the pixel of the default view (640 pixels
 # across 90 degrees).
@@ -84,6 +85,10 @@ class Settings:
     threads: int = 0
     tolerance: float | None = None  # chord tolerance in chart units (S2xR: metric); None: the quality's bound
     light_samples: int = 4  # points sampled on the emissive meshes per shaded point (each sample)
+    # shadow walks per shaded point for direct light: the strongest geodesics to the lights' copies
+    # always, the rest sampled by their unshadowed light (unbiased); 0: every geodesic (the exact
+    # sum); None: the quality's
+    light_paths: int | None = None
     bounces: int = 0  # bounces after each camera hit (path tracing, any quality); 0: direct light only
     seed: int = 0  # sample k's random numbers (light samples, bounces) come from seed + k
     transparent: bool = False  # alpha: the share of a pixel's samples that hit something (else 1)
@@ -106,6 +111,11 @@ class Settings:
     def samples_per_pixel(self) -> int:
         """The samples per pixel: the given count, else the quality's."""
         return self.samples or QUALITY[self.quality].samples
+
+    @property
+    def light_budget(self) -> int:
+        """Shadow walks per shaded point (0: the exact sum): the given count, else the quality's."""
+        return QUALITY[self.quality].light_paths if self.light_paths is None else self.light_paths
 
     @property
     def min_samples_per_pixel(self) -> int:
@@ -157,6 +167,11 @@ class Settings:
             )
         if not (_whole(self.light_samples) and 1 <= self.light_samples <= 4096):
             raise RenderError(f"light samples must be a whole number between 1 and 4096, got {self.light_samples}")
+        if self.light_paths is not None and not (_whole(self.light_paths) and 0 <= self.light_paths <= 2**20):
+            raise RenderError(
+                f"light paths must be a whole number of shadow walks per shaded point from 0 (every "
+                f"geodesic: the exact sum) to {2**20}, got {self.light_paths}"
+            )
         if not (_whole(self.bounces) and 0 <= self.bounces <= MAX_BOUNCES):
             raise RenderError(
                 f"bounces must be a whole number between 0 (direct light only) and {MAX_BOUNCES}, got {self.bounces}"

@@ -65,9 +65,15 @@ def light_summary(s: dict) -> str:
         if s["emitter_triangles"]
         else ""
     )
+    estimate = (
+        f"sampled: {s['shadow_walks_per_point']:.1f} shadow walks per shaded point, the strongest always "
+        f"(--light-paths {s['light_budget']})"
+        if s["light_budget"]
+        else "exact sum, a shadow walk each"
+    )
     return (
         f"light: {s['light_copies']} copies within reach {s['light_reach']:.3g} ({s['light_paths_per_point']:.1f} "
-        f"geodesics per shaded point), energy beyond the reach up to the distance limit about "
+        f"geodesics per shaded point; {estimate}), energy beyond the reach up to the distance limit about "
         f"{s['light_energy_left_out']:.3g} x the summed (estimate){emitters}"
     )
 
@@ -103,7 +109,9 @@ def noise_of(color_sum, brightness_squares, taken) -> float | None:
     return float(np.sqrt(np.mean(pixel_errors(color_sum, brightness_squares, taken) ** 2)))
 
 
-def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: float, shaded: int) -> dict:
+def light_stats(
+    space: Space, settings: Settings, tracer, paths: int, energy: float, shaded: int, shadow_walks: int, shadowed: int
+) -> dict:
     """The light a render summed: its reach, the copies of the lights the tracer has, the light paths
     per shaded point, and the energy left out beyond the reach (up to the distance limit D, within
     the geometry's longest geodesic to a light: 2 pi in S3), relative to what was summed (before
@@ -127,6 +135,11 @@ def light_stats(space: Space, settings: Settings, tracer, paths: int, energy: fl
     return {
         "light_copies": tracer.num_light_lifts,
         "light_paths_per_point": paths / shaded if shaded else 0.0,
+        # how the direct light was estimated: every geodesic's shadow walk, or a sample of them
+        "light_estimate": "sampled" if settings.light_budget else "exact sum",
+        "light_budget": settings.light_budget,
+        "shadow_walks_per_point": shadow_walks / shaded if shaded else 0.0,
+        "shadowed_fraction": shadowed / shadow_walks if shadow_walks else 0.0,  # walks that met a blocker
         "emitter_triangles": tracer.num_emitter_triangles,
         "emitter_copies": tracer.num_emitter_copies,
         "light_samples": settings.light_samples,

@@ -58,6 +58,7 @@ def trace(
     light_samples=1,
     seed=0,
     bounces=0,
+    light_budget=0,
 ):
     """tracer.trace, with what the core rejects (ValueError) raised as RenderError. Exceptions
     from the progress callback pass through unchanged (they are the caller's, not the input's)."""
@@ -84,6 +85,7 @@ def trace(
             light_samples=light_samples,
             seed=seed,
             bounces=bounces,
+            light_budget=light_budget,
         )
     except ValueError as exc:
         if raised:

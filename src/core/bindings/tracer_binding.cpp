@@ -27,7 +27,9 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
                double max_distance, int max_crossings, bool shade, nb::object progress,
                bool record_segments, double tolerance, double tolerance_per_distance,
                bool skip_empty, double fog, int light_samples, std::uint64_t seed, int bounces,
-               const std::string& emitter_sampling) {
+               const std::string& emitter_sampling, int light_budget) {
+  if (light_budget < 0)
+    throw nb::value_error("light_budget must be >= 0 (0: every geodesic to every light)");
   if (light_samples < 1) throw nb::value_error("light_samples must be >= 1");
   const char* const sampling_names[] = {"mis", "light", "bounce"};
   const auto sampling =
@@ -62,7 +64,8 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
                              tolerance,     tolerance_per_distance,
                              skip_empty,    fog,
                              light_samples, seed,
-                             bounces,       EmitterSampling(sampling - std::begin(sampling_names))};
+                             bounces,       EmitterSampling(sampling - std::begin(sampling_names)),
+                             light_budget};
 
   // The callback runs on this thread with the GIL re-acquired; its exception is kept until the
   // workers have stopped.
@@ -122,6 +125,12 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
   std::unique_ptr<std::int64_t[]> emitter_hits(
       new std::int64_t[1]{std::int64_t(stats.emitter_hits)});
   result["emitter_hits"] = to_numpy(std::move(emitter_hits), {});
+  std::unique_ptr<std::int64_t[]> shadow_walks(
+      new std::int64_t[1]{std::int64_t(stats.shadow_walks)});
+  result["shadow_walks"] = to_numpy(std::move(shadow_walks), {});
+  std::unique_ptr<std::int64_t[]> shadowed_walks(
+      new std::int64_t[1]{std::int64_t(stats.shadowed_walks)});
+  result["shadowed_walks"] = to_numpy(std::move(shadowed_walks), {});
   if (record_segments) {
     std::size_t s = 0;
     for (const auto& chunk : stats.segments) s += chunk.size() / 6;
@@ -179,6 +188,10 @@ estimation; Russian roulette from the 4th bounce on); 0: direct light only.
 emitter_sampling: how the emitters' light is gathered where a bounce follows: "mis" (the emitters'
 samples and the emission the bounces meet, weighed by the power heuristic along each geodesic),
 "light" (the samples alone) or "bounce" (what the bounces meet alone).
+light_budget: shadow walks per shaded point for direct light: the geodesics to the lights'
+copies and to the emitters' samples are weighed by their unshadowed light, the strongest traced
+always and the rest sampled in proportion to it (one stratified draw), each traced one weighted by
+1 / its probability (unbiased); 0: every geodesic is traced (the exact sum).
 progress(done, total) is called about every 0.1 s (and at the start and end); returning False
 stops the trace like cancel(). Returns a dict of:
 color float32 (N,3), depth float64 (N,) (inf: no hit), position float64 (N,3) chart point of the
@@ -194,7 +207,9 @@ at the shaded points, light_energy float64 () their mean radiance times falloff 
 falls to 1/e over `fog` of its path) summed before cosines and shadows, emitter_paths int64 ()
 and emitter_energy float64 () the same for the emitters' samples (their energy: mean radiance
 times the emitter's cosine times falloff over the sampling density), bounce_paths int64 ()
-geodesics traced for bounces, emitter_hits int64 () bounces that met an emitter and added its
+geodesics traced for bounces, shadow_walks int64 () shadow walks traced for direct light,
+shadowed_walks int64 () those of them that met a blocker,
+emitter_hits int64 () bounces that met an emitter and added its
 light, and with record_segments segment_starts /
 segment_ends float64 (S,3), the chart endpoints of the queries.)";
 
@@ -219,7 +234,7 @@ void bind_tracer(nb::module_& m) {
                    "record_segments: bool = False, tolerance: float = 1e-3, "
                    "tolerance_per_distance: float = 0.0, skip_empty: bool = True, "
                    "fog: float = float('inf'), light_samples: int = 1, seed: int = 0, "
-                   "bounces: int = 0, emitter_sampling: str = 'mis') -> "
+                   "bounces: int = 0, emitter_sampling: str = 'mis', light_budget: int = 0) -> "
                    "dict[str, numpy.ndarray]"),
            nb::arg("origins").noconvert(), nb::arg("directions").noconvert(),
            nb::arg("max_distance"), nb::arg("max_crossings"), nb::arg("shade") = true,
@@ -227,7 +242,7 @@ void bind_tracer(nb::module_& m) {
            nb::arg("tolerance") = 1e-3, nb::arg("tolerance_per_distance") = 0.0,
            nb::arg("skip_empty") = true, nb::arg("fog") = kInf, nb::arg("light_samples") = 1,
            nb::arg("seed") = 0, nb::arg("bounces") = 0, nb::arg("emitter_sampling") = "mis",
-           kTraceDoc)
+           nb::arg("light_budget") = 0, kTraceDoc)
       .def(
           "cancel", [](TracerHandle& t) { t.tracer->cancel(); },
           "Stops a running trace(); callable from any Python thread.")
