@@ -266,3 +266,58 @@ def test_viewport_takes_its_own_sampling_and_stops_when_every_pixel_is_below_the
     assert (frame.samples, frame.samples_mean, frame.converged) == (2, 2.0, True)
     assert log == [0, 0, 0, 0, 1]  # sample 0 at each level, then sample 1
     assert engine.viewport_status(frame, 8).endswith("(done)")
+
+
+class Layout:
+    """Records what a panel's draw() shows: (property, text) of each prop."""
+
+    def __init__(self, shown=None):
+        self.shown = [] if shown is None else shown
+
+    def column(self, **_):
+        return Layout(self.shown)
+
+    row = column
+
+    def prop(self, data, name, text=None, **_):
+        self.shown.append((name, text))
+
+
+def test_the_sampling_panel_shows_cycles_layout_under_thurston():
+    sc = bh.fresh_scene()
+    t = sc.thurston
+    panels = {name: getattr(bpy.types, f"THURSTON_PT_sampling{name}") for name in ("", "_viewport", "_render")}
+    assert panels[""].bl_label == "Sampling" and panels[""].bl_context == "render"
+    assert [panels[k].bl_label for k in ("_viewport", "_render")] == ["Viewport", "Render"]
+    assert {panels[k].bl_parent_id for k in ("_viewport", "_render")} == {"THURSTON_PT_sampling"}
+    sc.render.engine = "CYCLES"
+    assert not any(p.poll(bpy.context) for p in panels.values())
+    sc.render.engine = "THURSTON"
+    assert all(p.poll(bpy.context) for p in panels.values())
+
+    def shown(name):
+        layout = Layout()
+        panels[name].draw(SimpleNamespace(layout=layout), bpy.context)
+        return layout.shown
+
+    assert shown("_render") == [
+        ("use_adaptive_sampling", ""),
+        ("adaptive_threshold", ""),
+        ("samples", "Samples"),
+        ("time_limit", None),
+    ]
+    t.use_adaptive_sampling = t.use_preview_adaptive_sampling = True
+    assert shown("_render") == [
+        ("use_adaptive_sampling", ""),
+        ("adaptive_threshold", ""),
+        ("samples", "Max Samples"),
+        ("adaptive_min_samples", "Min Samples"),
+        ("time_limit", None),
+    ]
+    assert shown("_viewport") == [
+        ("use_preview_adaptive_sampling", ""),
+        ("preview_adaptive_threshold", ""),
+        ("preview_samples", "Max Samples"),
+        ("preview_adaptive_min_samples", "Min Samples"),
+    ]
+    assert shown("") == []
