@@ -160,6 +160,20 @@ def test_f12_adaptive_sampling_stops_flat_pixels_and_runs_noisy_ones_to_max(tmp_
     assert last(sc)[0] == pytest.approx((8 * zero8.sum() + SAMPLES * (~zero8).sum()) / zero.size, rel=1e-6)
 
 
+def test_the_operators_take_the_render_sampling():
+    """Render View to Image and Preview (the preview quality's 2 samples: Min Samples 8 becomes 2)."""
+    sc = sampling_scene()
+    t = sc.thurston
+    t.quality, t.samples = "final", 0
+    t.use_adaptive_sampling, t.adaptive_threshold, t.adaptive_min_samples = True, 1e-6, 8
+    assert bpy.ops.thurston.render_view() == {"FINISHED"}
+    mean, most, _ = last(sc)
+    assert most == render.QUALITY["final"].samples and 8 < mean < most
+    assert bpy.ops.thurston.preview() == {"FINISHED"}
+    mean, most, _ = last(sc)
+    assert most == render.QUALITY["preview"].samples == 2 and mean == 2
+
+
 def test_time_limit_zero_is_none_and_a_tiny_one_stops_after_a_whole_pass(tmp_path):
     sc = sampling_scene()
     t = sc.thurston
