@@ -171,7 +171,8 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
             bscene.thurston, w, h, transparent=bscene.render.film_transparent, viewport=True
         )
         samples = settings.samples_per_pixel
-        settings = replace(settings, quality="draft", samples=samples)  # the count stays the chosen quality's
+        # draft accuracy; the samples per pixel stay those chosen (the set count, or the quality's)
+        settings = replace(settings, quality="draft", samples=samples)
 
         def frame(level, sample, cancelled):
             sized = replace(settings, width=max(1, w // level), height=max(1, h // level))
