@@ -445,8 +445,9 @@ def test_viewport_job_adds_the_panels_samples_with_its_bounces():
     window[0][0] = 1 / math.tan(fov / 2)
     view = SimpleNamespace(is_perspective=True, view_matrix=sc.camera.matrix_world.inverted(), window_matrix=window)
     host = SimpleNamespace(_viewport_world=(space, tracer))
-    job, samples = engine.ThurstonRenderEngine._viewport_job(host, sc, view, 24, 16)
-    assert samples == 3
+    job, viewport_settings = engine.ThurstonRenderEngine._viewport_job(host, sc, view, 24, 16)
+    samples = viewport_settings.samples_per_pixel
+    assert samples == 3 and viewport_settings.noise_threshold == 0
     mean = np.mean([job(1, k, lambda: False)[::-1, :, :3] for k in range(samples)], axis=0)  # rows top-down
     M = np.array(sc.camera.matrix_world, float)
     camera = scenes.Camera(M[:3, 3], -M[:3, 2], M[:3, 1], math.degrees(fov))

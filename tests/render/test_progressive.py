@@ -161,3 +161,40 @@ def test_one_sample_is_sample_k_of_the_render():
                 render.view_directions(moved, one), render.view_directions(camera, settings, jitter), atol=1e-14
             )
             assert (one.samples, one.seed) == (1, first + k)
+
+
+def test_adaptive_accumulation_is_the_adaptive_render():
+    """With a noise threshold the view adds each sample only to the pixels whose standard error is
+    still above it after min samples: its frame is render()'s adaptive render of the same samples
+    (pixels, samples used, noise), equal but at a few silhouette pixels (see above); a threshold
+    above every pixel's error stops them all at min samples, and no sample follows."""
+    space = spaces.load("torus")
+    tracer = render.make_tracer(space, default_scene(space))
+    size, samples = (48, 27), 8
+    settings = render.Settings(
+        width=size[0],
+        height=size[1],
+        samples=samples,
+        bounces=1,
+        quality="draft",
+        threads=2,
+        noise_threshold=0.03,
+        min_samples=3,
+    )
+    view = progressive.ProgressiveView()
+    view.request("a", accumulating(space, tracer, size, samples, settings), samples, 0.03, 3)
+    view.wait(300)
+    assert view.error is None
+    frame = view.frame
+    final = render.render(space, None, settings, camera=space_camera(space), tracer=tracer)
+    print(f"samples used: view {frame.samples_mean:.3f}, render {final.stats['samples_mean']:.3f}")
+    assert 3 < final.stats["samples_mean"] < samples - 1
+    assert frame.samples_mean == pytest.approx(final.stats["samples_mean"], rel=0.01)
+    same = np.all(np.isclose(frame.pixels, final.passes["color"], rtol=1e-5, atol=1e-6), axis=2)
+    assert same.mean() > 0.98
+    assert frame.noise == pytest.approx(final.stats["noise"], rel=0.03)
+    log = []
+    view.request("b", accumulating(space, tracer, size, samples, settings, log), samples, 10.0, 3)
+    view.wait(300)
+    assert (view.frame.samples, view.frame.samples_mean, view.frame.converged) == (3, 3.0, True)
+    assert log == [(level, 0) for level in progressive.LEVELS] + [(1, 1), (1, 2)]

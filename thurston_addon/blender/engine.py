@@ -117,10 +117,12 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         region, view = context.region, context.region_data
         w, h = region.width, region.height
         try:
-            job, samples = self._viewport_job(depsgraph.scene, view, w, h)
+            job, settings = self._viewport_job(depsgraph.scene, view, w, h)
         except (export.ExportError, render.RenderError) as exc:
             self.update_stats("Thurston", str(exc))
             return
+        samples = settings.samples_per_pixel
+        adaptive = (settings.noise_threshold, settings.min_samples_per_pixel)
         key = (
             w,
             h,
@@ -128,8 +130,9 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
             tuple(map(tuple, view.window_matrix)),
             self._scene_version,
             samples,
+            adaptive,
         )
-        self._view.request(key, job, samples)
+        self._view.request(key, job, samples, *adaptive)
         if self._view.error is not None:
             self.update_stats("Thurston", f"viewport render failed: {self._view.error}")
         if self._view.busy and not bpy.app.timers.is_registered(self._redraw):
@@ -149,10 +152,11 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         gpu.state.blend_set("NONE")
 
     def _viewport_job(self, bscene, view, w, h):
-        """(trace_frame(level, sample, cancelled), samples) for the progressive view: draft
-        accuracy, the settings' bounces, and as many samples as F12 takes (the panel's Samples, or
-        its quality's). Everything it needs is read from Blender here, on the UI thread; the
-        worker only traces."""
+        """(trace_frame(level, sample, cancelled), settings) for the progressive view: draft
+        accuracy, the settings' bounces, and the viewport's sampling (export.render_settings with
+        viewport: its Samples, else F12's, and its adaptive sampling), in the settings' samples per
+        pixel, noise threshold and min samples. Everything it needs is read from Blender here, on the
+        UI thread; the worker only traces."""
         if isinstance(self._viewport_world, Exception):
             raise self._viewport_world
         space, tracer = self._viewport_world
@@ -163,9 +167,12 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         # the field of view the viewport itself shows (its lens, sensor and camera zoom)
         fov = 2 * np.degrees(np.arctan(1.0 / view.window_matrix[0][0]))
         camera = scenes.Camera(inverse[:3, 3] / scale, -inverse[:3, 2], inverse[:3, 1], float(fov))
-        settings = export.render_settings(bscene.thurston, w, h, transparent=bscene.render.film_transparent)
+        settings = export.render_settings(
+            bscene.thurston, w, h, transparent=bscene.render.film_transparent, viewport=True
+        )
         samples = settings.samples_per_pixel
-        settings.quality = "draft"
+        # draft accuracy; the samples per pixel stay those chosen (the set count, or the quality's)
+        settings = replace(settings, quality="draft", samples=samples)
 
         def frame(level, sample, cancelled):
             sized = replace(settings, width=max(1, w // level), height=max(1, h // level))
@@ -175,7 +182,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
             )
             return _flip_rows(export.combined(result.passes))
 
-        return frame, samples
+        return frame, settings
 
     def __del__(self):
         try:  # a frame still being traced for a viewport that is gone
@@ -185,11 +192,14 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
 
 
 def viewport_status(frame, samples: int) -> str:
-    """What the viewport shows: its resolution while refining, then the samples and their noise."""
+    """What the viewport shows: its resolution while refining, then the samples (under adaptive
+    sampling also their mean per pixel) and their noise."""
     if frame.level > 1:
         return f"viewport: 1/{frame.level} resolution"
+    used = "" if frame.samples_mean is None else f" (mean {frame.samples_mean:.2f} per pixel)"
     noise = "" if frame.noise is None else f", noise {frame.noise:.1e}"
-    return f"viewport: sample {frame.samples}/{samples}{noise}" + (" (done)" if frame.samples >= samples else "")
+    done = frame.samples >= samples or frame.converged
+    return f"viewport: sample {frame.samples}/{samples}{used}{noise}" + (" (done)" if done else "")
 
 
 def changes_meshes(depsgraph) -> bool:

@@ -8,7 +8,8 @@ from . import domain_guide
 from .export import FILE
 
 DEFAULT_SPACE = "poincare"
-PRESET_SUBDIR = "thurston"  # the settings presets' folder under Blender's presets
+PRESET_SUBDIR = "thurston"
+MAX_SAMPLES = 4096  # render.Settings' most samples per pixel  # the settings presets' folder under Blender's presets
 # Path settings accept Blender's // (relative to the .blend); Blender before 4.5 has no such flag.
 _BLEND_RELATIVE = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
 # The space enum's items before the setting stored the id: .blend files saved then hold an index into
@@ -99,6 +100,13 @@ class ThurstonStats(bpy.types.PropertyGroup):
         description="RMS over the pixels of the standard error of each "
         "pixel's mean brightness, from its samples' spread "
         "(-1: one sample per pixel, not estimated)",
+    )
+    samples_mean: bpy.props.FloatProperty(
+        name="Samples Mean", description="Samples per pixel used, the mean over the pixels"
+    )
+    samples_max: bpy.props.IntProperty(name="Samples Max", description="Samples per pixel used, the most")
+    time_limit_reached: bpy.props.BoolProperty(
+        name="Time Limit Reached", description="The time limit stopped the render before its last sample"
     )
     summary: bpy.props.StringProperty(name="Summary")
     notes: bpy.props.CollectionProperty(
@@ -217,13 +225,80 @@ class ThurstonSettings(bpy.types.PropertyGroup):
         name="Overwrite", default=False, description="Replace the file at Save To if it exists"
     )
     threads: bpy.props.IntProperty(name="Threads", default=0, min=0, max=render.MAX_THREADS, description="0: all cores")
+    # Sampling, under Cycles' names (scene.cycles): the render's (F12, animations, render-blend, the
+    # operators' renders) and the viewport's (preview_*). Defaults that differ from Cycles' keep files
+    # saved before these settings existed rendering as they did: adaptive sampling off, and sample
+    # counts of 0 (the quality's; the viewport: the render's). Translated in export.render_settings.
     samples: bpy.props.IntProperty(
         name="Samples",
         default=0,
         min=0,
-        max=4096,
-        description="Samples per pixel, of F12 renders and of the rendered viewport, "
-        "which adds them one by one (0: the quality's)",
+        max=MAX_SAMPLES,
+        description="Samples per pixel of renders, the most a pixel takes under adaptive sampling (0: the quality's)",
+    )
+    use_adaptive_sampling: bpy.props.BoolProperty(
+        name="Use Adaptive Sampling",
+        default=False,
+        description="Automatically reduce the number of samples per pixel based on estimated noise level",
+    )
+    adaptive_threshold: bpy.props.FloatProperty(
+        name="Adaptive Sampling Threshold",
+        default=0.01,
+        min=0.0,
+        max=1.0,
+        soft_min=0.001,
+        precision=4,
+        description="A pixel stops taking samples once the standard error of its mean brightness is "
+        "below this, after Min Samples (0: off, every pixel takes every sample)",
+    )
+    adaptive_min_samples: bpy.props.IntProperty(
+        name="Adaptive Min Samples",
+        default=0,
+        min=0,
+        max=MAX_SAMPLES,
+        description="Samples every pixel takes before adaptive sampling may stop it (0: automatic, 4; "
+        "at most the samples per pixel)",
+    )
+    time_limit: bpy.props.FloatProperty(
+        name="Time Limit",
+        default=0.0,
+        min=0.0,
+        step=100.0,
+        unit="TIME_ABSOLUTE",
+        description="Seconds after which no further sample pass starts (the pass under way finishes, "
+        "every pixel whole). Zero disables the limit",
+    )
+    preview_samples: bpy.props.IntProperty(
+        name="Viewport Samples",
+        default=0,
+        min=0,
+        max=MAX_SAMPLES,
+        description="Samples per pixel the rendered viewport adds one by one, the most a pixel takes "
+        "under adaptive sampling (0: the render's)",
+    )
+    use_preview_adaptive_sampling: bpy.props.BoolProperty(
+        name="Use Adaptive Sampling",
+        default=False,
+        description="Automatically reduce the number of samples per pixel based on estimated noise "
+        "level, for viewport renders",
+    )
+    preview_adaptive_threshold: bpy.props.FloatProperty(
+        name="Adaptive Sampling Threshold",
+        default=0.1,
+        min=0.0,
+        max=1.0,
+        soft_min=0.001,
+        precision=4,
+        description="A pixel stops taking samples once the standard error of its mean brightness is "
+        "below this, after Min Samples (0: off), for viewport renders",
+    )
+    preview_adaptive_min_samples: bpy.props.IntProperty(
+        name="Adaptive Min Samples",
+        default=0,
+        min=0,
+        max=MAX_SAMPLES,
+        description="Samples every pixel takes before adaptive sampling may stop it (0: automatic, 4), "
+        "for viewport renders",
     )
     stats: bpy.props.PointerProperty(type=ThurstonStats)
 

@@ -29,6 +29,14 @@ class THURSTON_OT_add_preset(AddPresetBase, bpy.types.Operator):
             "passes",
             "panorama_width",
             "samples",
+            "use_adaptive_sampling",
+            "adaptive_threshold",
+            "adaptive_min_samples",
+            "time_limit",
+            "preview_samples",
+            "use_preview_adaptive_sampling",
+            "preview_adaptive_threshold",
+            "preview_adaptive_min_samples",
             "threads",
         )
     ]

@@ -130,11 +130,13 @@ class THURSTON_OT_preview(_ThurstonRenderOperator):
     def make_job(self, context):
         w, h = export.resolution(context.scene)
         k = max(1, max(w, h) // 320)
-        job = export.RenderJob(
-            context.scene, context.evaluated_depsgraph_get(), width=max(1, w // k), height=max(1, h // k)
+        return export.RenderJob(
+            context.scene,
+            context.evaluated_depsgraph_get(),
+            width=max(1, w // k),
+            height=max(1, h // k),
+            quality="preview",
         )
-        job.settings.quality = "preview"
-        return job
 
 
 class THURSTON_OT_bake_panorama(_ThurstonRenderOperator):

@@ -66,7 +66,6 @@ class THURSTON_PT_render(_UnderThurston, bpy.types.Panel):
         draw_space(layout, context)
         col = layout.column(heading="Accuracy")
         col.prop(s, "quality")
-        col.prop(s, "samples")
         col.prop(s, "tolerance")
         col.prop(s, "max_distance")
         col.prop(s, "max_crossings")
@@ -101,12 +100,68 @@ def draw_last_render(layout, st):
     grid.label(text=f"Measured error: {st.measured_error:.1e}")
     grid.label(text=f"Geodesic error: {st.geodesic_error:.1e}")
     grid.label(text="Noise: one sample, not estimated" if st.noise < 0 else f"Noise: {st.noise:.1e}")
+    grid.label(text=f"Samples/pixel: mean {st.samples_mean:.2f}, max {st.samples_max}")
+    if st.time_limit_reached:
+        box.label(text="Time limit reached", icon="TIME")
     for note in st.notes:
         row = box.row()
         row.label(text=note.message, icon="ERROR")
         fix = export.FIXES.get(note.kind)
         if fix:
             row.operator(fix[0], text=fix[1])
+
+
+class THURSTON_PT_sampling(_UnderThurston, bpy.types.Panel):
+    """Sampling, as Cycles has it: the viewport's and the render's, each with adaptive sampling."""
+
+    bl_label = "Sampling"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+
+    def draw(self, context):
+        pass
+
+
+def draw_sampling(layout, s, prefix: str):
+    """Cycles' layout of its Sampling sub-panels: Noise Threshold with its switch, then Max and Min
+    Samples (Samples without adaptive sampling); prefix "preview_" for the viewport's."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    adaptive = getattr(s, f"use_{prefix}adaptive_sampling")
+    row = layout.column(align=True, heading="Noise Threshold").row(align=True)
+    row.prop(s, f"use_{prefix}adaptive_sampling", text="")
+    sub = row.row()
+    sub.active = adaptive
+    sub.prop(s, f"{prefix}adaptive_threshold", text="")
+    col = layout.column(align=True)
+    col.prop(s, f"{prefix}samples", text="Max Samples" if adaptive else "Samples")
+    if adaptive:
+        col.prop(s, f"{prefix}adaptive_min_samples", text="Min Samples")
+    return col
+
+
+class THURSTON_PT_sampling_viewport(_UnderThurston, bpy.types.Panel):
+    bl_label = "Viewport"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+    bl_parent_id = "THURSTON_PT_sampling"
+
+    def draw(self, context):
+        draw_sampling(self.layout, context.scene.thurston, "preview_")
+
+
+class THURSTON_PT_sampling_render(_UnderThurston, bpy.types.Panel):
+    bl_label = "Render"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+    bl_parent_id = "THURSTON_PT_sampling"
+
+    def draw(self, context):
+        col = draw_sampling(self.layout, context.scene.thurston, "")
+        col.prop(context.scene.thurston, "time_limit")
 
 
 class THURSTON_PT_film(_UnderThurston, bpy.types.Panel):
@@ -155,4 +210,13 @@ class THURSTON_PT_tools(bpy.types.Panel):
         draw_last_render(layout, context.scene.thurston.stats)
 
 
-CLASSES = (THURSTON_MT_presets, THURSTON_PT_render, THURSTON_PT_film, THURSTON_PT_layer_passes, THURSTON_PT_tools)
+CLASSES = (
+    THURSTON_MT_presets,
+    THURSTON_PT_render,
+    THURSTON_PT_sampling,
+    THURSTON_PT_sampling_viewport,
+    THURSTON_PT_sampling_render,
+    THURSTON_PT_film,
+    THURSTON_PT_layer_passes,
+    THURSTON_PT_tools,
+)

@@ -25,7 +25,7 @@ from .settings import (
     footprint,
     memory_needed,
 )
-from .statistics import Result, pixel_noise
+from .statistics import Result, noise_of, pixel_errors, pixel_noise
 from .tracer import core_scene, make_tracer, trace
 
 __all__ = [
@@ -61,7 +61,9 @@ __all__ = [
     "core_scene",
     "make_tracer",
     "memory_needed",
+    "noise_of",
     "own_hits",
+    "pixel_errors",
     "pixel_noise",
     "render",
     "sample_offsets",

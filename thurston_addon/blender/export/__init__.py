@@ -50,15 +50,37 @@ def load_space(settings) -> spaces.Space:
 
 
 def render_settings(
-    settings, width: int, height: int, projection: str = render.Settings.projection, region=None, transparent=False
+    settings,
+    width: int,
+    height: int,
+    projection: str = render.Settings.projection,
+    region=None,
+    transparent=False,
+    viewport=False,
+    quality=None,
 ) -> render.Settings:
+    """The Blender settings as render.Settings: the render's sampling, or with `viewport` the
+    rendered viewport's (Cycles' preview_* settings; it has no time limit); `quality` in place of
+    the settings' (the Preview operator's)."""
+    quality = quality or settings.quality
+    prefix = "preview_" if viewport else ""
+    # Samples (Cycles' Max Samples): 0 the quality's; the viewport's 0: the render's
+    samples = (settings.preview_samples if viewport else 0) or settings.samples or None
+    adaptive = getattr(settings, f"use_{prefix}adaptive_sampling")
+    threshold = getattr(settings, f"{prefix}adaptive_threshold") if adaptive else 0.0
+    # Min Samples above the samples per pixel: every pixel takes them all, as in Cycles
+    most = samples or render.QUALITY[quality].samples
+    min_samples = min(getattr(settings, f"{prefix}adaptive_min_samples"), most) if threshold else 0
     return render.Settings(
         width=width,
         height=height,
         projection=projection,
-        quality=settings.quality,
+        quality=quality,
         shading=settings.shading,
-        samples=settings.samples or None,
+        samples=samples,
+        noise_threshold=threshold,
+        min_samples=min_samples,
+        time_limit=None if viewport else settings.time_limit or None,
         region=region,
         transparent=transparent,
         # the panel's distances are in Blender units; the tracer's in chart units
@@ -282,6 +304,7 @@ class RenderJob:
         projection=render.Settings.projection,
         camera_object=None,
         region=None,
+        quality=None,
     ):
         settings = bscene.thurston
         self.notes: list[checks.Note] = []
@@ -296,7 +319,9 @@ class RenderJob:
                     "nothing to render: the scene has no visible mesh objects (the domain guide does not count)"
                 )
             self.camera = export_camera(bscene, depsgraph, settings.scale, w, h, camera_object)
-            self.settings = render_settings(settings, w, h, projection, region, bscene.render.film_transparent)
+            self.settings = render_settings(
+                settings, w, h, projection, region, bscene.render.film_transparent, quality=quality
+            )
             lambert = self.settings.shading == "lambert"
             self.notes += checks.before_render(self.space, self.scene, self.camera, lambert)
             try:
@@ -390,6 +415,8 @@ def store_stats(settings, job: RenderJob):
     s.footprint, s.geodesic_error = st["footprint"], st["geodesic_error"]
     s.chords_per_ray, s.bound, s.measured_error = st["chords_per_ray"], st["bound"], st["measured_error"]
     s.noise = -1.0 if st["noise"] is None else st["noise"]
+    s.samples_mean, s.samples_max = st["samples_mean"], st["samples_max"]
+    s.time_limit_reached = st["time_limit_reached"]
     s.summary = job.result.summary()
     store_notes(settings, job.notes)
 
