@@ -232,7 +232,9 @@ class ThurstonViewLayerSettings(bpy.types.PropertyGroup):
     """The add-on's own passes of a view layer (Blender's own, such as Depth, are on the view layer)."""
 
     __annotations__ = {
-        p.flag: bpy.props.BoolProperty(name=p.name, description=p.description) for p in BLENDER_PASSES if p.addon_flag
+        p.flag: bpy.props.BoolProperty(name=p.label or p.name, description=p.description)
+        for p in BLENDER_PASSES
+        if p.addon_flag
     }
 
 

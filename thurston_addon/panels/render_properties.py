@@ -135,8 +135,8 @@ class THURSTON_PT_layer_passes(_UnderThurston, bpy.types.Panel):
         layout.use_property_split = True
         col = layout.column(heading="Include", align=True)
         layer = context.view_layer
-        for p in export.BLENDER_PASSES:
-            col.prop(layer.thurston if p.addon_flag else layer, p.flag)
+        for flag, p in {p.flag: p for p in export.BLENDER_PASSES}.items():  # a shared switch once
+            col.prop(layer.thurston if p.addon_flag else layer, flag)
 
 
 class THURSTON_PT_tools(bpy.types.Panel):

@@ -375,6 +375,9 @@ def pass_values(job: RenderJob) -> dict[str, np.ndarray]:
         "Position": np.nan_to_num(passes["position"] * scale),
         "IndexOB": pass_index[passes["object"]],
         "Crossings": passes["crossings"],
+        "Denoising Albedo": passes["albedo"],
+        "Denoising Normal": passes["guide_normal"],
+        "Noisy Image": np.nan_to_num(passes.get("noisy", passes["color"])),
     }
     return {
         p.name: np.asarray(values[p.name], np.float32).reshape(*values[p.name].shape[:2], -1) for p in BLENDER_PASSES
