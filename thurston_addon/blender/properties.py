@@ -100,6 +100,7 @@ class ThurstonStats(bpy.types.PropertyGroup):
         "pixel's mean brightness, from its samples' spread "
         "(-1: one sample per pixel, not estimated)",
     )
+    denoised: bpy.props.BoolProperty(name="Denoised", description="Whether the last render was denoised")
     summary: bpy.props.StringProperty(name="Summary")
     notes: bpy.props.CollectionProperty(
         type=ThurstonNote,
@@ -224,6 +225,13 @@ class ThurstonSettings(bpy.types.PropertyGroup):
         max=4096,
         description="Samples per pixel, of F12 renders and of the rendered viewport, "
         "which adds them one by one (0: the quality's)",
+    )
+    use_denoising: bpy.props.BoolProperty(
+        name="Denoise",
+        default=False,
+        description="Denoise final renders with Intel Open Image Denoise (the library Blender ships), "
+        "guided by the albedo and normal; the view layer's Denoising Data keeps the guides and the "
+        "noisy image as passes",
     )
     stats: bpy.props.PointerProperty(type=ThurstonStats)
 

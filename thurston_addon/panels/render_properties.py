@@ -67,6 +67,7 @@ class THURSTON_PT_render(_UnderThurston, bpy.types.Panel):
         col = layout.column(heading="Accuracy")
         col.prop(s, "quality")
         col.prop(s, "samples")
+        col.prop(s, "use_denoising")
         col.prop(s, "tolerance")
         col.prop(s, "max_distance")
         col.prop(s, "max_crossings")
