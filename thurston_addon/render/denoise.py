@@ -12,12 +12,8 @@ import ctypes
 
 import numpy as np
 
+from .settings import DENOISE_MISSING as MISSING
 from .settings import RenderError
-
-MISSING = (
-    "denoising needs Intel Open Image Denoise's Python binding: install the 'denoise' extra "
-    "(pip install 'thurston[denoise]', or pip install pyoidn)"
-)
 
 
 def denoise(color, albedo, normal, library: str | None = None) -> np.ndarray:

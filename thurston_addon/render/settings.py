@@ -51,6 +51,10 @@ MIN_TOLERANCE = 1e-10
 # shading modes and projections; tests/render/test_render.py measures it again); rounded up.
 BYTES_PER_PIXEL = 400
 MAX_BOUNCES = 1024
+DENOISE_MISSING = (
+    "denoising needs Intel Open Image Denoise's Python binding: install the 'denoise' extra "
+    "(pip install 'thurston[denoise]', or pip install pyoidn)"
+)
 MEMORY_FRACTION = 0.8  # refuse renders that would need more than this share of physical memory
 # More threads than this gain nothing on any machine, and starting them all could take every
 # process id of the system for a moment (each thread has one; 32768 by default).
@@ -189,9 +193,7 @@ class Settings:
         ):
             raise RenderError(f"time limit must be a number of seconds >= 0 (None or 0: none), got {self.time_limit}")
         if self.denoise and self.denoiser is None and importlib.util.find_spec("pyoidn") is None:
-            from .denoise import MISSING  # refused before the render, not after it
-
-            raise RenderError(MISSING)
+            raise RenderError(DENOISE_MISSING)  # refused before the render, not after it
 
     def tolerances(self, space: Space, pixel_angle: float) -> tuple[float, float]:
         """(tolerance at distance 0, growth per unit of distance) of the chords, chart units (S2xR:
