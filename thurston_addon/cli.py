@@ -132,6 +132,7 @@ def cmd_render(args):
         noise_threshold=args.noise_threshold,
         min_samples=args.min_samples,
         time_limit=args.time_limit,
+        denoise=args.denoise,
     )
     lambert = settings.shading == "lambert"
     render.camera_frame(space, camera)  # a camera that cannot be used is refused before the notes on it
@@ -319,6 +320,12 @@ def build_parser():
         "--time-limit",
         type=float,
         help="seconds: no sample pass starts after this (the pass under way finishes; default: none)",
+    )
+    r.add_argument(
+        "--denoise",
+        action="store_true",
+        help="denoise the colour with Intel Open Image Denoise (RT filter, albedo and normal guides); "
+        "the colour before it is the EXR's Noisy Image; needs the 'denoise' extra (pyoidn)",
     )
     r.add_argument("--shading", choices=render.SHADING, default="lambert")
     r.add_argument("--fog", type=float, help="distance at which colour falls to 1/e")

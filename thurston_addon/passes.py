@@ -19,10 +19,11 @@ class BlenderPass:
 
     name: str  # Blender's pass name
     chan_id: str  # Blender's channel letters; their number is the channel count
-    type: str  # VALUE or VECTOR
+    type: str  # VALUE, VECTOR or COLOR
     flag: str  # the view layer property that enables it
     addon_flag: bool  # the flag is on view_layer.thurston (the add-on's), not on the view layer
     description: str = ""  # the add-on's own flag's tooltip (addon_flag)
+    label: str = ""  # the add-on's own flag's name where several passes share it (else the pass's name)
     source: str = ""  # the render pass it comes from; render-blend enables it from the settings (set below)
 
 
@@ -80,6 +81,15 @@ def _hue(h):
     return 0.5 + 0.5 * np.cos(2 * math.pi * h)
 
 
+# Cycles' "Denoising Data" switch of a view layer: the denoiser's guides and the noisy colour.
+_DENOISING_DATA = (
+    "denoising_store_passes",
+    True,
+    "Write the denoiser's guides (Denoising Albedo, Denoising Normal) and the colour before "
+    "denoising (Noisy Image), for the compositor's Denoise node",
+    "Denoising Data",
+)
+
 PASS_TABLE = (
     Pass("color", ("R", "G", "B"), ShadingMode("lambert", 0, _lambert)),
     Pass(
@@ -134,6 +144,25 @@ PASS_TABLE = (
         ),
     ),
     Pass("stop", ("Stop",)),
+    # The denoiser's guides (Cycles' denoising data): the first hit's diffuse albedo and its shading
+    # normal in the camera's frame (right, up, back: Blender's camera space, carried back along the
+    # ray), each averaged over the colour samples like the colour; 0 where nothing is hit.
+    Pass(
+        "albedo",
+        ("Denoising Albedo.R", "Denoising Albedo.G", "Denoising Albedo.B"),
+        blender=(BlenderPass("Denoising Albedo", "RGB", "COLOR", *_DENOISING_DATA),),
+    ),
+    Pass(
+        "guide_normal",
+        ("Denoising Normal.X", "Denoising Normal.Y", "Denoising Normal.Z"),
+        blender=(BlenderPass("Denoising Normal", "XYZ", "VECTOR", *_DENOISING_DATA),),
+    ),
+    # The colour before denoising (only where the render was denoised: Settings.denoise).
+    Pass(
+        "noisy",
+        ("Noisy Image.R", "Noisy Image.G", "Noisy Image.B"),
+        blender=(BlenderPass("Noisy Image", "RGB", "COLOR", *_DENOISING_DATA),),
+    ),
 )
 
 PASSES = tuple(p.name for p in PASS_TABLE)

@@ -138,8 +138,11 @@ class KernelTracer final : public Tracer {
       out.write_miss(i, kDistanceLimit, 0, 0.0, 0);
       return;
     }
-    const Found found =
-        first_hit(context, P, V, options.max_distance, options.max_crossings, 0.0, segments);
+    // The ray's frame about its direction, carried along to tell the normal in it (carried_back).
+    const Frame start = frame_at(P, V);
+    Vec4 carried[2] = {start.T1, start.T2};
+    const Found found = first_hit(context, P, V, options.max_distance, options.max_crossings, 0.0,
+                                  segments, carried);
     const WalkEnd& end = found.end;
     const Hit& h = found.hit;
     stats.chords += found.chords;
@@ -180,7 +183,10 @@ class KernelTracer final : public Tracer {
         return;
       }
     }
+    const Vec3 back = carried_back(P, V, start, h, surface.S, carried);
     for (int a = 0; a < 3; ++a) {
+      out.albedo[3 * i + a] = albedo[a];
+      out.carried_normal[3 * i + a] = float(back[a]);
       out.position[3 * i + a] = out.end[3 * i + a] = h.x[a];
       out.normal[3 * i + a] = float(chart_normal[a]);
       out.color[3 * i + a] = (options.shade ? surface.emission[a] : 0.0f) + albedo[a] * light[a] +
@@ -199,8 +205,10 @@ class KernelTracer final : public Tracer {
     Vec4 plane{};
     int chords = 0;
   };
+  // `carried`: two tangent vectors at P that the walk carries along (or none).
   Found first_hit(const WalkContext& context, const Vec4& P, const Vec4& V, double length,
-                  int max_crossings, double first_skip, std::vector<double>* segments) const {
+                  int max_crossings, double first_skip, std::vector<double>* segments,
+                  Vec4* carried = nullptr) const {
     Found f;
     embree::FirstHit first;
     const auto query = [&](const Chord& chord, float tnear) {
@@ -254,7 +262,7 @@ class KernelTracer final : public Tracer {
         }
       }
     };
-    f.end = kernel_.walk(context, P, V, length, max_crossings, first_skip, query, refine);
+    f.end = kernel_.walk(context, P, V, length, max_crossings, first_skip, query, refine, carried);
     return f;
   }
 
@@ -320,6 +328,26 @@ class KernelTracer final : public Tracer {
   }
   static Vec4 world(const Frame& frame, const Vec3& v) {
     return lin4(1.0, lin4(v[0], frame.T1, v[1], frame.T2), v[2], frame.S);
+  }
+
+  // The unit normal S at the hit h carried back to the ray's start (P, V) with `start` (frame_at(P,
+  // V)), whose T1 and T2 the walk carried to the hit (`carried`): its component along the ray is
+  // kept, and its part across the ray has its components in the carried pair, made orthonormal
+  // about the ray's tangent at the hit. Returned as its chart image at P. Exact parallel transport
+  // for the projective kernel (vectors normal to a geodesic's plane in the model are parallel along
+  // it; the face maps are linear); for the marching kernels the pair keeps its chart components
+  // between face maps, an approximation of the turn about the ray.
+  Vec3 carried_back(const Vec4& P, const Vec4& V, const Frame& start, const Hit& h, const Vec4& S,
+                    const Vec4* carried) const {
+    const double along = kernel_.dot(h.X, S, h.V);
+    Vec4 E1 = lin4(1.0, carried[0], -kernel_.dot(h.X, carried[0], h.V), h.V);
+    if (!kernel_.normalise(h.X, E1)) return Kernel::chart_vector(P, scaled(along, V));
+    Vec4 E2 = lin4(1.0, carried[1], -kernel_.dot(h.X, carried[1], h.V), h.V);
+    E2 = lin4(1.0, E2, -kernel_.dot(h.X, E2, E1), E1);
+    if (!kernel_.normalise(h.X, E2)) return Kernel::chart_vector(P, scaled(along, V));
+    const Vec4 back = lin4(1.0, lin4(along, V, kernel_.dot(h.X, S, E1), start.T1),
+                           kernel_.dot(h.X, S, E2), start.T2);
+    return Kernel::chart_vector(P, back);
   }
 
   // --- the light at a hit: direct light, path tracing, MIS (defined in integrator.hpp) ---

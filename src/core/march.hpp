@@ -176,9 +176,12 @@ class MarchingKernel {
   }
 
   class Walk;
+  // `carried` (optional): two tangent vectors at P, carried along by the face maps the walk
+  // applies (their differentials at the walk's point); between maps their chart components stay.
   template <class Query, class OnHit>
   WalkEnd walk(const WalkContext& context, const Vec4& P, const Vec4& V, double length,
-               int max_crossings, double first_skip, Query&& query, OnHit&& on_hit) const;
+               int max_crossings, double first_skip, Query&& query, OnHit&& on_hit,
+               Vec4* carried = nullptr) const;
 
  private:
   // The flow's connections, with the misses they count (none where they are closed forms).
@@ -232,8 +235,13 @@ template <class Flow>
 class MarchingKernel<Flow>::Walk {
  public:
   Walk(const MarchingKernel& kernel, const WalkContext& context, const Vec4& P, const Vec4& V,
-       double length)
-      : flow_(kernel.flow()), context_(context), x_(head3(P)), v_(head3(V)), length_(length) {
+       double length, Vec4* carried = nullptr)
+      : flow_(kernel.flow()),
+        context_(context),
+        x_(head3(P)),
+        v_(head3(V)),
+        length_(length),
+        carried_(carried) {
     ok_ = settle();
   }
 
@@ -419,7 +427,16 @@ class MarchingKernel<Flow>::Walk {
     return safe;
   }
 
-  void apply(int face) { Flow::map(context_.domain.maps[face], x_, v_); }
+  void apply(int face) {
+    const Mat4& M = context_.domain.maps[face];
+    if (carried_)
+      for (int j = 0; j < 2; ++j) {
+        Vec3 x = x_, c = head3(carried_[j]);
+        Flow::map(M, x, c);
+        carried_[j] = vector4(c);
+      }
+    Flow::map(M, x_, v_);
+  }
 
   // Into the domain: the maps of the faces the point lies (farthest) outside of, then off the face
   // planes it still touches while heading in, so that the next step starts strictly inside them.
@@ -479,6 +496,7 @@ class MarchingKernel<Flow>::Walk {
   typename Flow::Segment segment_;  // the current step's stretch of geodesic
   Vec3 x_, v_;
   double length_;
+  Vec4* carried_;  // two tangent vectors the face maps carry along (or none)
   double distance_ = 0.0, chord_start_ = 0.0;
   double drift_ = 0.0, chord_margin_ = 0.0;
   Chord chord_{};
@@ -492,8 +510,8 @@ template <class Flow>
 template <class Query, class OnHit>
 WalkEnd MarchingKernel<Flow>::walk(const WalkContext& context, const Vec4& P, const Vec4& V,
                                    double length, int max_crossings, double first_skip,
-                                   Query&& query, OnHit&& on_hit) const {
-  Walk w(*this, context, P, V, length);
+                                   Query&& query, OnHit&& on_hit, Vec4* carried) const {
+  Walk w(*this, context, P, V, length, carried);
   return walk_chords(w, context, length, max_crossings, first_skip, query, on_hit);
 }
 

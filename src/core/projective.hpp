@@ -289,10 +289,12 @@ struct ProjectiveKernel {
   Exit find_exit(const Domain& domain, const Vec4& P, const Vec4& V) const;
   Exit find_exit_exact(const Domain& domain, const Vec4& P, const Vec4& V) const;
 
+  // `carried` (optional): two tangent vectors at P, carried along by the face maps crossed (model
+  // vectors normal to the geodesic's plane are parallel along it: exact parallel transport).
   struct ChordHit;
   template <class Query, class OnHit>
   WalkEnd walk(const WalkContext& context, Vec4 P, Vec4 V, double length, int max_crossings,
-               double first_skip, Query&& query, OnHit&& on_hit) const;
+               double first_skip, Query&& query, OnHit&& on_hit, Vec4* carried = nullptr) const;
 
  private:
   double scene_escape(const WalkContext& context, const Vec3& x0) const;
@@ -451,8 +453,8 @@ struct ProjectiveKernel::ChordHit {
 // stays in local variables (the loop runs once per cell of every ray: this is the hot path).
 template <class Query, class OnHit>
 WalkEnd ProjectiveKernel::walk(const WalkContext& context, Vec4 P, Vec4 V, double length,
-                               int max_crossings, double first_skip, Query&& query,
-                               OnHit&& on_hit) const {
+                               int max_crossings, double first_skip, Query&& query, OnHit&& on_hit,
+                               Vec4* carried) const {
   constexpr double kH3Reach =
       40.0;  // beyond this a Klein chart point is within e^-80 of the sphere
   constexpr int kS3Renormalise = 8;
@@ -517,6 +519,10 @@ WalkEnd ProjectiveKernel::walk(const WalkContext& context, Vec4 P, Vec4 V, doubl
       return {kCrossingLimit, odometer.value(), crossings, 0.0, chart(X)};
     ++crossings;
     mat_vec2(context.domain.maps_t[exit.face], X, Xv, P, V);
+    if (carried) {
+      const Vec4 a = carried[0], b = carried[1];
+      mat_vec2(context.domain.maps_t[exit.face], a, b, carried[0], carried[1]);
+    }
     // S3's pairings are rotations and its turns unit complex numbers, so (P, V) stays orthonormal
     // to a few roundings per crossing; the exit points lie on the face planes whatever the scale.
     // Projecting back every kS3Renormalise crossings keeps the drift below 1e-14.

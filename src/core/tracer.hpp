@@ -73,6 +73,10 @@ struct TraceOutputs {
   std::int32_t* chords;  // Embree queries of the ray
   double* error;         // bound of the hit's distance from the true geodesic (chart units)
   double* end;           // (N,3) chart point where the ray stopped: the hit, or the end of its walk
+  float* albedo;         // (N,3) the hit's diffuse albedo (base colour, textures, under a glossy
+                         // layer dimmed as shading has it); 0 for a miss
+  float* carried_normal;  // (N,3) the hit's shading normal carried back along the ray to its
+                          // origin (chart image there, unit in the chart); 0 for a miss
 
   // The outputs of ray i that hit nothing.
   void write_miss(std::size_t i, Stop stop, int crossings, double distance, int chords,
@@ -82,6 +86,7 @@ struct TraceOutputs {
       position[3 * i + a] = kNaN;
       normal[3 * i + a] = float(kNaN);
       end[3 * i + a] = end_point[a];
+      albedo[3 * i + a] = carried_normal[3 * i + a] = 0.0f;
     }
     depth[i] = kInf;
     object[i] = -1;

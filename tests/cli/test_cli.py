@@ -135,6 +135,8 @@ def test_render_png_and_exr(tmp_path, capsys):
         "IndexOB",
         "Crossings",
         "Stop",
+        *(f"Denoising Albedo.{c}" for c in "RGB"),
+        *(f"Denoising Normal.{c}" for c in "XYZ"),
     ]
     assert sorted(names) == sorted(expected)
     assert meta.get("thurston:space") == "torus"

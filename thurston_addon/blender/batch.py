@@ -43,8 +43,11 @@ def _configure_output(bscene, suffix: str):
     bscene.render.engine = "THURSTON"
     wanted = {p.lower() for p in bscene.thurston.passes}
     for layer in bscene.view_layers:
+        on = {}  # a switch shared by several passes is on where any of them is wanted
         for p in export.BLENDER_PASSES:
-            setattr(layer.thurston if p.addon_flag else layer, p.flag, p.source in wanted)
+            on[p.flag] = on.get(p.flag, False) or p.source in wanted
+        for p in export.BLENDER_PASSES:
+            setattr(layer.thurston if p.addon_flag else layer, p.flag, on[p.flag])
     settings = bscene.render.image_settings
     if suffix == "exr":
         if hasattr(settings, "media_type"):  # Blender 5

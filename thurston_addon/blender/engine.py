@@ -167,8 +167,10 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         # the field of view the viewport itself shows (its lens, sensor and camera zoom)
         fov = 2 * np.degrees(np.arctan(1.0 / view.window_matrix[0][0]))
         camera = scenes.Camera(inverse[:3, 3] / scale, -inverse[:3, 2], inverse[:3, 1], float(fov))
-        settings = export.render_settings(
-            bscene.thurston, w, h, transparent=bscene.render.film_transparent, viewport=True
+        # the viewport is not denoised (its frames are single samples)
+        settings = replace(
+            export.render_settings(bscene.thurston, w, h, transparent=bscene.render.film_transparent, viewport=True),
+            denoise=False,
         )
         samples = settings.samples_per_pixel
         # draft accuracy; the samples per pixel stay those chosen (the set count, or the quality's)

@@ -108,6 +108,7 @@ class ThurstonStats(bpy.types.PropertyGroup):
     time_limit_reached: bpy.props.BoolProperty(
         name="Time Limit Reached", description="The time limit stopped the render before its last sample"
     )
+    denoised: bpy.props.BoolProperty(name="Denoised", description="Whether the last render was denoised")
     summary: bpy.props.StringProperty(name="Summary")
     notes: bpy.props.CollectionProperty(
         type=ThurstonNote,
@@ -300,6 +301,13 @@ class ThurstonSettings(bpy.types.PropertyGroup):
         description="Samples every pixel takes before adaptive sampling may stop it (0: automatic, 4), "
         "for viewport renders",
     )
+    use_denoising: bpy.props.BoolProperty(
+        name="Denoise",
+        default=False,
+        description="Denoise final renders with Intel Open Image Denoise (the library Blender ships), "
+        "guided by the albedo and normal; the view layer's Denoising Data keeps the guides and the "
+        "noisy image as passes",
+    )
     stats: bpy.props.PointerProperty(type=ThurstonStats)
 
 
@@ -307,7 +315,9 @@ class ThurstonViewLayerSettings(bpy.types.PropertyGroup):
     """The add-on's own passes of a view layer (Blender's own, such as Depth, are on the view layer)."""
 
     __annotations__ = {
-        p.flag: bpy.props.BoolProperty(name=p.name, description=p.description) for p in BLENDER_PASSES if p.addon_flag
+        p.flag: bpy.props.BoolProperty(name=p.label or p.name, description=p.description)
+        for p in BLENDER_PASSES
+        if p.addon_flag
     }
 
 

@@ -66,6 +66,7 @@ class THURSTON_PT_render(_UnderThurston, bpy.types.Panel):
         draw_space(layout, context)
         col = layout.column(heading="Accuracy")
         col.prop(s, "quality")
+        col.prop(s, "use_denoising")
         col.prop(s, "tolerance")
         col.prop(s, "max_distance")
         col.prop(s, "max_crossings")
@@ -190,8 +191,8 @@ class THURSTON_PT_layer_passes(_UnderThurston, bpy.types.Panel):
         layout.use_property_split = True
         col = layout.column(heading="Include", align=True)
         layer = context.view_layer
-        for p in export.BLENDER_PASSES:
-            col.prop(layer.thurston if p.addon_flag else layer, p.flag)
+        for flag, p in {p.flag: p for p in export.BLENDER_PASSES}.items():  # a shared switch once
+            col.prop(layer.thurston if p.addon_flag else layer, flag)
 
 
 class THURSTON_PT_tools(bpy.types.Panel):

@@ -81,3 +81,42 @@ def clip_range(camera: Camera, settings: Settings, along_axis, reach: float):
     cos = np.ravel(along_axis) if PROJECTIONS[settings.projection].planar_clip else 1.0
     start = np.broadcast_to(camera.clip_start / cos, (settings.window[2] * settings.window[3],))
     return start, np.minimum(reach, (camera.clip_end or math.inf) / cos)
+
+
+def camera_space_normals(space: Space, camera: Camera, settings: Settings, frame, view, origins, carried, hit):
+    """The guide normal of each ray (the denoiser's, Blender's camera space): the hit's shading
+    normal in the camera's frame (right, up, back = -forward) carried along the ray, from the
+    core's carried_normal (the normal carried back to the ray's origin, as its chart image there);
+    0 where nothing is hit. The frame is carried to a ray's origin as the core carries vectors:
+    exactly in E3, S3 and H3 (in the model a vector normal to the geodesic's plane is parallel along
+    it, and the part along the ray turns with its tangent), the same formula in the model for the
+    marching geometries (an approximation there), then by the pairings that moved the origin into
+    the domain."""
+    g = space.geometry
+    X, (f, r, u) = frame
+    axes = (r, u, f)
+    n = len(origins)
+    if camera.clip_start > 0:
+        a, b, c = view
+        D = (a[..., None] * f + b[..., None] * r + c[..., None] * u).reshape(-1, 4)
+        starts = np.broadcast_to(X, (n, 4))
+        P, T = g.geodesic(starts, D, clip_range(camera, settings, a, math.inf)[0])
+        moved, _, M = space.move_inside(P, T)
+        carried_axes = []
+        for w in axes:
+            along = g.dot(starts, np.broadcast_to(w, (n, 4)), D)[:, None]
+            moved_w = along * T + (w - along * D)
+            carried_axes.append(np.einsum("nij,nj->ni", np.asarray(M, float), np.asarray(moved_w, float)))
+        axes = carried_axes
+        O = np.asarray(moved, float)
+    else:
+        O = np.broadcast_to(X, (n, 4))
+        axes = [np.broadcast_to(w, (n, 4)) for w in axes]
+    out = np.zeros((n, 3))
+    if hit.any():
+        Oh = np.asarray(O[hit], float)
+        N = g.normalize_tangent(Oh, g.tangent_to_model(g.to_chart(Oh), np.asarray(carried[hit], float)))
+        for k, w in enumerate(axes):
+            out[hit, k] = g.dot(Oh, N, np.asarray(w[hit], float))
+        out[hit, 2] *= -1.0
+    return np.nan_to_num(out)

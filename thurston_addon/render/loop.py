@@ -11,8 +11,9 @@ import numpy as np
 from ..passes import STOP_REASONS, colorize
 from ..scenes import Camera, Scene
 from ..spaces import Space
-from .camera import camera_frame, camera_rays, clip_range, view_directions
+from .camera import camera_frame, camera_rays, camera_space_normals, clip_range, view_directions
 from .compilation import own_hits
+from .denoise import denoise
 from .lights import light_reach_for
 from .projections import PROJECTIONS
 from .settings import Cancelled, RenderError, Settings, memory_needed
@@ -39,6 +40,8 @@ def _miss_beyond(out: dict, limit):
     out["stop"][beyond] = STOP_REASONS.index("distance")
     out["object"][beyond] = -1
     out["color"][beyond] = 0
+    out["albedo"][beyond] = 0
+    out["carried_normal"][beyond] = 0
     for name in ("normal", "position", "error"):
         out[name][beyond] = np.nan
 
@@ -133,6 +136,9 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     pixels = w * h
     total = len(jobs) * pixels
     color_sum = None
+    # the denoiser's guides, summed over the colour samples as the colour is
+    albedo_sum = np.zeros((w * h, 3))
+    guide_sum = np.zeros((w * h, 3))
     brightness_squares = np.zeros(w * h)  # per pixel: the sum over samples of (mean of RGB)^2
     hit_sum = np.zeros(w * h)
     first = None
@@ -181,17 +187,29 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
             first, first_start, first_limits = out, start, limits
             sample = error_sample(out, space.geometry)
             probe = (origins[sample], directions[sample])
+        if colour:
+            guides = (
+                out["albedo"].astype(np.float64),
+                camera_space_normals(
+                    space, camera, settings, frame, view, origins, out["carried_normal"], out["stop"] == 0
+                ),
+            )
         del origins, directions
         if colour:
             color = colorize(out, settings, space)
             if active is not None:  # stopped pixels take no more samples
                 color[~active] = 0
+                for guide in guides:
+                    guide[~active] = 0
                 hit_sum += (out["stop"] == 0) & active
                 taken += active
             else:
                 hit_sum += out["stop"] == 0
                 taken += 1
             brightness_squares += color.mean(axis=1) ** 2
+            albedo_sum += guides[0]
+            guide_sum += guides[1]
+            del guides
             if color_sum is None:
                 color_sum = color
             else:
@@ -222,7 +240,16 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "object": first["object"].reshape(h, w),
         "crossings": first["crossings"].reshape(h, w),
         "stop": first["stop"].reshape(h, w),
+        "albedo": (albedo_sum / taken[:, None]).reshape(h, w, 3).astype(np.float32),
+        "guide_normal": (guide_sum / taken[:, None]).reshape(h, w, 3).astype(np.float32),
     }
+    del albedo_sum, guide_sum
+    denoised = False
+    if settings.denoise:
+        passes["noisy"] = passes["color"]
+        passes["color"] = denoise(passes["color"], passes["albedo"], passes["guide_normal"], settings.denoiser)
+        denoised = True
+        seconds = time.perf_counter() - t0
     hits = first["stop"] == 0
     median_depth = float(np.median(first["depth"][hits])) if hits.any() else 0.0
     origins, directions = probe
@@ -269,6 +296,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "noise_threshold": settings.noise_threshold,
         "time_limit": settings.time_limit or None,
         "time_limit_reached": limit_reached,
+        "denoised": denoised,
         **light_stats(space, settings, tracer, light_paths, light_energy, shaded_points, shadow_walks, shadowed),
         "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},
     }

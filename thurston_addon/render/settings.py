@@ -3,6 +3,7 @@ limits of what can be rendered, and the errors a render raises."""
 
 from __future__ import annotations
 
+import importlib.util
 import math
 from dataclasses import dataclass
 
@@ -51,6 +52,10 @@ MIN_TOLERANCE = 1e-10
 # shading modes and projections; tests/render/test_render.py measures it again); rounded up.
 BYTES_PER_PIXEL = 400
 MAX_BOUNCES = 1024
+DENOISE_MISSING = (
+    "denoising needs Intel Open Image Denoise's Python binding: install the 'denoise' extra "
+    "(pip install 'thurston[denoise]', or pip install pyoidn)"
+)
 MEMORY_FRACTION = 0.8  # refuse renders that would need more than this share of physical memory
 # More threads than this gain nothing on any machine, and starting them all could take every
 # process id of the system for a moment (each thread has one; 32768 by default).
@@ -102,6 +107,11 @@ class Settings:
     min_samples: int = 0
     # seconds: no sample pass starts after this much time (the pass under way finishes); None: no limit
     time_limit: float | None = None
+    # denoise the colour with Intel Open Image Denoise (its RT filter, guided by the albedo and the
+    # normal passes) after the samples; the colour before it is kept as the noisy pass
+    denoise: bool = False
+    # the OIDN shared library to denoise with (Blender's own); None: the pyoidn binding's
+    denoiser: str | None = None
 
     @property
     def window(self) -> tuple[int, int, int, int]:
@@ -197,6 +207,8 @@ class Settings:
             isinstance(self.time_limit, (int, float)) and 0 <= self.time_limit < math.inf
         ):
             raise RenderError(f"time limit must be a number of seconds >= 0 (None or 0: none), got {self.time_limit}")
+        if self.denoise and self.denoiser is None and importlib.util.find_spec("pyoidn") is None:
+            raise RenderError(DENOISE_MISSING)  # refused before the render, not after it
 
     def tolerances(self, space: Space, pixel_angle: float) -> tuple[float, float]:
         """(tolerance at distance 0, growth per unit of distance) of the chords, chart units (S2xR:

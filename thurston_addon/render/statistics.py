@@ -55,6 +55,8 @@ def illumination_summary(s: dict) -> str:
             noise += f" (adaptive, noise threshold {s['noise_threshold']:g})"
         if s.get("time_limit_reached"):
             noise += f"; time limit {s['time_limit']:g} s reached"
+    if s.get("denoised"):
+        noise += "; denoised (Open Image Denoise, albedo and normal guides; noise measured before)"
     return f"{bounces}, {noise}"
 
 

@@ -50,15 +50,17 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
     throw nb::value_error("tolerance_per_distance must be a finite number >= 0");
   const std::size_t n = origins.shape(0);
 
-  std::unique_ptr<float[]> color(new float[3 * n]), normal(new float[3 * n]);
+  std::unique_ptr<float[]> color(new float[3 * n]), normal(new float[3 * n]),
+      albedo(new float[3 * n]), carried_normal(new float[3 * n]);
   std::unique_ptr<double[]> depth(new double[n]), position(new double[3 * n]),
       distance(new double[n]), error(new double[n]), end(new double[3 * n]);
   std::unique_ptr<std::int32_t[]> object(new std::int32_t[n]), crossings(new std::int32_t[n]),
       chords(new std::int32_t[n]);
   std::unique_ptr<std::uint8_t[]> stop(new std::uint8_t[n]);
-  const TraceOutputs out{color.get(),  depth.get(),     position.get(), normal.get(),
-                         object.get(), crossings.get(), stop.get(),     distance.get(),
-                         chords.get(), error.get(),     end.get()};
+  const TraceOutputs out{color.get(),         depth.get(),     position.get(), normal.get(),
+                         object.get(),        crossings.get(), stop.get(),     distance.get(),
+                         chords.get(),        error.get(),     end.get(),      albedo.get(),
+                         carried_normal.get()};
   const TraceOptions options{max_distance,  max_crossings,
                              shade,         record_segments,
                              tolerance,     tolerance_per_distance,
@@ -106,6 +108,8 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
   result["ray_chords"] = to_numpy(std::move(chords), {n});
   result["error"] = to_numpy(std::move(error), {n});
   result["end"] = to_numpy(std::move(end), {n, 3});
+  result["albedo"] = to_numpy(std::move(albedo), {n, 3});
+  result["carried_normal"] = to_numpy(std::move(carried_normal), {n, 3});
   std::unique_ptr<std::int64_t[]> total(new std::int64_t[1]{std::int64_t(stats.chords)});
   result["chords"] = to_numpy(std::move(total), {});
   std::unique_ptr<std::int64_t[]> failures(new std::int64_t[1]{std::int64_t(stats.light_failures)});
@@ -201,7 +205,11 @@ limit, 3 cancelled), distance float64 (N,) geodesic length travelled, ray_chords
 Embree queries of each ray, error float64 (N,) an upper estimate of the hit position's error
 (chart units: the path's distance from the true geodesic over the cosine of incidence; NaN: no
 hit), end float64 (N,3) the chart point where the ray stopped (the hit, the point at the distance
-or crossing limit, inside the domain; NaN where there is none), chords int64 () Embree queries of primary rays in all, light_failures int64 () light
+or crossing limit, inside the domain; NaN where there is none), albedo float32 (N,3) the hit's diffuse albedo (the
+base colour there, textures included, dimmed under a glossy layer as the shading has it; 0: no
+hit), carried_normal float32 (N,3) the hit's shading normal carried back along the ray to its
+origin, as its chart image there (unit in the chart; exact parallel transport in E3, S3 and H3,
+an approximation of the turn about the ray in the marching geometries; 0: no hit), chords int64 () Embree queries of primary rays in all, light_failures int64 () light
 paths known to be missed (Sol's shooting: seeds that did not converge), light_paths int64 () geodesics to lights summed
 at the shaded points, light_energy float64 () their mean radiance times falloff (times fog: light
 falls to 1/e over `fog` of its path) summed before cosines and shadows, emitter_paths int64 ()

@@ -92,7 +92,31 @@ def render_settings(
         bounces=settings.bounces,
         threads=settings.threads,
         tolerance=settings.tolerance / settings.scale or None,
+        denoise=settings.use_denoising,
+        denoiser=blender_denoiser() if settings.use_denoising else None,
     )
+
+
+def blender_denoiser() -> str | None:
+    """The Open Image Denoise library Blender ships (lib/ beside Blender's version folder: the
+    binary's; the bpy module's bpy/lib), which Blender has loaded already; None where there is none (the pyoidn
+    binding is used then, where installed)."""
+    import glob
+    import os
+
+    import bpy
+
+    # Blender's version folder (resource_path LOCAL: 5.0/) lies beside its lib/ (the bpy module's too)
+    local = os.path.normpath(bpy.utils.resource_path("LOCAL"))
+    where = [os.path.dirname(local), os.path.dirname(bpy.app.binary_path or "")]
+    for folder in where:
+        if not folder:
+            continue
+        for pattern in ("libOpenImageDenoise.so*", "libOpenImageDenoise*.dylib", "OpenImageDenoise.dll"):
+            found = sorted(glob.glob(os.path.join(folder, "lib", pattern)) + glob.glob(os.path.join(folder, pattern)))
+            if found:
+                return min(found, key=len)  # libOpenImageDenoise.so.2 before its versioned file
+    return None
 
 
 def _is_guide(obj) -> bool:
@@ -400,6 +424,9 @@ def pass_values(job: RenderJob) -> dict[str, np.ndarray]:
         "Position": np.nan_to_num(passes["position"] * scale),
         "IndexOB": pass_index[passes["object"]],
         "Crossings": passes["crossings"],
+        "Denoising Albedo": passes["albedo"],
+        "Denoising Normal": passes["guide_normal"],
+        "Noisy Image": np.nan_to_num(passes.get("noisy", passes["color"])),
     }
     return {
         p.name: np.asarray(values[p.name], np.float32).reshape(*values[p.name].shape[:2], -1) for p in BLENDER_PASSES
@@ -417,6 +444,7 @@ def store_stats(settings, job: RenderJob):
     s.noise = -1.0 if st["noise"] is None else st["noise"]
     s.samples_mean, s.samples_max = st["samples_mean"], st["samples_max"]
     s.time_limit_reached = st["time_limit_reached"]
+    s.denoised = bool(st.get("denoised"))
     s.summary = job.result.summary()
     store_notes(settings, job.notes)
 
