@@ -124,7 +124,7 @@ class KernelTracer final : public Tracer {
     for (std::size_t i = begin; i < end; ++i) {
       const Vec4 o{origins(i, 0), origins(i, 1), origins(i, 2), origins(i, 3)};
       const Vec4 d{directions(i, 0), directions(i, 1), directions(i, 2), directions(i, 3)};
-      Random random(options.seed, i);
+      Random random(options.seed, options.ray_ids ? std::uint64_t(options.ray_ids[i]) : i);
       trace_ray(i, o, d, context, options, out, segments, stats, buffers, random);
     }
   }

@@ -58,6 +58,9 @@ struct TraceOptions {
   // strongest geodesics to the lights' copies and the emitters' samples always, the rest sampled
   // in proportion to their unshadowed light; 0: every geodesic (the exact sum).
   int light_budget = 0;
+  // Per ray, the index its random numbers are drawn for (a subset of a larger trace's rays keeps
+  // theirs); null: its position.
+  const std::int64_t* ray_ids = nullptr;
 };
 
 // Caller-allocated per-ray outputs (N rows each).

@@ -48,6 +48,23 @@ def _miss_beyond(out: dict, limit):
 
 CENTRE = (0.5, 0.5)
 
+# What the outputs of a ray that was not traced (adaptive sampling) hold: a miss's values
+UNTRACED = {"depth": np.inf, "position": np.nan, "normal": np.nan, "object": -1, "error": np.nan, "end": np.nan}
+
+
+def _untraced_as_misses(out: dict, rays, n: int) -> dict:
+    """The tracer's outputs for the rays `rays` (indices among n) as outputs for all n rays, those not
+    traced holding a miss's values (stop: the distance limit; colour, albedo and counts 0)."""
+    full = {}
+    for key, value in out.items():
+        if isinstance(value, np.ndarray) and value.ndim >= 1:
+            fill = UNTRACED.get(key, STOP_REASONS.index("distance") if key == "stop" else 0)
+            full[key] = np.full((n, *value.shape[1:]), fill, value.dtype)
+            full[key][rays] = value
+        else:
+            full[key] = value
+    return full
+
 
 def sample_offsets(n):
     """n sub-pixel positions (x, y in [0, 1)) for the colour, stratified and jittered, the jitter
@@ -159,10 +176,13 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         limits = (float(np.max(end - start)), max_crossings, *tolerances)
         base = k * pixels
         report = None if progress is None else (lambda done, _n, base=base: progress(base + done, total))
+        # adaptive sampling: only the pixels still taking samples are traced (the centre's pass is
+        # every pixel's: the other passes come from it)
+        rays = None if active is None or jitter == CENTRE else np.flatnonzero(active)
         out = trace(
             tracer,
-            origins,
-            directions,
+            origins if rays is None else origins[rays],
+            directions if rays is None else directions[rays],
             *limits,
             shade=shaded,
             progress=report,
@@ -171,9 +191,12 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
             seed=settings.seed + k,
             bounces=settings.bounces,
             light_budget=settings.light_budget,
+            ray_ids=rays,  # a subset's random numbers are those the same pixels draw in a whole pass
         )
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
+        if rays is not None:
+            out = _untraced_as_misses(out, rays, pixels)
         _miss_beyond(out, end - start)
         chords += int(out["chords"])
         light_failures += int(out["light_failures"])
@@ -224,6 +247,8 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
                     else active & (error >= settings.noise_threshold)
                 )
         del out
+        if active is not None and not active.any() and CENTRE not in [j for j, _, _ in jobs[k + 1 :]]:
+            break  # every pixel has stopped
         if limit is not None and colour and passes_done < len(offsets) and time.perf_counter() - t0 >= limit:
             limit_reached = True
             break

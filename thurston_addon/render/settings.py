@@ -48,9 +48,10 @@ MIN_TOLERANCE = 1e-10
 
 # Peak memory of render() per pixel, whatever the sample count (samples are traced one after the
 # other): the rays of one sample (origins, directions and their temporaries), the tracer's output
-# for it and for the centre ray, and the colour sum. Measured at about 330 bytes (2000 x 1000, all
-# shading modes and projections; tests/render/test_render.py measures it again); rounded up.
-BYTES_PER_PIXEL = 400
+# for it and for the centre ray, and the sums of the colour and of the denoising guides (albedo,
+# normal). Measured at about 580 bytes (2000 x 1000, all shading modes and projections;
+# tests/render/test_render.py measures it again); rounded up.
+BYTES_PER_PIXEL = 640
 MAX_BOUNCES = 1024
 DENOISE_MISSING = (
     "denoising needs Intel Open Image Denoise's Python binding: install the 'denoise' extra "

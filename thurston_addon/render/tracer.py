@@ -59,6 +59,7 @@ def trace(
     seed=0,
     bounces=0,
     light_budget=0,
+    ray_ids=None,
 ):
     """tracer.trace, with what the core rejects (ValueError) raised as RenderError. Exceptions
     from the progress callback pass through unchanged (they are the caller's, not the input's)."""
@@ -86,6 +87,7 @@ def trace(
             seed=seed,
             bounces=bounces,
             light_budget=light_budget,
+            ray_ids=ray_ids,
         )
     except ValueError as exc:
         if raised:

@@ -59,6 +59,10 @@ template <>
 inline const char* type_name<std::int32_t>() {
   return "int32";
 }
+template <>
+inline const char* type_name<std::int64_t>() {
+  return "int64";
+}
 
 using OptionalArray = std::optional<Array>;
 

@@ -1,5 +1,6 @@
 // The Python Tracer: a compiled scene's tracer, its trace() with numpy outputs and the GIL released
 // around the walk, cancel() and the bare Embree query.
+#include <nanobind/stl/optional.h>
 #include <nanobind/stl/string.h>
 
 #include <algorithm>
@@ -27,7 +28,8 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
                double max_distance, int max_crossings, bool shade, nb::object progress,
                bool record_segments, double tolerance, double tolerance_per_distance,
                bool skip_empty, double fog, int light_samples, std::uint64_t seed, int bounces,
-               const std::string& emitter_sampling, int light_budget) {
+               const std::string& emitter_sampling, int light_budget,
+               const OptionalArray& ray_ids) {
   if (light_budget < 0)
     throw nb::value_error("light_budget must be >= 0 (0: every geodesic to every light)");
   if (light_samples < 1) throw nb::value_error("light_samples must be >= 1");
@@ -49,6 +51,13 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
   if (!(tolerance_per_distance >= 0.0) || !std::isfinite(tolerance_per_distance))
     throw nb::value_error("tolerance_per_distance must be a finite number >= 0");
   const std::size_t n = origins.shape(0);
+  std::vector<std::int64_t> ids;
+  if (ray_ids) {
+    check<std::int64_t>(*ray_ids, "ray_ids", {std::int64_t(n)}, "(N,) like the rays");
+    const Strided2<std::int64_t> v = view2<std::int64_t>(*ray_ids);
+    ids.resize(n);
+    for (std::size_t i = 0; i < n; ++i) ids[i] = v(i, 0);
+  }
 
   std::unique_ptr<float[]> color(new float[3 * n]), normal(new float[3 * n]),
       albedo(new float[3 * n]), carried_normal(new float[3 * n]);
@@ -67,7 +76,7 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
                              skip_empty,    fog,
                              light_samples, seed,
                              bounces,       EmitterSampling(sampling - std::begin(sampling_names)),
-                             light_budget};
+                             light_budget,  ids.empty() ? nullptr : ids.data()};
 
   // The callback runs on this thread with the GIL re-acquired; its exception is kept until the
   // workers have stopped.
@@ -196,6 +205,8 @@ light_budget: shadow walks per shaded point for direct light: the geodesics to t
 copies and to the emitters' samples are weighed by their unshadowed light, the strongest traced
 always and the rest sampled in proportion to it (one stratified draw), each traced one weighted by
 1 / its probability (unbiased); 0: every geodesic is traced (the exact sum).
+ray_ids: int64 (N,), the index each ray's random numbers are drawn for (so that a subset of a
+larger trace's rays, as adaptive sampling traces, draws what they drew there); None: its position.
 progress(done, total) is called about every 0.1 s (and at the start and end); returning False
 stops the trace like cancel(). Returns a dict of:
 color float32 (N,3), depth float64 (N,) (inf: no hit), position float64 (N,3) chart point of the
@@ -242,7 +253,8 @@ void bind_tracer(nb::module_& m) {
                    "record_segments: bool = False, tolerance: float = 1e-3, "
                    "tolerance_per_distance: float = 0.0, skip_empty: bool = True, "
                    "fog: float = float('inf'), light_samples: int = 1, seed: int = 0, "
-                   "bounces: int = 0, emitter_sampling: str = 'mis', light_budget: int = 0) -> "
+                   "bounces: int = 0, emitter_sampling: str = 'mis', light_budget: int = 0, "
+                   "ray_ids: numpy.ndarray | None = None) -> "
                    "dict[str, numpy.ndarray]"),
            nb::arg("origins").noconvert(), nb::arg("directions").noconvert(),
            nb::arg("max_distance"), nb::arg("max_crossings"), nb::arg("shade") = true,
@@ -250,7 +262,8 @@ void bind_tracer(nb::module_& m) {
            nb::arg("tolerance") = 1e-3, nb::arg("tolerance_per_distance") = 0.0,
            nb::arg("skip_empty") = true, nb::arg("fog") = kInf, nb::arg("light_samples") = 1,
            nb::arg("seed") = 0, nb::arg("bounces") = 0, nb::arg("emitter_sampling") = "mis",
-           nb::arg("light_budget") = 0, kTraceDoc)
+           nb::arg("light_budget") = 0, nb::arg("ray_ids").noconvert().none() = nb::none(),
+           kTraceDoc)
       .def(
           "cancel", [](TracerHandle& t) { t.tracer->cancel(); },
           "Stops a running trace(); callable from any Python thread.")
