@@ -121,6 +121,19 @@ def test_settings_reach_render_settings_for_render_and_viewport():
     assert both()[0] == (None, 0.0, 0, None)
 
 
+def test_light_paths_reach_render_settings():
+    """Light Paths: -1 (the default) the quality's, 0 the exact sum, N walks per shaded point."""
+    t = bh.fresh_scene().thurston
+    assert t.light_paths == -1
+    for given, expected in ((-1, None), (0, 0), (6, 6)):
+        t.light_paths = given
+        settings = export.render_settings(t, 8, 6)
+        settings.check()
+        assert settings.light_paths == expected
+    t.quality, t.light_paths = "draft", -1
+    assert export.render_settings(t, 8, 6).light_budget == render.QUALITY["draft"].light_paths
+
+
 def test_f12_adaptive_sampling_stops_flat_pixels_and_runs_noisy_ones_to_max(tmp_path):
     """Against the fixed render of the same samples: a pixel that ran to the end is its pixel bit for
     bit; a flat one (every sample the same colour, here 0) stops at Min Samples. The mean samples used

@@ -191,6 +191,15 @@ class ThurstonSettings(bpy.types.PropertyGroup):
         max=4096,
         description="Points sampled on the emissive meshes and area lights per shaded point and sample",
     )
+    light_paths: bpy.props.IntProperty(
+        name="Light Paths",
+        default=-1,
+        min=-1,
+        max=2**20,
+        description="Shadow walks per shaded point for direct light: the strongest geodesics to the "
+        "lights' copies always, the rest sampled in proportion to their light (unbiased); 0: every "
+        "geodesic (the exact sum); -1: the quality's",
+    )
     bounces: bpy.props.IntProperty(
         name="Bounces",
         default=render.Settings.bounces,

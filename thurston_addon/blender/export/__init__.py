@@ -89,6 +89,7 @@ def render_settings(
         fog=settings.fog / settings.scale or None,
         light_reach=settings.light_reach / settings.scale or None,
         light_samples=settings.light_samples,
+        light_paths=None if settings.light_paths < 0 else settings.light_paths,
         bounces=settings.bounces,
         threads=settings.threads,
         tolerance=settings.tolerance / settings.scale or None,
