@@ -346,7 +346,7 @@ def build_parser():
         type=int,
         help="shadow walks per shaded point for direct light: the strongest geodesics to the lights' "
         "copies always, the rest sampled in proportion to their light (unbiased); 0: every geodesic, "
-        "the exact sum (default: the quality's, see docs/lighting.md)",
+        "the exact sum (default: 8 with --bounces, else 0; see docs/lighting.md)",
     )
     r.add_argument(
         "--bounces",

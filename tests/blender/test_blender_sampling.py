@@ -122,7 +122,7 @@ def test_settings_reach_render_settings_for_render_and_viewport():
 
 
 def test_light_paths_reach_render_settings():
-    """Light Paths: -1 (the default) the quality's, 0 the exact sum, N walks per shaded point."""
+    """Light Paths: -1 (the default) automatic, 0 the exact sum, N walks per shaded point."""
     t = bh.fresh_scene().thurston
     assert t.light_paths == -1
     for given, expected in ((-1, None), (0, 0), (6, 6)):
@@ -130,8 +130,10 @@ def test_light_paths_reach_render_settings():
         settings = export.render_settings(t, 8, 6)
         settings.check()
         assert settings.light_paths == expected
-    t.quality, t.light_paths = "draft", -1
-    assert export.render_settings(t, 8, 6).light_budget == render.QUALITY["draft"].light_paths
+    t.light_paths, t.bounces = -1, 0
+    assert export.render_settings(t, 8, 6).light_budget == 0  # direct light: the exact sum
+    t.bounces = 2
+    assert export.render_settings(t, 8, 6).light_budget == render.PATH_TRACED_LIGHT_PATHS
 
 
 def test_f12_adaptive_sampling_stops_flat_pixels_and_runs_noisy_ones_to_max(tmp_path):
@@ -248,6 +250,9 @@ def test_viewport_takes_its_own_sampling_and_stops_when_every_pixel_is_below_the
     t.use_adaptive_sampling, t.adaptive_threshold = True, 0.5  # the render's: not the viewport's
     t.preview_samples, t.use_preview_adaptive_sampling = 8, True
     t.preview_adaptive_threshold, t.preview_adaptive_min_samples = 1e-6, 2
+    # the exact light sum: sampled light learns visibility from the rays traced before in a chunk,
+    # which differ where only the pixels still sampling are traced
+    t.light_paths = 0
     space = export.load_space(t)
     tracer = render.make_tracer(space, export.export_scene(bpy.context.evaluated_depsgraph_get(), t.scale, []), 2)
     fov = sc.camera.data.angle_x

@@ -198,7 +198,7 @@ class ThurstonSettings(bpy.types.PropertyGroup):
         max=2**20,
         description="Shadow walks per shaded point for direct light: the strongest geodesics to the "
         "lights' copies always, the rest sampled in proportion to their light (unbiased); 0: every "
-        "geodesic (the exact sum); -1: the quality's",
+        "geodesic (the exact sum); -1: automatic (8 with bounces, else the exact sum)",
     )
     bounces: bpy.props.IntProperty(
         name="Bounces",
