@@ -163,7 +163,8 @@ def test_floor_under_the_lamp_matches_cycles_in_the_tiled_cover(tmp_path, regist
     cover (direct light only, all 343 lamps lighting everything): the points of the central cell
     (no face crossed), lit by every copy within reach 3.5 (Cycles' tiling holds the corridor's
     lamps three cells each way; the ones one cell further, at reach 3.5 to 4, send under 1%). A
-    missing copy fails it: the reach that keeps only the lamp's own copy."""
+    missing copy fails it: the reach that keeps only the lamp's own copy. Sampled light (8 walks per
+    point, 32 samples) matches too."""
     from support import blender_helpers as bh
 
     sc = floor_under_lamp()
@@ -173,6 +174,10 @@ def test_floor_under_the_lamp_matches_cycles_in_the_tiled_cover(tmp_path, regist
     ch = bh.f12(sc, tmp_path / "thurston.exr")
     thurston = bh.rgb(ch, L + "Combined.")
     central = bh.interior(next(v for k, v in ch.items() if "Crossings" in k) < 0.5)
+    # sampled light: 8 of the copies' geodesics walked per point (the walls shadow most), 32 samples
+    sc.thurston.light_paths, sc.thurston.samples = 8, 32
+    sampled = bh.rgb(bh.f12(sc, tmp_path / "sampled.exr"), L + "Combined.")
+    sc.thurston.light_paths, sc.thurston.samples = -1, 0
     sc.thurston.light_reach = 0.9  # the lamp's own copy only (the ones a cell away are farther)
     own_only = bh.rgb(bh.f12(sc, tmp_path / "own.exr"), L + "Combined.")
     bh.tile_torus_for_cycles(sc, CYCLES_CELLS)
@@ -183,10 +188,12 @@ def test_floor_under_the_lamp_matches_cycles_in_the_tiled_cover(tmp_path, regist
     def error(image):  # the per-pixel differences from Cycles relative to its brightness
         return float(np.abs(image[central] - cycles[central]).sum() / cycles[central].sum())
 
-    report = {"all copies": error(thurston), "own copy only": error(own_only)}
+    report = {"all copies": error(thurston), "sampled": error(sampled), "own copy only": error(own_only)}
     print("mean relative per-pixel difference from Cycles:", report)
     np.testing.assert_allclose(thurston[central].mean(axis=0), cycles[central].mean(axis=0), rtol=0.02)
     assert report["all copies"] < 0.05, report  # Cycles' noise at 1024 samples: about 0.03
+    np.testing.assert_allclose(sampled[central].mean(axis=0), cycles[central].mean(axis=0), rtol=0.02)
+    assert report["sampled"] < 0.05, report
     assert report["own copy only"] > 3 * report["all copies"], report
 
 
