@@ -71,10 +71,12 @@ def set_world_panorama(bscene, image):
 
 @bpy.app.handlers.persistent
 def pack_images(*_):
-    """Before a save: pack the add-on's images, so that the reopened file shows them and its World's
-    panorama still works (they have no file of their own)."""
+    """Before a save: pack the add-on's images whose pixels the file does not hold yet (never packed,
+    or rendered again since), so that the reopened file shows them and its World's panorama still
+    works (they have no file of their own). An image packed and unchanged is left alone: Blender's
+    pack() on it unpacks it (5.0), and a file saved twice would reopen without it."""
     for image in bpy.data.images:
-        if image.get(IMAGE_TAG) and image.has_data:
+        if image.get(IMAGE_TAG) and image.has_data and (image.packed_file is None or image.is_dirty):
             image.pack()
 
 

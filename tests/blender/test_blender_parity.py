@@ -1,0 +1,71 @@
+"""Where the add-on behaves as Blender and Cycles do (real bpy 5.0.1, background): its images stay
+in a file saved any number of times, animations go on past objects scaled to 0, render-blend
+creates its output folder, presets keep every render setting, a missing texture renders magenta,
+and a Scale of 0 is one clear error."""
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+pytestmark = pytest.mark.usefixtures("registered_addon")
+
+from support import blender_helpers as bh  # noqa: E402
+
+
+def small_scene(size=(16, 9)):
+    """A lit box ahead of a camera at the origin of the torus (draft quality)."""
+    sc = bh.fresh_scene("torus", size=size)
+    bh.box("Box", 0.12, (0.02, 0.25, 0.0), color=(0.9, 0.3, 0.1), rotation=(0.3, 0.2, 0.1))
+    bh.box("Lamp", 0.05, (-0.1, 0.2, -0.05), color=(0, 0, 0), emission=(0.2, 0.9, 0.4), strength=2.0)
+    bh.point_light((0.05, 0.05, 0.1), energy=3.0)
+    bh.camera((0, 0, 0))
+    return sc
+
+
+# --- images stay in the file over any number of saves ---------------------------------------------------
+def world_seen_by_cycles(sc, tmp_path, name):
+    """Cycles' render of the World alone (the boxes hidden) looking along +Y: the panorama."""
+    hidden = [o for o in sc.objects if o.type == "MESH"]
+    for o in hidden:
+        o.hide_render = True
+    engine = sc.render.engine
+    sc.render.engine = "CYCLES"
+    sc.cycles.samples = 4
+    sc.cycles.device = "CPU"
+    sc.render.image_settings.file_format = "OPEN_EXR"
+    sc.render.filepath = str(tmp_path / f"{name}.exr")
+    bpy.ops.render.render(write_still=True)
+    for o in hidden:
+        o.hide_render = False
+    sc.render.engine = engine
+    return bh.rgb(bh.read_exr(tmp_path / f"{name}.exr"))
+
+
+def test_images_stay_in_a_file_saved_three_times(tmp_path):
+    """Each save packs the add-on's images only where the file lacks their pixels (packing a packed
+    image unpacks it in Blender 5): after three saves the reopened file holds every image as rendered,
+    and Cycles sees the same panorama in the World (not Blender's magenta for a missing image)."""
+    sc = small_scene()
+    sc.thurston.panorama_width = 64
+    for op in (bpy.ops.thurston.render_view, bpy.ops.thurston.preview, bpy.ops.thurston.bake_panorama):
+        assert op() == {"FINISHED"}
+    names = ("Thurston View", "Thurston Preview", "Thurston Panorama")
+    rendered = {name: bh.image_pixels(bpy.data.images[name]) for name in names}
+    world = world_seen_by_cycles(sc, tmp_path, "before")
+    assert world.max() > 0.05 and not np.allclose(world, [1, 0, 1], atol=0.05)
+    blend = tmp_path / "saved.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    bpy.ops.thurston.render_view()  # a new render between the saves is saved too
+    rendered["Thurston View"] = bh.image_pixels(bpy.data.images["Thurston View"])
+    bpy.ops.wm.save_mainfile()
+    bpy.ops.wm.save_mainfile()
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    bpy.ops.wm.save_mainfile()  # and once more after reopening it
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    for name in names:
+        image = bpy.data.images[name]
+        assert image.packed_file is not None, name
+        assert tuple(image.size) == rendered[name].shape[1::-1], name
+        np.testing.assert_allclose(bh.image_pixels(image), rendered[name], rtol=1e-6, atol=1e-7, err_msg=name)
+    sc = bpy.context.scene
+    np.testing.assert_allclose(world_seen_by_cycles(sc, tmp_path, "after"), world, rtol=1e-5, atol=1e-6)
