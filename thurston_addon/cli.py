@@ -236,14 +236,11 @@ def cmd_render_blend(args):
             "render-blend needs Blender's Python module: pip install bpy==5.0.1, "
             "or run inside Blender: blender -b FILE.blend -E THURSTON -f 1"
         ) from None
-    out_dir = Path(args.out)
-    if not out_dir.is_dir():
-        raise CommandError(f"output folder {str(out_dir)!r} does not exist")
     try:
         batch.render_frames(
             Path(args.blend),
             args.frames,
-            out_dir,
+            Path(args.out),
             args.format,
             args.overwrite,
             lambda label: Progress(label),
@@ -367,7 +364,12 @@ def build_parser():
     b = sub.add_parser("render-blend", help="render a .blend file's frames with its Thurston settings (needs bpy)")
     b.add_argument("blend", metavar="FILE.blend")
     b.add_argument("--frames", metavar="A..B", help="frame or range (default: the scene's frame range)")
-    b.add_argument("--out", default=".", metavar="DIR", help="folder for <name>_<frame>.<format> (default: .)")
+    b.add_argument(
+        "--out",
+        default=".",
+        metavar="DIR",
+        help="folder for <name>_<frame>.<format>, created where missing (default: .)",
+    )
     b.add_argument("--format", choices=("exr", "png"), default="exr")
     b.add_argument("--overwrite", action="store_true", help="replace existing frame files")
     b.set_defaults(run=cmd_render_blend)

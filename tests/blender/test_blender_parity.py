@@ -69,3 +69,20 @@ def test_images_stay_in_a_file_saved_three_times(tmp_path):
         np.testing.assert_allclose(bh.image_pixels(image), rendered[name], rtol=1e-6, atol=1e-7, err_msg=name)
     sc = bpy.context.scene
     np.testing.assert_allclose(world_seen_by_cycles(sc, tmp_path, "after"), world, rtol=1e-5, atol=1e-6)
+
+
+# --- render-blend creates its output folder ---------------------------------------------------------------
+def test_render_blend_creates_its_output_folder(tmp_path):
+    """As Blender creates a render's output folder (with its parents), so does render-blend; a
+    file where the folder should be is one error naming it."""
+    small_scene(size=(8, 6))
+    blend = tmp_path / "made.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    out = tmp_path / "new" / "frames"
+    run = bh.render_blend(blend, out)
+    assert run.returncode == 0, run.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["made_0001.exr"]
+    (tmp_path / "a_file").write_text("")
+    run = bh.render_blend(blend, tmp_path / "a_file")
+    assert run.returncode == 2
+    assert "a_file' is a file" in run.stderr and "Traceback" not in run.stderr

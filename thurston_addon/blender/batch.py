@@ -37,6 +37,18 @@ def frame_range(spec: str | None, bscene) -> range:
     return range(first, last + 1)
 
 
+def make_folder(folder: Path):
+    """The output folder, created with its parents where missing, as Blender creates a render's."""
+    if folder.is_dir():
+        return
+    if folder.exists():
+        raise files.OutputError(f"output folder {str(folder)!r} is a file: choose a folder for --out")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise files.OutputError(f"cannot create output folder {str(folder)!r}: {exc.strerror or exc}") from None
+
+
 def _configure_output(bscene, suffix: str):
     """The THURSTON engine, on every view layer the passes that the settings ask for (and no others),
     and the file format."""
@@ -69,6 +81,7 @@ def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, ov
     open_blend(path)
     bscene = bpy.context.scene
     outputs = [out_dir / f"{path.stem}_{f:04d}.{suffix}" for f in frame_range(frames, bscene)]
+    make_folder(out_dir)
     for out in outputs:  # refuse before spending time on any frame
         files.check_output(out, overwrite)
     _configure_output(bscene, suffix)
