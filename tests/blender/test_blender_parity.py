@@ -3,6 +3,8 @@ in a file saved any number of times, animations go on past objects scaled to 0, 
 creates its output folder, presets keep every render setting, a missing texture renders magenta,
 and a Scale of 0 is one clear error."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -86,3 +88,31 @@ def test_render_blend_creates_its_output_folder(tmp_path):
     run = bh.render_blend(blend, tmp_path / "a_file")
     assert run.returncode == 2
     assert "a_file' is a file" in run.stderr and "Traceback" not in run.stderr
+
+
+# --- presets keep every render setting -------------------------------------------------------------------
+def test_presets_keep_the_light_settings(tmp_path, monkeypatch):
+    """A preset restores the light settings (bounces, light samples, light reach, light paths) and
+    denoising, and names every setting of the panel but the file's own (Save To, Overwrite)."""
+    monkeypatch.setenv("BLENDER_USER_SCRIPTS", str(tmp_path))
+    bh.fresh_scene()
+    s = bpy.context.scene.thurston
+    chosen = dict(bounces=3, light_samples=7, light_reach=2.5, light_paths=16, use_denoising=True)
+    for name, value in chosen.items():
+        setattr(s, name, value)
+    assert bpy.ops.thurston.add_preset(name="Lit") == {"FINISHED"}
+    preset = next(tmp_path.glob("**/presets/thurston/Lit.py"), None) or next(
+        Path(bpy.utils.resource_path("USER")).glob("**/presets/thurston/Lit.py")
+    )
+    try:
+        text = preset.read_text()
+        named = {p.identifier for p in s.bl_rna.properties if p.identifier not in ("rna_type", "name")}
+        named -= {"space", "stats", "save_path", "overwrite"}  # space_id holds the space
+        assert [n for n in sorted(named) if f"settings.{n} = " not in text] == []
+        for name in chosen:
+            s.property_unset(name)
+        assert (s.bounces, s.light_samples, s.light_reach, s.light_paths) != (3, 7, 2.5, 16)
+        assert bpy.ops.script.execute_preset(filepath=str(preset), menu_idname="THURSTON_MT_presets") == {"FINISHED"}
+        assert {name: getattr(s, name) for name in chosen} == chosen
+    finally:
+        preset.unlink()

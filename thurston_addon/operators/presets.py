@@ -5,6 +5,10 @@ from bl_operators.presets import AddPresetBase
 
 from ..blender import properties
 
+# Settings a preset leaves alone: the space enum (space_id is its value), the last render's
+# statistics, and where this file saves its renders (Save To, Overwrite).
+NOT_IN_PRESETS = {"space", "stats", "save_path", "overwrite"}
+
 
 class THURSTON_OT_add_preset(AddPresetBase, bpy.types.Operator):
     """Save the Thurston settings as a preset, or remove one"""
@@ -14,31 +18,10 @@ class THURSTON_OT_add_preset(AddPresetBase, bpy.types.Operator):
     preset_menu = "THURSTON_MT_presets"
     preset_subdir = properties.PRESET_SUBDIR
     preset_defines = ["settings = bpy.context.scene.thurston"]
+    # every setting of the render (sampling, light, bounces, ...), so that none is left behind when
+    # one is added
     preset_values = [
-        f"settings.{name}"
-        for name in (
-            "space_id",
-            "space_file",
-            "scale",
-            "quality",
-            "tolerance",
-            "shading",
-            "max_distance",
-            "max_crossings",
-            "fog",
-            "passes",
-            "panorama_width",
-            "samples",
-            "use_adaptive_sampling",
-            "adaptive_threshold",
-            "adaptive_min_samples",
-            "time_limit",
-            "preview_samples",
-            "use_preview_adaptive_sampling",
-            "preview_adaptive_threshold",
-            "preview_adaptive_min_samples",
-            "threads",
-        )
+        f"settings.{name}" for name in properties.ThurstonSettings.__annotations__ if name not in NOT_IN_PRESETS
     ]
 
 
