@@ -116,3 +116,35 @@ def test_presets_keep_the_light_settings(tmp_path, monkeypatch):
         assert {name: getattr(s, name) for name in chosen} == chosen
     finally:
         preset.unlink()
+
+
+# --- a missing texture file renders magenta ------------------------------------------------------------
+def missing_image_material(name, image):
+    """An Emission shader whose colour is an Image Texture of `image`."""
+    mat = bh.material(name, kind="emission")
+    tex = mat.node_tree.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    emission = next(n for n in mat.node_tree.nodes if n.type == "EMISSION")
+    mat.node_tree.links.new(tex.outputs["Color"], emission.inputs["Color"])
+    return mat
+
+
+def test_a_missing_texture_file_renders_magenta_as_in_cycles(tmp_path):
+    """An image whose file is gone: Cycles renders it magenta (1, 0, 1) and goes on; so does the
+    engine, with one note naming the image and its file (two materials use it)."""
+    sc = bh.fresh_scene("torus", size=(8, 8))
+    gone = tmp_path / "gone.png"
+    image = bpy.data.images.new("Gone", 4, 4)
+    image.source, image.filepath = "FILE", str(gone)
+    for name, x in (("Left", -0.06), ("Right", 0.06)):
+        wall = bh.box(name, (0.12, 0.02, 0.4), (x, 0.3, 0))
+        wall.data.materials[0] = missing_image_material(name, image)
+    bh.camera((0, 0, 0))
+    sc.view_settings.view_transform = "Standard"
+    thurston = bh.rgb(bh.f12(sc, tmp_path / "thurston.exr"), "ViewLayer.Combined.")
+    notes = [n.message for n in sc.thurston.stats.notes if "'Gone'" in n.message]
+    assert len(notes) == 1 and str(gone) in notes[0] and "magenta" in notes[0], notes
+    cycles = bh.cycles_render(sc, tmp_path / "cycles.exr", samples=1)
+    cycles = bh.rgb(cycles, "ViewLayer.Combined.")
+    for image in (thurston, cycles):
+        np.testing.assert_allclose(image[2:6, 2:6], np.broadcast_to([1.0, 0.0, 1.0], (4, 4, 3)), atol=1e-6)

@@ -355,7 +355,8 @@ class RenderJob:
                 )
             except scenes.SceneError as exc:
                 raise ExportError(str(exc)) from None
-        self.notes += [checks.Note(checks.DROPPED, str(w.message)) for w in caught]
+        # each warning once (an image missing in several materials is one note)
+        self.notes += [checks.Note(checks.DROPPED, m) for m in dict.fromkeys(str(w.message) for w in caught)]
         self.cancelled = False
         self.fraction = 0.0
         self.result: render.Result | None = None

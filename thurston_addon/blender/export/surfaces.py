@@ -6,6 +6,8 @@ Level and IOR where they are constants)."""
 
 from __future__ import annotations
 
+import warnings
+
 import bpy
 import numpy as np
 
@@ -102,11 +104,11 @@ def material(mat, object_name: str) -> scenes.Material:
     if mat.node_tree and (bpy.app.version >= (5, 0, 0) or mat.use_nodes):
         for node in mat.node_tree.nodes:
             if node.type == "BSDF_PRINCIPLED":
-                color, color_texture = _input(node.inputs["Base Color"], color, where)
+                color, color_texture = _input(node.inputs["Base Color"], color)
                 em = node.inputs.get("Emission Color") or node.inputs.get("Emission")
                 strength = node.inputs.get("Emission Strength")
                 if em is not None:
-                    value, emission_texture = _input(em, np.zeros(3), where)
+                    value, emission_texture = _input(em, np.zeros(3))
                     emission = value * (strength.default_value if strength else 1.0)
                 scattering = {
                     key: _clamped(key, node.inputs[name].default_value)
@@ -116,7 +118,7 @@ def material(mat, object_name: str) -> scenes.Material:
                 break
             if node.type == "EMISSION":
                 color = np.zeros(3)
-                value, emission_texture = _input(node.inputs["Color"], np.zeros(3), where)
+                value, emission_texture = _input(node.inputs["Color"], np.zeros(3))
                 emission = value * node.inputs["Strength"].default_value
                 break
     try:
@@ -132,26 +134,38 @@ def _clamped(key: str, value: float) -> float:
     return float(np.clip(value, max(low, 1e-5) if key == "ior" else low, high))
 
 
-def _input(socket, fallback, where):
+def _input(socket, fallback):
     """(constant, texture) of a colour input: its value; white times the image of a linked Image
-    Texture node; else the fallback."""
+    Texture node (magenta where the image has no pixels, as in Cycles); else the fallback."""
     if not socket.is_linked:
         return np.array(socket.default_value[:3], float), None
     node = socket.links[0].from_node
     if node.type == "TEX_IMAGE" and node.image is not None:
-        return np.ones(3), image_texture(node.image, where)
+        texture = image_texture(node.image)
+        return (np.ones(3), texture) if texture is not None else (MISSING_IMAGE.copy(), None)
     return np.asarray(fallback, float), None
 
 
-def image_texture(image, where: str) -> np.ndarray:
+# What Cycles renders for an image it cannot read (its file missing or broken): magenta.
+MISSING_IMAGE = np.array([1.0, 0.0, 1.0])
+
+
+def image_texture(image) -> np.ndarray | None:
     """An image's pixels as a linear float RGB texture, rows top-down. Float images hold linear
-    values; byte images hold their colour space's values, decoded here for sRGB."""
+    values; byte images hold their colour space's values, decoded here for sRGB. An image without
+    pixels (its file missing or unreadable) is None, with a warning naming it (the colour is
+    then MISSING_IMAGE, as in Cycles)."""
     w, h = image.size
     count = len(image.pixels)  # reading the pixels loads the image's file
     if w * h == 0 or count != w * h * image.channels:
-        raise scenes.SceneError(
-            f"{where}: image {image.name!r} has no pixels (is its file {image.filepath!r} missing?)"
+        path = bpy.path.abspath(image.filepath) if image.filepath else ""
+        source = f"its file {path!r} is missing or cannot be read" if path else "it has no file"
+        warnings.warn(
+            f"image {image.name!r} has no pixels ({source}): rendered magenta, as Cycles does; "
+            "restore the file or choose another image in the Image Texture node",
+            stacklevel=2,
         )
+        return None
     pixels = _get(image.pixels, None, count, np.float32)
     pixels = pixels.reshape(h, w, image.channels)[::-1]  # Blender's rows are bottom-up
     rgb = pixels[..., :3] if image.channels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
