@@ -70,6 +70,33 @@ def fit_scale(space: Space, scene_size: float) -> float:
     return scene_size / (FIT_FRACTION * 2 * space.chart_inradius)
 
 
+# A scene spanning more domains than this was not meant at its scale: bringing it into the domain
+# takes thousands of face crossings, or (H3) it lies beyond the chart. A front end says which
+# setting scales it.
+MAX_SPAN = 1000.0
+
+
+def scene_span(scene: Scene, camera: Camera | None = None) -> float:
+    """The chart diagonal of the box holding the camera, the lights and every object's copies as
+    placed (their instances' boxes)."""
+    points = [np.asarray(camera.position, float)[None]] if camera is not None else []
+    points += [np.asarray(light.position, float)[None] for light in scene.lights]
+    for obj in scene.objects:
+        lo, hi = obj.vertices.min(axis=0), obj.vertices.max(axis=0)
+        corners = np.array([[(lo, hi)[(k >> i) & 1][i] for i in range(3)] for k in range(8)])
+        if obj.instances is None:
+            points.append(corners)
+        else:
+            A = obj.instances
+            points.append((np.einsum("kij,nj->kni", A[:, :3, :3], corners) + A[:, None, :3, 3]).reshape(-1, 3))
+    return _diagonal(np.vstack(points)) if points else 0.0
+
+
+def domain_span(space: Space) -> float:
+    """The chart diagonal of the domain's vertices (the size the notes compare objects with)."""
+    return _diagonal(space.domain.vertices)
+
+
 def _diagonal(vertices) -> float:
     return float(np.linalg.norm(np.ptp(vertices, axis=0)))
 
@@ -153,7 +180,7 @@ def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> 
                 + "; add a point light inside the domain",
             )
         )
-    size = _diagonal(space.domain.vertices)
+    size = domain_span(space)
     large = [o for o in scene.objects if _diagonal(o.vertices) > TOO_LARGE * size]
     if large:
         one = len(large) == 1

@@ -148,3 +148,24 @@ def test_a_missing_texture_file_renders_magenta_as_in_cycles(tmp_path):
     cycles = bh.rgb(cycles, "ViewLayer.Combined.")
     for image in (thurston, cycles):
         np.testing.assert_allclose(image[2:6, 2:6], np.broadcast_to([1.0, 0.0, 1.0], (4, 4, 3)), atol=1e-6)
+
+
+# --- a Scale of 0 --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("space", ("torus", "poincare", "seifert_weber", "nil"))
+def test_a_scale_of_0_is_one_error_naming_the_setting(space):
+    """Blender keeps a Scale of 0 at its least, 1e-06, where the scene lies hundreds of thousands of
+    domains away: F12 and Render View fail with one error naming Scale and the value that fits
+    (not the tracer's complaint about face crossings, a point outside H3 or the clip start)."""
+    sc = small_scene(size=(8, 6))
+    sc.thurston.space = space
+    sc.thurston.scale = 0.0
+    sc.render.engine = "THURSTON"
+    for op in (bpy.ops.render.render, bpy.ops.thurston.render_view):
+        with pytest.raises(RuntimeError) as info:
+            op()
+        errors = [line for line in str(info.value).splitlines() if line.startswith("Error:")]
+        assert len(errors) == 1, errors
+        assert "Scale is 0" in errors[0] and "set Scale" in errors[0] and "Fit Scale" in errors[0], errors
+        assert "crossings" not in errors[0] and "clip" not in errors[0]
+    assert bpy.ops.thurston.fit_scale() == {"FINISHED"}
+    assert bpy.ops.thurston.render_view() == {"FINISHED"}

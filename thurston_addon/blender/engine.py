@@ -103,6 +103,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         try:
             space = export.load_space(bscene.thurston)
             scene = export.export_scene(depsgraph, scale, [], meshes=self._meshes)
+            export.check_scale(space, scene, scale)
             reach = render.light_reach_for(space, export.render_settings(bscene.thurston, 1, 1))  # the size is not used
             self._viewport_world = (space, render.make_tracer(space, scene, bscene.thurston.threads, reach))
         except (export.ExportError, render.RenderError, scenes.SceneError) as exc:

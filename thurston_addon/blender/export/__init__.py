@@ -217,6 +217,22 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
     return scene
 
 
+def check_scale(space: spaces.Space, scene: scenes.Scene, scale: float, camera: scenes.Camera | None = None):
+    """Refuse a Scale at which the scene spans more than checks.MAX_SPAN domains (a Scale of 0, which
+    Blender keeps at its least, 1e-06, or one far too small), naming the setting and the Scale that
+    fits the scene."""
+    span, size = checks.scene_span(scene, camera), checks.domain_span(space)
+    if span <= checks.MAX_SPAN * size:
+        return
+    fit = checks.fit_scale(space, checks.scene_span(scene) * scale)  # the objects and lights, as Blender units
+    given = "0 (Blender keeps it at its least, 1e-06)" if scale < 2e-6 else f"{scale:.3g}"
+    raise ExportError(
+        f"Scale is {given}: at it the scene spans {span:.3g} chart units, {span / size:.3g} times the "
+        f"domain, too far to bring into it; set Scale (Blender units per chart unit, in the Thurston "
+        f"panel) to about {fit:.3g}, as Fit Scale does"
+    )
+
+
 # A sun is light from infinitely far away; a closed space has no such distance (every far light is
 # a copy of a near one), so it is left out, and said so.
 SUN_NOTE = (
@@ -344,6 +360,7 @@ class RenderJob:
                     "nothing to render: the scene has no visible mesh objects (the domain guide does not count)"
                 )
             self.camera = export_camera(bscene, depsgraph, settings.scale, w, h, camera_object)
+            check_scale(self.space, self.scene, self.scale, self.camera)
             self.settings = render_settings(
                 settings, w, h, projection, region, bscene.render.film_transparent, quality=quality
             )
