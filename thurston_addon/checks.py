@@ -20,6 +20,7 @@ UNLIT = "unlit"
 SCENE_TOO_LARGE = "scene_too_large"
 SCENE_TOO_SMALL = "scene_too_small"
 DROPPED = "dropped"  # objects or parts of them not rendered (the message names them)
+SCALED_TO_ZERO = "scaled_to_zero"  # objects left out of a frame: scaled to 0 there (named)
 
 # An object whose chart diagonal exceeds the domain's this many times fills the domain with its
 # overlapping copies (one the domain's size, as its edges, does not); a scene smaller than

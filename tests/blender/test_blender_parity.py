@@ -169,3 +169,70 @@ def test_a_scale_of_0_is_one_error_naming_the_setting(space):
         assert "crossings" not in errors[0] and "clip" not in errors[0]
     assert bpy.ops.thurston.fit_scale() == {"FINISHED"}
     assert bpy.ops.thurston.render_view() == {"FINISHED"}
+
+
+# --- animations go on past objects scaled to 0 -----------------------------------------------------------
+def pop_in(obj, frames=(1, 3)):
+    """Scale keyed from 0 at the first frame to 1 at the last (linear)."""
+    for frame, scale in zip(frames, (0.0, 1.0)):
+        obj.scale = (scale,) * 3
+        obj.keyframe_insert("scale", frame=frame)
+    action = obj.animation_data.action
+    for fc in action.fcurves if hasattr(action, "fcurves") else []:
+        for k in fc.keyframe_points:
+            k.interpolation = "LINEAR"
+
+
+def exr_settings(sc):
+    s = sc.render.image_settings
+    s.media_type = "MULTI_LAYER_IMAGE"
+    s.file_format = "OPEN_EXR_MULTILAYER"
+    s.color_depth = "32"
+
+
+def test_render_blend_goes_on_past_an_object_scaled_to_0(tmp_path):
+    """A pop-in (scale keyed from 0): render-blend renders every frame, the first without the object
+    and one warning naming it and the frame, the last with it."""
+    sc = small_scene(size=(16, 9))
+    pop = bh.box("Pop", 0.1, (-0.12, 0.25, 0.05), color=(0.2, 0.3, 0.9))
+    pop_in(pop)
+    sc.frame_start, sc.frame_end = 1, 3
+    blend = tmp_path / "pop.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    run = bh.render_blend(blend, tmp_path / "out", frames="1..3")
+    assert run.returncode == 0, run.stderr
+    warnings = [line for line in run.stdout.splitlines() if ": warning: " in line and "scaled to 0" in line]
+    assert len(warnings) == 1 and "pop_0001.exr" in warnings[0], warnings
+    assert "'Pop'" in warnings[0] and "frame 1" in warnings[0] and "'Box'" not in warnings[0]
+    first, last = (bh.read_exr(tmp_path / "out" / f"pop_{f:04d}.exr") for f in (1, 3))
+    assert not np.allclose(bh.rgb(first, "ViewLayer.Combined."), bh.rgb(last, "ViewLayer.Combined."))
+
+
+def test_f12_animation_of_a_lone_pop_in_and_a_failing_frame(tmp_path):
+    """F12 animation of a scene whose only object pops in: the first frame renders empty (as in
+    Cycles) with a note naming the object and frame; the frames after show it. A frame that fails
+    names the frame."""
+    sc = bh.fresh_scene("torus", size=(8, 6))
+    pop = bh.box("Pop", 0.2, (0, 0.3, 0), color=(0, 0, 0), emission=(1, 1, 1))
+    pop_in(pop, (1, 2))
+    bh.camera((0, 0, 0))
+    sc.frame_start, sc.frame_end = 1, 2
+    sc.render.engine = "THURSTON"
+    exr_settings(sc)
+    sc.render.filepath = str(tmp_path / "frame_###")
+    bpy.ops.render.render(animation=True)
+    first, second = (bh.rgb(bh.read_exr(tmp_path / f"frame_{f:03d}.exr"), "ViewLayer.Combined.") for f in (1, 2))
+    assert first.max() == 0 and second[3, 4].min() > 0.5
+    sc.frame_set(1)
+    bpy.ops.render.render()  # a still of the first frame: the same note
+    notes = [n.message for n in sc.thurston.stats.notes if "scaled to 0" in n.message]
+    assert len(notes) == 1 and "'Pop'" in notes[0] and "frame 1" in notes[0], notes
+
+    sc.thurston.space = "seifert_weber"
+    cam = sc.camera
+    cam.keyframe_insert("location", frame=1)
+    cam.location = (3, 0, 0)  # not a point of H3's chart
+    cam.keyframe_insert("location", frame=2)
+    with pytest.raises(RuntimeError) as info:
+        bpy.ops.render.render(animation=True)
+    assert "frame 2" in str(info.value) and "Camera" in str(info.value), str(info.value)

@@ -93,8 +93,9 @@ def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, ov
         stats.valid = False  # set again by a render that finished
         try:
             bpy.ops.render.render()
-        except RuntimeError as exc:  # the engine's self.report(ERROR) arrives here
-            raise export.ExportError(f"frame {frame}: {str(exc).strip()}") from None
+        except RuntimeError as exc:  # the engine's self.report(ERROR) arrives here, as "Error: ..."
+            reported = "; ".join(line.removeprefix("Error: ") for line in str(exc).strip().splitlines())
+            raise export.ExportError(f"frame {frame}: {reported}") from None
         finally:
             engine.progress_listeners.remove(listener)
         if not stats.valid:

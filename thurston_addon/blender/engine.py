@@ -48,15 +48,17 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         render region only, the layer's passes, and every note in the render report."""
         bscene = depsgraph.scene
         w, h = export.resolution(bscene)
+        # an animation's error names its frame (render-blend names the frame itself)
+        frame = f"frame {bscene.frame_current}: " if self.is_animation else ""
         try:
             job = export.RenderJob(
                 bscene, depsgraph, w, h, camera_object=self.camera_override, region=export.border_region(bscene, w, h)
             )
         except (export.ExportError, render.RenderError) as exc:
-            self.report({"ERROR"}, f"Thurston: {exc}")
+            self.report({"ERROR"}, f"Thurston: {frame}{exc}")
             return
         except Exception as exc:  # RenderEngine.render swallows exceptions: report instead
-            self.report({"ERROR"}, f"Thurston render failed: {exc}")
+            self.report({"ERROR"}, f"Thurston render failed: {frame}{exc}")
             return
 
         def progress(done, total):
@@ -69,7 +71,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         if isinstance(job.error, render.Cancelled):
             return
         if job.error is not None:  # RenderEngine.render swallows exceptions: report instead
-            self.report({"ERROR"}, f"Thurston render failed: {job.error}")
+            self.report({"ERROR"}, f"Thurston render failed: {frame}{job.error}")
             return
         for message in job.messages():
             self.report({"WARNING"}, f"Thurston: {message}")

@@ -27,6 +27,7 @@ from .model import (
     clean,
     degenerate,
     flat_light,
+    singular,
 )
 from .scene_file import load_scene_file, load_scenes, primitive
 
@@ -40,6 +41,7 @@ __all__ = [
     "SceneError",
     "SceneObject",
     "checked_instances",
+    "singular",
     "clean",
     "default_scene",
     "degenerate",

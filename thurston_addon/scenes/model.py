@@ -208,10 +208,15 @@ def checked_instances(value, name: str) -> np.ndarray:
             raise SceneError(
                 f"object {name!r}: instance {j} is not affine (its last row must be 0 0 0 1, got {M[3].tolist()})"
             )
-        L = M[:3, :3]
-        if not abs(np.linalg.det(L)) > 1e-12 * np.prod(np.linalg.norm(L, axis=1)):
+        if singular(M):
             raise SceneError(f"object {name!r}: instance {j} has a singular transform (it flattens the mesh)")
     return A
+
+
+def singular(M) -> bool:
+    """Whether a transform's linear part flattens a mesh (a scale of 0 on some axis)."""
+    L = np.asarray(M, np.float64)[:3, :3]
+    return not abs(np.linalg.det(L)) > 1e-12 * np.prod(np.linalg.norm(L, axis=1))
 
 
 @dataclass

@@ -158,6 +158,7 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
     comes again (the viewport keeps them while only transforms change); updated to this export's."""
     scene = scenes.Scene()
     skipped: dict[str, list[str]] = {}
+    flat: list[str] = []  # objects and area lights scaled to 0 (on some axis)
     hidden_collections = _hidden_collections(depsgraph.view_layer)
     # Instances of one mesh share one scene object (surfaces.mesh_key): the mesh, read at the first
     # of them, and the chart maps of all.
@@ -182,11 +183,18 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
                 placements[key] = (mesh, [])
                 if mesh is None:
                     skipped.setdefault("no faces", []).append(original.name)
-            placements[key][1].append(surfaces.chart_map(inst, scale))
+            chart = surfaces.chart_map(inst, scale)
+            if scenes.singular(chart):  # as in Cycles, nothing of it shows
+                flat.append(_instance_name(inst))
+                continue
+            placements[key][1].append(chart)
         elif obj.type == "LIGHT":
             light = obj.data
             if light.type == "SUN":
                 skipped.setdefault(SUN_NOTE, []).append(original.name)
+                continue
+            if light.type == "AREA" and scenes.singular(np.array(inst.matrix_world, float)):
+                flat.append(_instance_name(inst))  # no area: it emits nothing
                 continue
             try:
                 light_object = export_light(light, np.array(inst.matrix_world, float), scale)
@@ -202,7 +210,7 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
         meshes.clear()
         meshes.update((key, mesh) for key, (mesh, _) in placements.items())
     for mesh, maps in placements.values():
-        if mesh is None:
+        if mesh is None or not maps:  # no faces, or scaled to 0 wherever it is
             continue
         try:
             mesh.instances = scenes.checked_instances(np.array(maps), mesh.name)
@@ -212,9 +220,26 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
             mesh = mesh.placed()
         scene.objects.append(mesh)
     for what, names in skipped.items():
-        shown = ", ".join(sorted(set(names))[:5]) + (" ..." if len(set(names)) > 5 else "")
-        notes.append(checks.Note(checks.DROPPED, f"skipped {what}: {shown}"))
+        notes.append(checks.Note(checks.DROPPED, f"skipped {what}: {_shown(names)}"))
+    if flat:
+        frame = depsgraph.scene.frame_current
+        notes.append(
+            checks.Note(
+                checks.SCALED_TO_ZERO,
+                f"left out at frame {frame}, scaled to 0 (Cycles shows nothing of them either): {_shown(flat, repr)}",
+            )
+        )
     return scene
+
+
+def _shown(names, form=str) -> str:
+    names = sorted(set(names))
+    return ", ".join(map(form, names[:5])) + (" ..." if len(names) > 5 else "")
+
+
+def _instance_name(inst) -> str:
+    name = inst.object.original.name
+    return f"{name} ({inst.parent.original.name})" if inst.is_instance else name
 
 
 def check_scale(space: spaces.Space, scene: scenes.Scene, scale: float, camera: scenes.Camera | None = None):
@@ -355,12 +380,17 @@ class RenderJob:
         with warnings.catch_warnings(record=True) as caught:  # the scene's and the compiler's warnings
             warnings.simplefilter("always")
             self.scene = export_scene(depsgraph, settings.scale, self.notes)
-            if not self.scene.objects:
+            # (a frame whose objects are all scaled to 0 renders empty, as in Cycles)
+            if not self.scene.objects and not any(n.kind == checks.SCALED_TO_ZERO for n in self.notes):
                 raise ExportError(
                     "nothing to render: the scene has no visible mesh objects (the domain guide does not count)"
                 )
             self.camera = export_camera(bscene, depsgraph, settings.scale, w, h, camera_object)
             check_scale(self.space, self.scene, self.scale, self.camera)
+            try:  # here, so that the error names the camera object (an animated one, at this frame)
+                render.camera_frame(self.space, self.camera)
+            except render.RenderError as exc:
+                raise ExportError(f"camera {(camera_object or bscene.camera).name!r}: {exc}") from None
             self.settings = render_settings(
                 settings, w, h, projection, region, bscene.render.film_transparent, quality=quality
             )
