@@ -41,7 +41,6 @@ __all__ = [
     "SceneError",
     "SceneObject",
     "checked_instances",
-    "singular",
     "clean",
     "default_scene",
     "degenerate",
@@ -50,4 +49,5 @@ __all__ = [
     "load_scene_file",
     "load_scenes",
     "primitive",
+    "singular",
 ]
