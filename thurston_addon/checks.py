@@ -178,8 +178,11 @@ def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> 
             )
         )
     lights = [g.to_model(np.asarray(light.position, float)) for light in scene.lights]
+    ratios = {o.name: space.size_ratio(_placed(o)) for o in scene.objects}
     for obj in scene.objects:
-        if np.any(obj.emission > 0) or not _encloses(space, obj, X):
+        # an object larger than the domain fills it (its note says so; in a shell it may hold the
+        # chart's origin, which no isometry brings in)
+        if np.any(obj.emission > 0) or ratios[obj.name] > TOO_LARGE or not _encloses(space, obj, X):
             continue
         if not any(_encloses(space, obj, L) for L in lights):
             notes.append(
@@ -199,7 +202,6 @@ def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> 
                 + "; add a point light inside the domain",
             )
         )
-    ratios = {o.name: space.size_ratio(_placed(o)) for o in scene.objects}
     large = [o for o in scene.objects if ratios[o.name] > TOO_LARGE]
     if large:
         one = len(large) == 1
@@ -217,15 +219,20 @@ def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> 
                 f"to fit the domain",
             )
         )
-    elif scene.objects and max(ratios.values()) < 1 / TOO_SMALL:
-        notes.append(
-            Note(
-                SCENE_TOO_SMALL,
-                f"the scene is over {TOO_SMALL:g} times smaller than the domain "
-                f"({1 / max(ratios.values()):.3g} times): its copies show as specks; scale the "
-                f"scene to fit the domain",
-            )
+    elif scene.objects:
+        # the scene: its objects and its lights (a small object lit from afar is not a small scene)
+        points = np.vstack(
+            [_placed(o) for o in scene.objects] + [np.reshape([li.position for li in scene.lights], (-1, 3))]
         )
+        ratio = space.size_ratio(points)
+        if ratio < 1 / TOO_SMALL:
+            notes.append(
+                Note(
+                    SCENE_TOO_SMALL,
+                    f"the scene is over {TOO_SMALL:g} times smaller than the domain "
+                    f"({1 / ratio:.3g} times): its copies show as specks; scale the scene to fit the domain",
+                )
+            )
     return notes
 
 
