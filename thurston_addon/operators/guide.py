@@ -124,7 +124,7 @@ class THURSTON_OT_fit_scale(bpy.types.Operator):
         if scene.camera is not None:
             try:
                 stops = export.measure_exposure(scene, context.evaluated_depsgraph_get())
-            except (export.ExportError, render.RenderError) as exc:
+            except (ValueError, render.RenderError) as exc:  # ExportError, a camera no point of the space
                 stops = None
                 done.append(f"the light not measured ({exc})")
             if stops is not None:
