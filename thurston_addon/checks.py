@@ -21,6 +21,7 @@ SCENE_TOO_LARGE = "scene_too_large"
 SCENE_TOO_SMALL = "scene_too_small"
 DROPPED = "dropped"  # objects or parts of them not rendered (the message names them)
 SCALED_TO_ZERO = "scaled_to_zero"  # objects left out of a frame: scaled to 0 there (named)
+EXPOSURE = "exposure"  # the lit surfaces render black or white: the note's value is the exposure to use
 
 # An object whose chart diagonal exceeds the domain's this many times fills the domain with its
 # overlapping copies (one the domain's size, as its edges, does not); a scene smaller than
@@ -31,10 +32,20 @@ TOO_SMALL = 200.0
 FIT_FRACTION = 0.6
 
 
+# The exposure a front end proposes brings the lit surfaces' median (linear, luminance) to mid grey;
+# it proposes one where that median, after the exposure already set, is below EXPOSURE_DARK or above
+# EXPOSURE_BRIGHT (black, or white under Blender's Standard view: 0.8 shows as 0.9).
+MID_GREY = 0.18
+EXPOSURE_DARK = 0.005
+EXPOSURE_BRIGHT = 0.8
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709
+
+
 @dataclass(frozen=True)
 class Note:
     kind: str
     message: str
+    value: float | None = None  # what the fix sets, where it is a number (EXPOSURE: the stops)
 
 
 HOME_SAMPLE = 1000  # vertices an object's home is chosen by
@@ -63,6 +74,12 @@ def home_elements(space: Space, centres) -> np.ndarray:
     inverse = inverse.ravel()
     first = np.unique(inverse, return_index=True)[1]
     return np.array([g.reorthonormalize(M[i]) for i in first])[inverse]
+
+
+# Fit Scale keeps the scene's lights and camera this far inside a bounded chart (the Klein ball of
+# H3, the disk of H2xR and SL2): a point there, 0.9 of the way out, lies atanh(0.9) = 1.5 from the
+# centre in H3.
+CHART_MARGIN = 0.9
 
 
 def fit_scale(space: Space, scene_size: float) -> float:
@@ -96,6 +113,35 @@ def scene_span(scene: Scene, camera: Camera | None = None) -> float:
 def domain_span(space: Space) -> float:
     """The chart diagonal of the domain's vertices (the size the notes compare objects with)."""
     return _diagonal(space.domain.vertices)
+
+
+def fit(space: Space, scene_box, points=()) -> tuple[float, np.ndarray]:
+    """(scale, offset): the scale of fit_scale for the scene's box (lo, hi, scene units), larger
+    where needed (by factors of 1.25) for the scene's `points` (its lights and camera, scene
+    units) to lie in a bounded chart within CHART_MARGIN of its edge; and the translation (scene
+    units) that puts the box's centre at the domain's centre, where the domain is not built about
+    the chart origin (shells: the origin is no point of the space; zero elsewhere, where the face
+    pairings bring any placement in)."""
+    lo, hi = (np.asarray(v, float) for v in scene_box)
+    centre = np.asarray(space.centre, float)
+    moved = bool(np.any(centre))
+    middle = (lo + hi) / 2 if moved else np.zeros(3)
+    P = np.asarray(points, float).reshape(-1, 3) - middle
+    g = space.geometry
+    scale = fit_scale(space, float(np.linalg.norm(hi - lo)))
+    for _ in range(200):  # 1.25^200: any finite points
+        if np.all(g.in_chart((P / scale + centre) / CHART_MARGIN)):
+            break
+        scale *= 1.25
+    return scale, (centre * scale - middle if moved else np.zeros(3))
+
+
+def _placed(obj) -> np.ndarray:
+    """An object's chart vertices as placed (its first placement, where it is instanced)."""
+    if obj.instances is None:
+        return obj.vertices
+    A = obj.instances[0]
+    return obj.vertices @ A[:3, :3].T + A[:3, 3]
 
 
 def _diagonal(vertices) -> float:
@@ -160,8 +206,11 @@ def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> 
             )
         )
     lights = [g.to_model(np.asarray(light.position, float)) for light in scene.lights]
+    ratios = {o.name: space.size_ratio(_placed(o)) for o in scene.objects}
     for obj in scene.objects:
-        if np.any(obj.emission > 0) or not _encloses(space, obj, X):
+        # an object larger than the domain fills it (its note says so; in a shell it may hold the
+        # chart's origin, which no isometry brings in)
+        if np.any(obj.emission > 0) or ratios[obj.name] > TOO_LARGE or not _encloses(space, obj, X):
             continue
         if not any(_encloses(space, obj, L) for L in lights):
             notes.append(
@@ -181,33 +230,66 @@ def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> 
                 + "; add a point light inside the domain",
             )
         )
-    size = domain_span(space)
-    large = [o for o in scene.objects if _diagonal(o.vertices) > TOO_LARGE * size]
+    large = [o for o in scene.objects if ratios[o.name] > TOO_LARGE]
     if large:
         one = len(large) == 1
+        ratio = ratios[large[0].name]
         notes.append(
             Note(
                 SCENE_TOO_LARGE,
-                f"{_names(large)} {'is' if one else 'are'} larger than the domain "
-                f"({_diagonal(large[0].vertices):.3g} against {size:.3g} chart units across): "
-                f"{'its' if one else 'their'} copies overlap and fill it; scale the scene "
+                f"{_names(large)} {'is' if one else 'are'} larger than the domain ("
+                + (
+                    f"{ratio:.3g} times its size"
+                    if math.isfinite(ratio)
+                    else "around the chart's origin, which is no point of the space"
+                )
+                + f"): {'its' if one else 'their'} copies overlap and fill it; scale the scene "
                 f"to fit the domain",
             )
         )
-    elif scene.objects and max(_diagonal(o.vertices) for o in scene.objects) < size / TOO_SMALL:
-        notes.append(
-            Note(
-                SCENE_TOO_SMALL,
-                f"the scene is over {TOO_SMALL:g} times smaller than the domain "
-                f"({size:.3g} chart units across): its copies show as specks; scale the "
-                f"scene to fit the domain",
-            )
+    elif scene.objects:
+        # the scene: its objects and its lights (a small object lit from afar is not a small scene)
+        points = np.vstack(
+            [_placed(o) for o in scene.objects] + [np.reshape([li.position for li in scene.lights], (-1, 3))]
         )
+        ratio = space.size_ratio(points)
+        if ratio < 1 / TOO_SMALL:
+            notes.append(
+                Note(
+                    SCENE_TOO_SMALL,
+                    f"the scene is over {TOO_SMALL:g} times smaller than the domain "
+                    f"({1 / ratio:.3g} times): its copies show as specks; scale the scene to fit the domain",
+                )
+            )
     return notes
 
 
-def after_render(scene: Scene, passes: dict, lambert: bool) -> list[Note]:
-    """Notes on the rendered passes: lights that reach no surface the camera sees."""
+def lit_median(scene: Scene, passes: dict) -> float | None:
+    """The median luminance (linear) of the pixels that show a surface lit by the lights (not an
+    emitter); None where there is none."""
+    obj = passes["object"]
+    emissive = np.array([np.any(o.emission > 0) for o in scene.objects] + [False])
+    lit = (obj >= 0) & ~emissive[obj]
+    if not lit.any():
+        return None
+    return float(np.median(np.nan_to_num(passes["color"][lit]) @ LUMINANCE))
+
+
+def proposed_exposure(scene: Scene, passes: dict, exposure: float = 0.0) -> float | None:
+    """The exposure (stops) that brings the lit surfaces' median to MID_GREY, where after the
+    `exposure` already set it lies outside [EXPOSURE_DARK, EXPOSURE_BRIGHT]; None where it lies
+    inside, or no lit surface shows (or none is lit at all: that is UNLIT's)."""
+    median = lit_median(scene, passes)
+    if median is None or median <= 0:
+        return None
+    if EXPOSURE_DARK <= median * 2.0**exposure <= EXPOSURE_BRIGHT:
+        return None
+    return math.log2(MID_GREY / median)
+
+
+def after_render(scene: Scene, passes: dict, lambert: bool, exposure: float = 0.0) -> list[Note]:
+    """Notes on the rendered passes: lights that reach no surface the camera sees; lit surfaces
+    that show black or white under the `exposure` (stops) the front end applies."""
     if not (lambert and scene.lights):
         return []
     obj = passes["object"]
@@ -222,4 +304,24 @@ def after_render(scene: Scene, passes: dict, lambert: bool) -> list[Note]:
                 "hidden from the visible surfaces; move a light into view of them",
             )
         ]
-    return []
+    stops = proposed_exposure(scene, passes, exposure)
+    if stops is None:
+        return []
+    median = lit_median(scene, passes) * 2.0**exposure
+    bright = median > EXPOSURE_BRIGHT
+    return [
+        Note(
+            EXPOSURE,
+            f"the lit surfaces show {'white' if bright else 'black'} (their median brightness is "
+            f"{median:.3g}"
+            + (
+                ": in a closed space a light reaches each point along every geodesic, and its copies add up"
+                if bright
+                else ""
+            )
+            + f"); an exposure of {stops:+.2f} stops brings it to {MID_GREY:g}, the lights' power "
+            f"unchanged (or make the lights {2.0 ** abs(stops - exposure):.3g} times "
+            f"{'weaker' if bright else 'stronger'})",
+            value=stops,
+        )
+    ]

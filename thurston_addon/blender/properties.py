@@ -75,6 +75,7 @@ def _space_changed(self, context):
 class ThurstonNote(bpy.types.PropertyGroup):
     kind: bpy.props.StringProperty(name="Kind", description="What the note is about (checks.py's kinds)")
     message: bpy.props.StringProperty(name="Message")
+    value: bpy.props.FloatProperty(name="Value", description="What the note's fix sets, where it is a number")
 
 
 class ThurstonStats(bpy.types.PropertyGroup):

@@ -36,8 +36,11 @@ def draw_space(layout, context):
     col.operator("thurston.domain_guide", icon="MESH_ICOSPHERE")
     if domain_guide.camera_outside(context.scene):
         box = layout.box()
-        box.label(text="The camera is outside the domain", icon="ERROR")
-        box.operator("thurston.camera_inside", icon="CAMERA_DATA")
+        if export.camera_animated(context.scene.camera):  # its animation would put it back
+            box.label(text="The camera is outside the domain (animated: the render is the same)", icon="INFO")
+        else:
+            box.label(text="The camera is outside the domain", icon="ERROR")
+            box.operator("thurston.camera_inside", icon="CAMERA_DATA")
 
 
 def draw_renders(layout):

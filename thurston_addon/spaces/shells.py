@@ -77,6 +77,23 @@ class ShellSpace(CoordinateSpace):
         """The radius of the largest chart ball inside the shell."""
         return 0.5 * (self.radii[1] - self.radii[0])
 
+    @property
+    def centre(self) -> np.ndarray:
+        """The centre of the largest chart ball inside the shell: a point of the middle of the
+        shell, on the -y axis (the chart origin is no point of the space)."""
+        return np.array([0.0, -0.5 * (self.radii[0] + self.radii[1]), 0.0])
+
+    def size_ratio(self, vertices) -> float:
+        """How many times the shell's size an object of these chart vertices is, measured where it
+        lies: the metric is |dx| / |x| (dilations are isometries), so the shell's chart size there
+        is its metric extent times the chart distance from the origin to the object's box; an
+        object whose box holds the origin (no point of the space) is infinitely larger."""
+        V = np.asarray(vertices, float)
+        lo, hi = V.min(axis=0), V.max(axis=0)
+        near = float(np.linalg.norm(np.maximum(0.0, np.maximum(lo, -hi))))  # the box's point nearest 0
+        size = float(np.linalg.norm(hi - lo))
+        return math.inf if near == 0 else size / (self.metric_extent * near)
+
     @cached_property
     def volume(self) -> float:
         """The volume density integrated over the shell in the coordinates (w, cos theta, phi),

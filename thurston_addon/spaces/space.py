@@ -157,6 +157,18 @@ class Space:
         """The chart distance from the chart origin to the nearest face."""
         return float(np.min(np.linalg.norm(self.face_feet, axis=1)))
 
+    @property
+    def centre(self) -> np.ndarray:
+        """The centre of the domain's largest inscribed chart ball (radius chart_inradius): where a
+        scene fitted to the domain goes (the chart origin, about which the domain is built)."""
+        return np.zeros(3)
+
+    def size_ratio(self, vertices) -> float:
+        """How many times the domain's size an object of these chart vertices is: the ratio of
+        their chart diagonals (the chart is about isometric across the domain)."""
+        V = np.asarray(vertices, float)
+        return float(np.linalg.norm(np.ptp(V, axis=0)) / np.linalg.norm(np.ptp(self.domain.vertices, axis=0)))
+
     def outline(self, inset: float) -> list[list[tuple[np.ndarray, np.ndarray]]]:
         """Chart segments that draw the domain, grouped by class (the default scene's tubes)."""
         raise NotImplementedError

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from dataclasses import replace
 
 import bpy
 import numpy as np
@@ -120,7 +121,7 @@ def blender_denoiser() -> str | None:
     return None
 
 
-def _is_guide(obj) -> bool:
+def is_guide(obj) -> bool:
     return bool(obj.get(GUIDE_TAG)) or any(c.get(GUIDE_TAG) for c in obj.users_collection)
 
 
@@ -166,7 +167,7 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
     for inst in depsgraph.object_instances:
         obj = inst.object
         original = obj.original
-        if _is_guide(original) or _render_disabled(inst, hidden_collections):
+        if is_guide(original) or _render_disabled(inst, hidden_collections):
             continue
         if inst.is_instance and inst.parent.original.type not in ("MESH", "EMPTY"):
             continue  # geometry of a curve, text, ... object: skipped (and noted) as that object
@@ -343,17 +344,85 @@ def border_region(bscene, width: int, height: int) -> tuple[int, int, int, int] 
     return x0, height - y1, x1 - x0, y1 - y0
 
 
+# A camera outside the domain whose keyframes or drivers set where it is: Bring Camera Inside cannot
+# move it (the animation puts it back), so its note offers no fix.
+CAMERA_OUTSIDE_ANIMATED = "camera_outside_animated"
+
 # Blender's fix for each kind of note: (operator, what to click).
 FIXES = {
     checks.CAMERA_OUTSIDE: ("thurston.camera_inside", "Bring Camera Inside"),
     checks.SCENE_TOO_LARGE: ("thurston.fit_scale", "Fit Scale"),
     checks.SCENE_TOO_SMALL: ("thurston.fit_scale", "Fit Scale"),
+    checks.EXPOSURE: ("thurston.set_exposure", "Set Exposure"),
 }
+
+_TRANSFORMS = ("location", "rotation_euler", "rotation_quaternion", "rotation_axis_angle", "scale", "delta_")
+
+
+def _animated_paths(obj) -> list[str]:
+    """The data paths of the object's keyframed or driven channels (its action's channel bag for
+    its slot in Blender 4.4+, else the action's legacy F-curves; its drivers)."""
+    anim = obj.animation_data
+    if anim is None:
+        return []
+    curves = list(anim.drivers)
+    action = anim.action
+    if action is not None:
+        try:
+            from bpy_extras import anim_utils
+
+            bag = anim_utils.action_get_channelbag_for_slot(action, anim.action_slot)
+            curves += list(bag.fcurves) if bag is not None else []
+        except (ImportError, AttributeError):
+            curves += list(getattr(action, "fcurves", []))
+    return [c.data_path for c in curves]
+
+
+def camera_animated(cam) -> bool:
+    """Whether keyframes or drivers set where the camera is or where it looks (its own transform)."""
+    return any(path.startswith(_TRANSFORMS) for path in _animated_paths(cam))
+
+
+def camera_constraints(cam) -> list:
+    """The camera's constraints that take part in its transform (enabled, with influence)."""
+    return [c for c in cam.constraints if c.enabled and c.influence > 0]
 
 
 def _with_fix(note: checks.Note) -> checks.Note:
     fix = FIXES.get(note.kind)
-    return note if fix is None else checks.Note(note.kind, f"{note.message} ({fix[1]} in the Thurston panel does it)")
+    if fix is None:
+        return note
+    return checks.Note(note.kind, f"{note.message} ({fix[1]} in the Thurston panel does it)", note.value)
+
+
+def _camera_note(note: checks.Note, cam) -> checks.Note:
+    """The camera-outside note as Blender's camera allows its fix: none for an animated camera
+    (its keyframes would put it back), and what the fix does to a constrained one."""
+    if note.kind != checks.CAMERA_OUTSIDE or cam is None:
+        return note
+    if camera_animated(cam):
+        return checks.Note(
+            CAMERA_OUTSIDE_ANIMATED,
+            f"{note.message}; camera {cam.name!r} is animated, so it stays where its keyframes put it "
+            "(nothing to fix: the render is the same)",
+        )
+    constraints = camera_constraints(cam)
+    if constraints:
+        names = ", ".join(repr(c.name) for c in constraints)
+        return checks.Note(
+            note.kind, f"{note.message}; Bring Camera Inside keeps that view by muting its constraints ({names})"
+        )
+    return note
+
+
+def _superseded(notes: list[checks.Note], caught: list[checks.Note]) -> list[checks.Note]:
+    """The notes worth showing. A scene far larger than the domain (or, in a shell, around the
+    chart's origin) explains the rest: its objects cut, the light hidden by their overlapping
+    copies, the camera outside a domain of that scale. Its note alone is kept then (with what was
+    skipped), so that its one fix, Fit Scale, comes first."""
+    if not any(n.kind == checks.SCENE_TOO_LARGE for n in notes):
+        return notes + caught
+    return [n for n in notes if n.kind not in (checks.CAMERA_OUTSIDE, CAMERA_OUTSIDE_ANIMATED)]
 
 
 class RenderJob:
@@ -395,7 +464,10 @@ class RenderJob:
                 settings, w, h, projection, region, bscene.render.film_transparent, quality=quality
             )
             lambert = self.settings.shading == "lambert"
-            self.notes += checks.before_render(self.space, self.scene, self.camera, lambert)
+            cam = camera_object or bscene.camera
+            self.notes += [
+                _camera_note(n, cam) for n in checks.before_render(self.space, self.scene, self.camera, lambert)
+            ]
             try:
                 self.tracer = render.make_tracer(
                     self.space, self.scene, self.settings.threads, render.light_reach_for(self.space, self.settings)
@@ -403,7 +475,10 @@ class RenderJob:
             except scenes.SceneError as exc:
                 raise ExportError(str(exc)) from None
         # each warning once (an image missing in several materials is one note)
-        self.notes += [checks.Note(checks.DROPPED, m) for m in dict.fromkeys(str(w.message) for w in caught)]
+        self.notes = _superseded(
+            self.notes, [checks.Note(checks.DROPPED, m) for m in dict.fromkeys(str(w.message) for w in caught)]
+        )
+        self.exposure = bscene.view_settings.exposure  # what Blender's colour management applies
         self.cancelled = False
         self.fraction = 0.0
         self.result: render.Result | None = None
@@ -424,7 +499,9 @@ class RenderJob:
                 progress=progress or self.progress,
                 tracer=self.tracer,
             )
-            self.notes += checks.after_render(self.scene, self.result.passes, self.settings.shading == "lambert")
+            if not any(n.kind == checks.SCENE_TOO_LARGE for n in self.notes):  # else the copies' overlap is why
+                lambert = self.settings.shading == "lambert"
+                self.notes += checks.after_render(self.scene, self.result.passes, lambert, self.exposure)
         except Exception as exc:
             self.error = exc
 
@@ -504,3 +581,19 @@ def store_notes(settings, notes: list[checks.Note]):
     for note in notes:
         item = stored.add()
         item.kind, item.message = note.kind, _with_fix(note).message
+        item.value = 0.0 if note.value is None else note.value
+
+
+MEASURE_SIZE = (64, 36)  # the measuring render of measure_exposure
+
+
+def measure_exposure(bscene, depsgraph) -> float | None:
+    """The exposure (stops) that shows the lit surfaces the scene camera sees at mid grey, measured
+    by a small draft render (MEASURE_SIZE, one sample per pixel); None where the exposure already
+    set shows them neither black nor white (checks.proposed_exposure), or where nothing lit shows."""
+    job = RenderJob(bscene, depsgraph, *MEASURE_SIZE, quality="draft")
+    job.settings = replace(job.settings, samples=1, noise_threshold=0.0, min_samples=0, denoise=False, denoiser=None)
+    job.run()
+    if job.error is not None:
+        raise ExportError(f"measuring the light: {job.error}")
+    return checks.proposed_exposure(job.scene, job.result.passes, bscene.view_settings.exposure)
