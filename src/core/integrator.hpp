@@ -88,8 +88,14 @@ inline Rgb KernelTracer<Kernel>::bounce(const WalkContext& context, Vertex v,
     // Shading normals can send a bounce below the surface: absorbed.
     if (!(kernel_.dot(v.X, v.N, V) > 0.0) || !kernel_.normalise(v.X, V)) break;
     ++stats.bounce_paths;
-    const Found f = first_hit(context, v.X, V, options.max_distance, options.max_crossings,
-                              kSelfSkip * scale_, nullptr);
+    // A bounce past the limit only gathers the emission it meets, in the next-event estimates'
+    // stead: as far as they reach (the light reach), so that the light a direct-light render
+    // gathers is the reach's whatever the material (a glossy layer's bounce to the distance limit
+    // met far copies that the estimates leave out: speckles that never cleared).
+    const double reach =
+        b > options.bounces ? std::min(options.max_distance, light_reach_) : options.max_distance;
+    const Found f =
+        first_hit(context, v.X, V, reach, options.max_crossings, kSelfSkip * scale_, nullptr);
     if (f.end.stop != kHit || context.stopped()) break;
     const Surface s = surface_at(f);
     const double length = f.end.distance + f.hit.s;

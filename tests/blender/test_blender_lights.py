@@ -11,18 +11,6 @@ import math
 import numpy as np
 
 
-def light_object(kind, name, location, rotation=(0.0, 0.0, 0.0), **props):
-    import bpy
-    from support import blender_helpers as bh
-
-    data = bpy.data.lights.new(name, kind)
-    for key, value in props.items():
-        setattr(data, key, value)
-    obj = bpy.data.objects.new(name, data)
-    obj.location, obj.rotation_euler = location, rotation
-    return bh.link(obj)
-
-
 def test_spot_area_and_sun_lights_are_exported(registered_addon):
     """A spot keeps its cone (size, blend) and its -Z axis; an area light becomes a one-sided black
     rectangle (or disc) of its size in the chart facing -Z, radiance energy / (pi area) (Cycles'); a
@@ -34,8 +22,8 @@ def test_spot_area_and_sun_lights_are_exported(registered_addon):
     from thurston_addon.blender import export
 
     bh.fresh_scene("torus", scale=2.0)
-    light_object("SPOT", "Spot", (0.2, 0.0, 0.4), spot_size=math.radians(50), spot_blend=0.3, energy=8.0)
-    light_object(
+    bh.light_object("SPOT", "Spot", (0.2, 0.0, 0.4), spot_size=math.radians(50), spot_blend=0.3, energy=8.0)
+    bh.light_object(
         "AREA",
         "Panel",
         (0.0, 0.4, 0.6),
@@ -45,8 +33,8 @@ def test_spot_area_and_sun_lights_are_exported(registered_addon):
         size_y=0.2,
         energy=12.0,
     )
-    light_object("AREA", "Disc", (0.0, 0.0, -0.6), rotation=(math.pi, 0, 0), shape="DISK", size=0.3, energy=5.0)
-    light_object("SUN", "Sun", (0.0, 0.0, 0.0))
+    bh.light_object("AREA", "Disc", (0.0, 0.0, -0.6), rotation=(math.pi, 0, 0), shape="DISK", size=0.3, energy=5.0)
+    bh.light_object("SUN", "Sun", (0.0, 0.0, 0.0))
     notes = []
     scene = export.export_scene(bpy.context.evaluated_depsgraph_get(), 2.0, notes)
     (spot,) = scene.lights
@@ -88,7 +76,7 @@ def lit_room():
         ("North", (0.8, t, 0.8), (0, h, 0)),
     ):
         bh.lambert(bh.box(name, size, location, color=(0.7, 0.7, 0.7)).active_material)
-    light_object(
+    bh.light_object(
         "SPOT",
         "Spot",
         (-0.12, 0.05, 0.3),
@@ -98,7 +86,7 @@ def lit_room():
         spot_blend=0.3,
         shadow_soft_size=0.0,
     )
-    light_object("AREA", "Panel", (0.15, 0.1, 0.36), shape="RECTANGLE", size=0.2, size_y=0.12, energy=3.0)
+    bh.light_object("AREA", "Panel", (0.15, 0.1, 0.36), shape="RECTANGLE", size=0.2, size_y=0.12, energy=3.0)
     bh.camera((0.0, -0.2, 0.05), rotation=(math.radians(25), 0, 0), lens=18)
     return sc
 

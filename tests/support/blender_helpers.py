@@ -76,6 +76,16 @@ def box(name, size, location, color=(0.8, 0.8, 0.8), emission=(0, 0, 0), strengt
     return link(obj)
 
 
+def light_object(kind, name, location, rotation=(0.0, 0.0, 0.0), **props):
+    """A light of `kind` (POINT, SPOT, AREA, SUN) with the given light data properties."""
+    data = bpy().data.lights.new(name, kind)
+    for key, value in props.items():
+        setattr(data, key, value)
+    obj = bpy().data.objects.new(name, data)
+    obj.location, obj.rotation_euler = location, rotation
+    return link(obj)
+
+
 def point_light(location, energy=10.0, color=(1, 1, 1), name="Light"):
     b = bpy()
     data = b.data.lights.new(name, "POINT")
