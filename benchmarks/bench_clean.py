@@ -16,7 +16,8 @@ stops there (ratio <). Adaptive sampling takes every sample below its min_sample
 counts up to 4 are the same renders as without it (reused). The ways are rendered in turn, one
 render of each at a time (interleaved: a drift of the machine's load falls on each alike); the
 previous build renders in a child process (its own virtualenv, --baseline), before and after this
-build's renders (its time: their mean).
+build's renders with --old-twice (its time: their mean), else before them, this build's exact
+light (the same work) right after it.
 
 Error: the RMS over the pixels of the brightness (mean of RGB) against a converged reference of this
 build with the exact light sum (light_paths 0) and its own random numbers (seeds from 1000000):
@@ -24,8 +25,10 @@ two renders of --reference-samples / 2 samples with other seeds, their mean the 
 noise (the RMS of their difference / 2) subtracted in quadrature from every error (the error
 against the true image); with direct light from point lights the image has no random numbers (one
 render, no noise to subtract; its error is that of the pixel sampling). References are cached in
---cache (keyed by their settings; --fresh renders them again). Times: the render's own seconds
-(Result.stats, denoising included), tracers built once per space beforehand (not counted), 2 threads.
+--cache (keyed by their settings; --fresh renders them again). Times: each render's (its
+denoising included) in process CPU time (all threads: the machine's other work, which slows the wall
+clock, does not count; --clock wall: Result.stats' seconds), tracers built once per space beforehand
+(not counted), 2 threads.
 
 Run: .venv/bin/python benchmarks/bench_clean.py [--size 320x180] [--bounce-size 160x90]
      [--spaces torus,poincare,seifert_weber,nil,sl2] [--parts direct,bounces] [--baseline ../base/.venv]
@@ -78,13 +81,16 @@ class Renderer:
         return self.made[sid]
 
     def __call__(self, sid, size, samples, bounces, seed=0, **options):
-        """(seconds, colour) of one render; options: this build's settings (light_paths, ...)."""
+        """((CPU seconds, wall seconds), colour) of one render; options: this build's settings
+        (light_paths, ...)."""
         space, scene, tracer = self._space(sid)
         settings = self.render.Settings(
             width=size[0], height=size[1], samples=samples, bounces=bounces, seed=seed, threads=THREADS, **options
         )
+        cpu = time.process_time()
         result = self.render.render(space, scene, settings, tracer=tracer)
-        return result.stats["seconds"], np.nan_to_num(result.passes["color"])
+        cpu = time.process_time() - cpu
+        return (cpu, result.stats["seconds"]), np.nan_to_num(result.passes["color"])
 
 
 class Baseline:
@@ -108,7 +114,7 @@ class Baseline:
         line = self.child.stdout.readline()
         if not line:
             sys.exit("bench_clean: the baseline build's process ended (its error above)")
-        return json.loads(line)["seconds"], np.load(out)
+        return tuple(json.loads(line)["seconds"]), np.load(out)
 
     def close(self):
         self.child.stdin.close()
@@ -146,12 +152,12 @@ class Reference:
             self.cached = True
             return
         if deterministic:  # one render: nothing random to average out
-            self.seconds, color = new(sid, size, samples, bounces, REFERENCE_SEEDS[0], light_paths=0)
+            (_, self.seconds), color = new(sid, size, samples, bounces, REFERENCE_SEEDS[0], light_paths=0)
             self.image, self.variance = brightness(color), 0.0
         else:
             halves = [new(sid, size, samples // 2, bounces, seed, light_paths=0) for seed in REFERENCE_SEEDS]
             a, b = (brightness(c) for _, c in halves)
-            self.seconds = sum(s for s, _ in halves)
+            self.seconds = sum(s[1] for s, _ in halves)
             self.image, self.variance = (a + b) / 2, float(np.mean((a - b) ** 2) / 4)
         self.cached = False
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -251,14 +257,17 @@ def measure_part(sid, part, args, new, old, out):
         flush=True,
     )
 
+    clock = 1 if args.clock == "wall" else 0  # the renders give (CPU seconds, wall seconds)
     t_old1, c_old = old(sid, size, n_old, bounces)
+    t_old1 = t_old1[clock]
     target = ref.error(c_old)
     t_exact, c_exact = new(sid, size, n_old, bounces, light_paths=0)
+    t_exact = t_exact[clock]
     same = float(np.max(np.abs(c_exact - c_old)))
     limit = args.limit * t_old1
 
     def render_ladder(options):
-        return lambda n: (lambda t_c: (t_c[0], ref.error(t_c[1])))(new(sid, size, n, bounces, **options))
+        return lambda n: (lambda t_c: (t_c[0][clock], ref.error(t_c[1])))(new(sid, size, n, bounces, **options))
 
     ways = {f"light_paths {lp}": dict(light_paths=lp) for lp in args.light_paths}
     searches = {name: search(target, limit) for name in ways}
@@ -285,12 +294,15 @@ def measure_part(sid, part, args, new, old, out):
     found.update(interleave(searches, measure))
     searches = {"+ adaptive + denoise": search(target, limit, known=upto4(found["+ denoise"][2]))}
     found.update(interleave(searches, measure))
-    t_old2, c_old2 = old(sid, size, n_old, bounces)
-    t_old = (t_old1 + t_old2) / 2
+    t_old, again = t_old1, ""
+    if args.old_twice:
+        t_old2, c_old2 = old(sid, size, n_old, bounces)
+        t_old2 = t_old2[clock]
+        t_old = (t_old1 + t_old2) / 2
+        again = f" / {t_old2:.2f} s (again, differs by {float(np.max(np.abs(c_old2 - c_old))):.2g})"
     print(
-        f"{tag} previous build, {n_old} spp: {t_old1:.2f} / {t_old2:.2f} s, error {target:.4f} (the target); "
-        f"repeat differs by {float(np.max(np.abs(c_old2 - c_old))):.2g}; this build's exact light: "
-        f"{t_exact:.2f} s, differs by {same:.2g}",
+        f"{tag} previous build, {n_old} spp: {t_old1:.2f} s{again}, error {target:.4f} (the target); this "
+        f"build's exact light: {t_exact:.2f} s, differs by {same:.2g}",
         flush=True,
     )
     for name in [*ways, *combos]:
@@ -327,7 +339,9 @@ def main():
     ap.add_argument("--bounce-reference", type=int, default=64)
     ap.add_argument("--light-paths", default="2,4,8")
     ap.add_argument("--adaptive-fraction", type=float, default=0.5, help="noise threshold / target error")
-    ap.add_argument("--limit", type=float, default=2.5, help="no render past this x the previous build's time")
+    ap.add_argument("--clock", choices=("cpu", "wall"), default="cpu", help="process CPU seconds or wall seconds")
+    ap.add_argument("--old-twice", action="store_true", help="the previous build's render again after the others")
+    ap.add_argument("--limit", type=float, default=1.5, help="no render past this x the previous build's time")
     ap.add_argument("--baseline", default=str(HERE.parent / "base" / ".venv"), help="the previous build's virtualenv")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "thurston_bench_clean"))
     ap.add_argument("--fresh", action="store_true", help="render the references again")
@@ -345,7 +359,10 @@ def main():
     args.bounce_size = tuple(int(v) for v in args.bounce_size.split("x"))
     args.light_paths = [int(v) for v in args.light_paths.split(",")]
     t0 = time.perf_counter()
-    print(f"load average {os.getloadavg()[0]:.1f} at the start; {THREADS} threads; baseline {args.baseline}")
+    print(
+        f"load average {os.getloadavg()[0]:.1f} at the start; {THREADS} threads; {args.clock} seconds; "
+        f"baseline {args.baseline}"
+    )
     new = Renderer()
     with tempfile.TemporaryDirectory() as tmp:
         old = Baseline(args.baseline, tmp)
