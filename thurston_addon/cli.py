@@ -55,7 +55,7 @@ def _size(text: str):
 
 
 def _passes(text: str):
-    names = [t.strip() for t in text.split(",") if t.strip()]
+    names = list(dict.fromkeys(t.strip() for t in text.split(",") if t.strip()))  # each pass once
     bad = [n for n in names if n not in render.PASSES]
     if bad or not names:
         raise argparse.ArgumentTypeError(
@@ -158,6 +158,8 @@ def read_rays(path, space) -> tuple[np.ndarray, np.ndarray]:
     rays = files.load_npy(path, "rays file", CommandError)
     if rays.ndim != 2 or rays.shape[1] != 6 or rays.dtype != np.float64:
         raise CommandError(f"{path}: expected a float64 array of shape (N, 6), got {rays.dtype} {rays.shape}")
+    if len(rays) == 0:
+        raise CommandError(f"{path}: holds no rays; give at least one row (origin x, y, z, direction x, y, z)")
     bad = ~np.all(np.isfinite(rays), axis=1)
     if bad.any():
         raise CommandError(f"{path}: ray {int(np.argmax(bad))} has a NaN or infinite value")

@@ -37,6 +37,11 @@ def frame_range(spec: str | None, bscene) -> range:
     return range(first, last + 1)
 
 
+def glob_escape(name: str) -> str:
+    """A name as a glob pattern that matches only itself."""
+    return "".join(f"[{c}]" if c in "*?[" else c for c in name)
+
+
 def make_folder(folder: Path):
     """The output folder, created with its parents where missing, as Blender creates a render's."""
     if folder.is_dir():
@@ -80,12 +85,23 @@ def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, ov
     a multilayer EXR with the passes the settings ask for, or a PNG of the view-transformed colour."""
     open_blend(path)
     bscene = bpy.context.scene
-    outputs = [out_dir / f"{path.stem}_{f:04d}.{suffix}" for f in frame_range(frames, bscene)]
+    span = frame_range(frames, bscene)
+
+    def output(frame: int) -> Path:
+        return out_dir / f"{path.stem}_{frame:04d}.{suffix}"
+
     make_folder(out_dir)
-    for out in outputs:  # refuse before spending time on any frame
-        files.check_output(out, overwrite)
+    files.check_output(output(span[0]), overwrite)  # the folder and the name
+    if not overwrite:  # refuse before spending time on any frame: the folder's files, not every frame's path
+        for existing in sorted(out_dir.glob(f"{glob_escape(path.stem)}_*.{suffix}")):
+            number = existing.name[len(path.stem) + 1 : -len(suffix) - 1]
+            if number.isdigit() and int(number) in span and existing == output(int(number)):
+                files.check_output(existing, overwrite)
     _configure_output(bscene, suffix)
-    for frame, out in zip(frame_range(frames, bscene), outputs):
+    outputs = []
+    for frame in span:
+        out = output(frame)
+        outputs.append(out)
         bscene.frame_set(frame)
         listener = progress_for(f"frame {frame}")
         engine.progress_listeners.append(listener)

@@ -131,6 +131,10 @@ def load_scene_file(path: str | Path) -> Scene:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"cannot read scene file {str(path)!r}: {exc}") from None
+    except RecursionError:
+        raise SceneError(
+            f"cannot read scene file {str(path)!r}: its tables or arrays nest too deeply; a scene needs a few levels"
+        ) from None
     return _scene_from_toml(data, path)
 
 

@@ -91,6 +91,10 @@ def load(path_or_id: str | Path) -> Space:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SpaceError(f"space file {str(path)!r} is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise SpaceError(
+            f"space file {str(path)!r}: its tables or arrays nest too deeply; a space needs a few levels"
+        ) from None
     return from_data(data, str(path))
 
 

@@ -93,6 +93,7 @@ class DirichletSpace(Space):
         given = [(name, M) for name, M in zip(self.generator_names, self.generators) if not is_identity(M)]
         for name, M in given:
             self._check_moves_centre(M, f"generator {name!r}", generator=True)
+        given = self._distinct(given)
         self._steps = [M for _, M in given]
         shortened, moved = self._shortened(self._steps)
         # (the shortened ones too where shortening changed them: else theirs is the polyhedron just tried)
@@ -130,6 +131,19 @@ class DirichletSpace(Space):
                 continue
             self._elements, self._radius = [np.eye(4)], 0.0  # enumerate again with face steps
             return self.domain
+
+    def _distinct(self, given: list[tuple[str, np.ndarray]]) -> list[tuple[str, np.ndarray]]:
+        """The named generators without repeats: one equal to an earlier one or to its inverse adds
+        nothing to the group, and is dropped before the shortening's work over every pair."""
+        g = self.geometry
+        seen, kept = set(), []
+        for name, M in given:
+            R = g.reorthonormalize(M)
+            if g.element_key(R) in seen or g.element_key(np.linalg.inv(R)) in seen:
+                continue
+            seen.add(g.element_key(R))
+            kept.append((name, M))
+        return kept
 
     def _shortened(self, generators: list[np.ndarray]) -> tuple[list[np.ndarray], bool]:
         """(generators of the same group that move O less, whether any changed): each replaced by

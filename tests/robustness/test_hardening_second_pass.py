@@ -1,0 +1,100 @@
+"""Issue 21's adversarial cases, each a regression test from its small or generated input: deep TOML
+nesting, repeated generators, a pass named twice, a rays file of no rays, a frame range of a
+billion frames."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from support.outputs import error_line
+
+from thurston_addon import cli, spaces
+from thurston_addon.scenes import scene_file
+
+
+def cli_error(argv, capsys) -> str:
+    code = cli.main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "Traceback" not in err and "encountered" not in err, err
+    return error_line(err)
+
+
+@pytest.mark.parametrize("kind", ["space", "scene"])
+def test_toml_nested_100000_deep_is_one_clear_error(tmp_path, kind):
+    path = tmp_path / f"{kind}.toml"
+    path.write_text("x = " + "[" * 100000 + "]" * 100000 + "\n")
+    load, error = (
+        (spaces.load, spaces.SpaceError) if kind == "space" else (scene_file.load_scene_file, scene_file.SceneError)
+    )
+    with pytest.raises(error, match="nest too deeply") as caught:
+        load(path)
+    assert str(path) in str(caught.value)
+
+
+def test_repeated_generators_load_in_time_near_linear_in_their_number():
+    """5002 generators, the torus's three repeated (and given as inverses): the same domain, and the
+    load time grows about linearly (it took over 8 minutes before the repeats were dropped first)."""
+    torus = spaces.load("torus")
+    base = [{"name": f"g{k}", "matrix": M.tolist()} for k, M in enumerate(torus.generators)]
+    inverse = [{"name": f"i{k}", "matrix": np.linalg.inv(M).tolist()} for k, M in enumerate(torus.generators)]
+
+    def load(n):
+        data = {
+            "geometry": "E3",
+            "generator": [dict(g, name=f"{g['name']}_{k}") for k in range(n) for g in base + inverse],
+        }
+        start = time.perf_counter()
+        space = spaces.from_data(data, "repeated")
+        faces = len(space.domain.covectors())
+        return time.perf_counter() - start, faces
+
+    small, faces_small = load(50)
+    large, faces_large = load(834)  # 5004 generators
+    assert faces_small == faces_large == 6
+    assert large < 30, large
+    assert large < 60 * max(small, 0.01), (small, large)  # 16.7 times the generators: not their square
+
+
+def test_a_pass_named_twice_is_written_once(tmp_path, capsys):
+    import OpenImageIO as oiio
+
+    out = tmp_path / "t.exr"
+    argv = ["render", "--space", "torus", "--size", "8x6", "--quality", "draft", "--passes", "color,depth,color"]
+    assert cli.main([*argv, "--out", str(out)]) == 0, capsys.readouterr().err
+    channels = list(oiio.ImageInput.open(str(out)).spec().channelnames)
+    assert channels == ["R", "G", "B", "Z"], channels  # each once (it gave channel3..5 for the second)
+
+
+def test_a_rays_file_of_no_rays_is_one_clear_error(tmp_path, capsys):
+    rays = tmp_path / "rays.npy"
+    np.save(rays, np.zeros((0, 6)))
+    line = cli_error(["trace", "--space", "torus", "--rays", rays, "--out", tmp_path / "hits.npz"], capsys)
+    assert "holds no rays" in line and str(rays) in line
+    assert not (tmp_path / "hits.npz").exists()
+
+
+def test_a_billion_frames_are_not_listed_up_front(tmp_path, registered_addon):
+    """render-blend's frames are generated as they are rendered: a range of a billion frames costs
+    nothing before the first (it built every path first: 6.7 GB, then MemoryError), and a finished
+    frame already in the folder is refused before any work."""
+    import bpy
+    from support import blender_helpers as bh
+
+    from thurston_addon.blender import batch
+
+    bh.fresh_scene("torus", size=(8, 6))
+    blend = tmp_path / "shot.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "shot_0007.exr").write_bytes(b"finished")
+    start = time.perf_counter()
+    run = bh.render_blend(blend, out, frames="1..1000000000")
+    assert run.returncode == 2 and "shot_0007.exr" in run.stderr and "exists" in run.stderr, run.stderr
+    assert "Traceback" not in run.stderr and time.perf_counter() - start < 60
+    assert sorted(p.name for p in out.iterdir()) == ["shot_0007.exr"]  # nothing rendered, nothing lost
+    assert (out / "shot_0007.exr").read_bytes() == b"finished"
+    assert batch.glob_escape("a*b?[c") == "a[*]b[?][[]c"
