@@ -4,6 +4,8 @@ billion frames."""
 
 from __future__ import annotations
 
+import math
+import subprocess
 import time
 
 import numpy as np
@@ -98,3 +100,28 @@ def test_a_billion_frames_are_not_listed_up_front(tmp_path, registered_addon):
     assert sorted(p.name for p in out.iterdir()) == ["shot_0007.exr"]  # nothing rendered, nothing lost
     assert (out / "shot_0007.exr").read_bytes() == b"finished"
     assert batch.glob_escape("a*b?[c") == "a[*]b[?][[]c"
+
+
+def test_render_blend_png_into_the_default_folder(tmp_path, registered_addon, monkeypatch):
+    """`render-blend FILE.blend --format png` with its default output folder (.) writes the frame
+    there (Blender could not write the bare relative name it was given)."""
+    import bpy
+    from support import blender_helpers as bh
+
+    bh.fresh_scene("torus", size=(8, 6))
+    bh.box("Box", 0.2, (0.0, 0.2, 0.0))
+    bh.point_light((0.1, 0.0, 0.3))
+    bh.camera((0.0, -0.3, 0.0), rotation=(math.radians(90), 0, 0))
+    blend = tmp_path / "shot.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    run = subprocess.run(
+        [str(bh.THURSTON), "render-blend", str(blend), "--frames", "1", "--format", "png"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 0, run.stderr
+    assert (work / "shot_0001.png").stat().st_size > 0

@@ -120,7 +120,8 @@ def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, ov
         # as every output (files.replacing), and read back, since its writer may fail silently
         with files.replacing(out, overwrite) as tmp:
             try:
-                bpy.data.images["Render Result"].save_render(filepath=str(tmp), scene=bscene)
+                # absolute: Blender cannot write a bare relative name (it reads names as the .blend's)
+                bpy.data.images["Render Result"].save_render(filepath=str(Path(tmp).absolute()), scene=bscene)
             except RuntimeError as exc:
                 raise files.OutputError(f"cannot write {str(out)!r}: {str(exc).strip()}") from None
             images.check_image_file(tmp, out)
