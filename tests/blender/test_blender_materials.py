@@ -76,6 +76,8 @@ def build_materials():
     out = {}
     mat, nodes, tree = shader_material("Diffuse")
     out["Diffuse"] = to_output(mat, diffuse(nodes, (0.2, 0.6, 0.3)).outputs[0]), True
+    mat, nodes, tree = shader_material("Glossy")
+    out["Glossy"] = to_output(mat, glossy(nodes, (0.9, 0.7, 0.4), 0.35).outputs[0]), False
     mat, nodes, tree = shader_material("MixDiffuse")
     m = mix(tree, 0.3, diffuse(nodes, (0.9, 0.2, 0.1)), diffuse(nodes, (0.1, 0.3, 0.9)))
     out["MixDiffuse"] = to_output(mat, m.outputs[0]), True
@@ -91,7 +93,7 @@ def build_materials():
     image = bpy.data.images.new("Checker", 2, 2, float_buffer=True)
     image.pixels.foreach_set(np.ascontiguousarray(CHECKER[::-1]).ravel())
     tex = nodes.new("ShaderNodeTexImage")
-    tex.image, tex.interpolation = image, "Closest"
+    tex.image = image
     mapping = nodes.new("ShaderNodeMapping")
     mapping.inputs["Scale"].default_value = (3, 2, 1)
     mapping.inputs["Location"].default_value = (0.25, 0, 0)
@@ -101,8 +103,6 @@ def build_materials():
     d = diffuse(nodes, (1, 1, 1))
     tree.links.new(tex.outputs["Color"], d.inputs["Color"])
     out["Tiled"] = to_output(mat, d.outputs[0]), True
-    mat, nodes, tree = shader_material("Glossy")
-    out["Glossy"] = to_output(mat, glossy(nodes, (0.9, 0.7, 0.4), 0.35).outputs[0]), False
     return out
 
 
@@ -260,7 +260,8 @@ def test_mapping_and_coordinates_give_the_corner_uvs():
 
 # --- against Cycles --------------------------------------------------------------------------------
 def build_planes():
-    """The supported shaders on planes facing the camera, in a 3x2 grid, in the torus."""
+    """The supported shaders on planes facing the camera, in a 3x2 grid, in the torus: the glossy
+    ones where they show the light's highlight (the top middle holds its mirror point)."""
     sc = bh.fresh_scene("torus", size=SIZE)
     sc.thurston.quality = "standard"
     sc.thurston.light_reach = LIGHT_REACH
