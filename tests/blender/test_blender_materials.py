@@ -307,3 +307,16 @@ def test_shader_nodes_match_cycles_tiled(tmp_path):
         assert mean_error < (0.05 if exact else 0.15), (name, report)
         if name == "Tiled":
             assert pixel_error < 0.08, (name, report)
+
+
+def test_the_note_reaches_the_render_report(tmp_path):
+    """F12: one note naming the material (used by two objects) and what the image shows."""
+    sc = bh.fresh_scene("torus", size=(8, 8))
+    glass = unsupported("glass")
+    for name, x in (("Left", -0.06), ("Right", 0.06)):
+        bh.box(name, (0.1, 0.02, 0.3), (x, 0.3, 0)).data.materials[0] = glass
+    bh.point_light((0, 0.1, 0.1), energy=1.0)
+    bh.camera((0, 0, 0))
+    bh.f12(sc, tmp_path / "thurston.exr")
+    notes = [n.message for n in sc.thurston.stats.notes if "'glass'" in n.message]
+    assert len(notes) == 1 and "Glass BSDF" in notes[0] and "reflection" in notes[0], notes
