@@ -1,8 +1,7 @@
 """Blender meshes and materials -> scene objects: vertices in chart coordinates, Blender's corner
-normals (shade smooth/flat, sharp edges, custom normals), the active render UV map, and one
-material per material slot (Principled BSDF or Emission node; an Image Texture node feeding the
-base or emission colour gives a texture; the Principled BSDF's Roughness, Metallic, Specular IOR
-Level and IOR where they are constants)."""
+normals (shade smooth/flat, sharp edges, custom normals), the active render UV map (or the
+coordinates and Mapping a material's Image Texture reads), and one material per material slot
+(shading.py reads its node tree from the Material Output)."""
 
 from __future__ import annotations
 
@@ -13,6 +12,7 @@ import numpy as np
 
 from ... import scenes
 from ...images import srgb_to_linear
+from . import shading
 
 
 def mesh_key(inst, obj) -> tuple:
@@ -53,8 +53,17 @@ def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
     if layer is not None:
         uvs = _get(layer.data, "uv", len(layer.data) * 2, np.float64).reshape(-1, 2)[loops]
     slots = [slot.material for slot in obj.material_slots]
-    materials = [material(m, original.name) for m in slots] or [material(None, original.name)]
+    surfaces = [material_surface(m, original.name) for m in slots] or [material_surface(None, original.name)]
+    materials = [m for m, _ in surfaces]
     index = np.clip(_get(mesh.loop_triangles, "material_index", nt, np.int32), 0, len(materials) - 1)
+    for k, (_, texture) in enumerate(surfaces):  # textures read through other coordinates or a Mapping
+        mine = index == k
+        if texture is None or not mine.any():
+            continue
+        mapped = texture_uvs(texture, mesh, co, loops[mine])
+        if mapped is not None:
+            uvs = np.zeros((nt, 3, 2)) if uvs is None else uvs
+            uvs[mine] = mapped
     name = original.name if not inst.is_instance else f"{original.name} ({inst.parent.original.name})"
     first = materials[index[0]]
     return scenes.clean(
@@ -84,66 +93,63 @@ def _get(collection, attribute, count, dtype):
     return values
 
 
-# The Principled BSDF's inputs that become the material's scattering (scenes.Material's names).
-SCATTERING_INPUTS = {"roughness": "Roughness", "metallic": "Metallic", "specular": "Specular IOR Level", "ior": "IOR"}
-
-
 def material(mat, object_name: str) -> scenes.Material:
-    """Base colour and emission of a material: Principled BSDF or Emission node inputs; an Image
-    Texture node linked to a colour gives its image (times the strength for emission); other links
-    fall back to the material's viewport colour. The Principled BSDF's scattering inputs are taken
-    as their constants (a link to them is not followed: its socket's own value counts); an Emission
-    shader reflects nothing."""
+    """The scene material of a Blender material (see shading.py: what reaches its Material Output's
+    Surface); what cannot be shown is one warning (a note of the render report) naming it."""
+    return material_surface(mat, object_name)[0]
+
+
+def material_surface(mat, object_name: str) -> tuple[scenes.Material, shading.Texture | None]:
+    """The scene material and the texture whose coordinates its triangles get (None: the active
+    render UV map as it is)."""
     if mat is None:
-        return scenes.Material(name="")
+        return scenes.Material(name=""), None
     where = f"object {object_name!r}, material {mat.name!r}"
-    color, emission = np.array(mat.diffuse_color[:3], float), np.zeros(3)
-    color_texture = emission_texture = None
-    scattering = {}
-    # Blender 5 always uses material nodes (use_nodes is deprecated there)
-    if mat.node_tree and (bpy.app.version >= (5, 0, 0) or mat.use_nodes):
-        for node in mat.node_tree.nodes:
-            if node.type == "BSDF_PRINCIPLED":
-                color, color_texture = _input(node.inputs["Base Color"], color)
-                em = node.inputs.get("Emission Color") or node.inputs.get("Emission")
-                strength = node.inputs.get("Emission Strength")
-                if em is not None:
-                    value, emission_texture = _input(em, np.zeros(3))
-                    emission = value * (strength.default_value if strength else 1.0)
-                scattering = {
-                    key: _clamped(key, node.inputs[name].default_value)
-                    for key, name in SCATTERING_INPUTS.items()
-                    if name in node.inputs
-                }
-                break
-            if node.type == "EMISSION":
-                color = np.zeros(3)
-                value, emission_texture = _input(node.inputs["Color"], np.zeros(3))
-                emission = value * node.inputs["Strength"].default_value
-                break
+    if mat.node_tree is not None and (bpy.app.version >= (5, 0, 0) or mat.use_nodes):
+        surface = shading.surface(mat, mat.diffuse_color)
+    else:  # (before Blender 5, a material without nodes: its viewport colour, as Cycles)
+        surface = shading.Surface(np.array(mat.diffuse_color[:3], float), np.zeros(3))
+    color, emission = surface.color, surface.emission
+    textures = []
+    for texture, value in ((surface.color_texture, color), (surface.emission_texture, emission)):
+        pixels = None if texture is None else image_texture(texture.image)
+        if texture is not None and pixels is None:  # magenta where the image has no pixels, as in Cycles
+            value *= MISSING_IMAGE
+        textures.append(pixels)
+    shading.warn_notes(mat, surface.notes)
     try:
-        return scenes.Material(color, emission, color_texture, emission_texture, name=mat.name, **scattering)
+        result = scenes.Material(color, emission, *textures, name=mat.name, **surface.scattering)
     except scenes.SceneError as exc:
         raise scenes.SceneError(f"{where}: {exc}") from None
+    texture = surface.texture
+    if texture is not None and texture.source is None and np.array_equal(texture.affine, np.eye(2, 4)):
+        texture = None
+    return result, texture
 
 
-def _clamped(key: str, value: float) -> float:
-    """A scattering input as Cycles takes it: roughness and metallic within [0, 1], the specular
-    level at least 0, the IOR at least 1e-5 (below 1 it reflects as its inverse does)."""
-    ((low, high),) = [bounds for name, bounds, _ in scenes.SCATTERING if name == key]
-    return float(np.clip(value, max(low, 1e-5) if key == "ior" else low, high))
+def texture_uvs(texture: shading.Texture, mesh, co, loops) -> np.ndarray | None:
+    """(m, 3, 2) corner UVs of the triangles for a texture's coordinates and Mapping."""
+    if texture.source == "GENERATED":  # the mesh's texture space: its box as [0, 1]^3
+        loc, size = np.array(mesh.texspace_location, float), np.array(mesh.texspace_size, float)
+        size = np.where(size != 0, size, 1.0)
+        points = ((co - loc) / (2 * size) + 0.5)[np.asarray(tri_vertices(mesh, loops))]
+    elif texture.source == "OBJECT":
+        points = co[np.asarray(tri_vertices(mesh, loops))]
+    else:
+        layer = mesh.uv_layers.get(texture.source) if texture.source else None
+        layer = layer or next((layer for layer in mesh.uv_layers if layer.active_render), None)
+        if layer is None:
+            return None
+        uv = _get(layer.data, "uv", len(layer.data) * 2, np.float64).reshape(-1, 2)[loops]
+        points = np.concatenate([uv, np.zeros(uv.shape[:-1] + (1,))], axis=-1)
+    homogeneous = np.concatenate([points, np.ones(points.shape[:-1] + (1,))], axis=-1)
+    return homogeneous @ texture.affine.T
 
 
-def _input(socket, fallback):
-    """(constant, texture) of a colour input: its value; white times the image of a linked Image
-    Texture node (magenta where the image has no pixels, as in Cycles); else the fallback."""
-    if not socket.is_linked:
-        return np.array(socket.default_value[:3], float), None
-    node = socket.links[0].from_node
-    if node.type == "TEX_IMAGE" and node.image is not None:
-        texture = image_texture(node.image)
-        return (np.ones(3), texture) if texture is not None else (MISSING_IMAGE.copy(), None)
-    return np.asarray(fallback, float), None
+def tri_vertices(mesh, loops) -> np.ndarray:
+    """The vertex of each triangle corner (loops: the corners' loop indices)."""
+    loop_vertex = _get(mesh.loops, "vertex_index", len(mesh.loops), np.int32)
+    return loop_vertex[loops]
 
 
 # What Cycles renders for an image it cannot read (its file missing or broken): magenta.
