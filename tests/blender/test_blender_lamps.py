@@ -57,7 +57,6 @@ def test_temperature_and_constant_node_trees_tint_the_light(registered_addon):
     """Temperature: the colour times Blender's blackbody colour; an Emission node: its strength and
     colour multiply the power; a Blackbody into its colour: that colour; nothing into the output:
     no light. Non-constant trees (a texture, Light Falloff) are ignored, with a note naming them."""
-    import bpy
     from support import blender_helpers as bh
 
     from thurston_addon.blender.export import lamps
@@ -179,9 +178,8 @@ def soft_room():
     """A closed room (the torus's, as in test_blender_lights) lit by a point light of radius 0.06
     with a Temperature (3000 K) and a node tree (Emission strength 1.5, a Blackbody of 5000 K into
     its colour), above a block whose shadow on the floor has a soft edge; the camera looks down."""
-    from support import blender_helpers as bh
-
     from blender.test_blender_lights import lit_room
+    from support import blender_helpers as bh
 
     sc = lit_room()
     import bpy
