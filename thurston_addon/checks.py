@@ -220,15 +220,11 @@ def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> 
                     f"it sees the object's unlit inside; move the camera out of it",
                 )
             )
+    # (emissive objects light the scene too: area lights, a point light's sphere)
     emissive = [o for o in scene.objects if np.any(o.emission > 0)]
-    if lambert and not scene.lights:
+    if lambert and not scene.lights and not emissive:
         notes.append(
-            Note(
-                NO_LIGHTS,
-                "the scene has no lights: "
-                + ("only emissive objects show" if emissive else "everything renders black")
-                + "; add a point light inside the domain",
-            )
+            Note(NO_LIGHTS, "the scene has no lights: everything renders black; add a point light inside the domain")
         )
     large = [o for o in scene.objects if ratios[o.name] > TOO_LARGE]
     if large:
