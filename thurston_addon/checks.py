@@ -220,15 +220,11 @@ def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> 
                     f"it sees the object's unlit inside; move the camera out of it",
                 )
             )
+    # (emissive objects light the scene too: area lights, a point light's sphere)
     emissive = [o for o in scene.objects if np.any(o.emission > 0)]
-    if lambert and not scene.lights:
+    if lambert and not scene.lights and not emissive:
         notes.append(
-            Note(
-                NO_LIGHTS,
-                "the scene has no lights: "
-                + ("only emissive objects show" if emissive else "everything renders black")
-                + "; add a point light inside the domain",
-            )
+            Note(NO_LIGHTS, "the scene has no lights: everything renders black; add a point light inside the domain")
         )
     large = [o for o in scene.objects if ratios[o.name] > TOO_LARGE]
     if large:
@@ -290,11 +286,11 @@ def proposed_exposure(scene: Scene, passes: dict, exposure: float = 0.0) -> floa
 def after_render(scene: Scene, passes: dict, lambert: bool, exposure: float = 0.0) -> list[Note]:
     """Notes on the rendered passes: lights that reach no surface the camera sees; lit surfaces
     that show black or white under the `exposure` (stops) the front end applies."""
-    if not (lambert and scene.lights):
+    emissive = np.array([np.any(o.emission > 0) for o in scene.objects] + [False])
+    if not (lambert and (scene.lights or emissive.any())):  # emitters light too (a point light's sphere)
         return []
     obj = passes["object"]
     hit = obj >= 0
-    emissive = np.array([np.any(o.emission > 0) for o in scene.objects] + [False])
     lit_surface = hit & ~emissive[obj]
     if lit_surface.any() and not np.any(passes["color"][lit_surface] > 0):
         return [

@@ -67,12 +67,14 @@ class THURSTON_OT_camera_inside(bpy.types.Operator):
         return {"FINISHED"}
 
 
-def _scene_box(world, lights) -> tuple[np.ndarray, np.ndarray]:
-    """The box (lo, hi) of the scene's objects (every placement) and its lights' positions."""
+def _scene_box(world, lights, light_names=frozenset()) -> tuple[np.ndarray, np.ndarray]:
+    """The box (lo, hi) of the scene's objects (every placement) but the lights' own (`light_names`:
+    a light's sphere) and its lights' positions."""
     V = np.vstack(
         [
             o.vertices if o.instances is None else np.vstack([o.vertices @ A[:3, :3].T + A[:3, 3] for A in o.instances])
             for o in world.objects
+            if o.name not in light_names
         ]
         + [np.array(lights, float).reshape(-1, 3)]
     )
@@ -108,8 +110,11 @@ class THURSTON_OT_fit_scale(bpy.types.Operator):
         if not world.objects:
             self.report({"ERROR"}, "The scene has no visible mesh objects to fit")
             return {"CANCELLED"}
-        lights = [o.matrix_world.translation for o in scene.objects if o.type == "LIGHT" and o.visible_get()]
-        lo, hi = _scene_box(world, lights)
+        lamps = [o for o in scene.objects if o.type == "LIGHT" and o.visible_get()]
+        lights = [o.matrix_world.translation for o in lamps]
+        # a light with a radius is exported as an emitting sphere: fitted as the point it is about
+        named = {o.name for o in lamps} | {o.data.name for o in lamps}
+        lo, hi = _scene_box(world, lights, named)
         size = float(np.linalg.norm(hi - lo))
         if size == 0:
             self.report({"ERROR"}, "The scene has no extent to fit")

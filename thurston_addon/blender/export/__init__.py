@@ -13,7 +13,7 @@ import numpy as np
 
 from ... import checks, render, scenes, spaces
 from ...passes import BLENDER_PASSES, LENGTHS, BlenderPass
-from . import surfaces
+from . import ignored, lamps, surfaces
 
 GUIDE_TAG = "thurston_guide"
 FILE = "FILE"  # space_id of a user's space file (space_file)
@@ -197,15 +197,22 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
             if light.type == "AREA" and scenes.singular(np.array(inst.matrix_world, float)):
                 flat.append(_instance_name(inst))  # no area: it emits nothing
                 continue
+            tint, not_constant = lamps.node_tint(light)
+            if not_constant:
+                skipped.setdefault(NODES_NOTE, []).append(f"{original.name} ({not_constant})")
+            if light.type == "SPOT" and light.shadow_soft_size > 0:
+                skipped.setdefault(SPOT_RADIUS_NOTE, []).append(original.name)
             try:
-                light_object = export_light(light, np.array(inst.matrix_world, float), scale)
+                light_object = export_light(light, np.array(inst.matrix_world, float), scale, tint)
             except scenes.SceneError as exc:
                 raise ExportError(f"light {original.name!r}: {exc}") from None
             if isinstance(light_object, scenes.SceneObject):
                 scene.objects.append(light_object)
             else:
                 scene.lights.append(light_object)
-        elif obj.type not in ("CAMERA", "EMPTY"):
+        if obj.type == "MESH" and not inst.is_instance and ignored.hair(obj):
+            skipped.setdefault(ignored.HAIR_NOTE, []).append(original.name)
+        if obj.type not in ("MESH", "LIGHT", "CAMERA", "EMPTY"):
             skipped.setdefault(f"{obj.type.lower()} objects (only meshes)", []).append(original.name)
     if meshes is not None:
         meshes.clear()
@@ -221,7 +228,8 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
             mesh = mesh.placed()
         scene.objects.append(mesh)
     for what, names in skipped.items():
-        notes.append(checks.Note(checks.DROPPED, f"skipped {what}: {_shown(names)}"))
+        said = what if what in _NOT_SKIPPED else f"skipped {what}"
+        notes.append(checks.Note(checks.DROPPED, f"{said}: {_shown(names)}"))
     if flat:
         frame = depsgraph.scene.frame_current
         notes.append(
@@ -266,7 +274,16 @@ SUN_NOTE = (
 )
 
 
-def export_light(light, world: np.ndarray, scale: float):
+# Parts of lights rendered otherwise than Cycles renders them (named with their lights)
+NODES_NOTE = (
+    "light node trees that are not constant (textures, Light Falloff, ...) are ignored, those lights "
+    "shine with the power and colour set on them"
+)
+SPOT_RADIUS_NOTE = "spot lights with a radius cast hard shadows here (a point of their power, within the cone)"
+_NOT_SKIPPED = (NODES_NOTE, SPOT_RADIUS_NOTE)
+
+
+def export_light(light, world: np.ndarray, scale: float, tint=None):
     """A point or spot light (scenes.PointLight) or an area light (an emissive mesh, scenes.flat_light)
     as Cycles lights them, in chart units (world / scale). Point and spot: Blender's power (W)
     radiates over 4 pi sr, and a Lambert surface of albedo rho sends rho / pi of its irradiance back;
@@ -274,9 +291,13 @@ def export_light(light, world: np.ndarray, scale: float):
     Area: a Lambertian emitter of power `strength` from one side, radiance strength / (pi area) as
     Cycles renders it (tests/blender/test_blender_lights.py; strength / pi where not normalized), area =
     size x size_y (times pi / 4 for a disk or ellipse) scaled by the object, emitted towards -Z."""
-    color = np.array(light.color[:3], float)
+    tint = lamps.node_tint(light)[0] if tint is None else tint
+    color = np.array(light.color[:3], float) * lamps.temperature_tint(light) * tint
     strength = light.energy * 2.0 ** getattr(light, "exposure", 0.0)
     position = world[:3, 3] / scale
+    if light.type == "POINT" and light.shadow_soft_size > 0:
+        # (Cycles takes the radius as it is, whatever the object's scale)
+        return lamps.sphere_light(light.name, position, light.shadow_soft_size / scale, color, strength / scale**2)
     if light.type in ("POINT", "SPOT"):
         spot = (
             {}
@@ -449,6 +470,7 @@ class RenderJob:
         with warnings.catch_warnings(record=True) as caught:  # the scene's and the compiler's warnings
             warnings.simplefilter("always")
             self.scene = export_scene(depsgraph, settings.scale, self.notes)
+            self.notes += ignored.settings_notes(bscene)
             # (a frame whose objects are all scaled to 0 renders empty, as in Cycles)
             if not self.scene.objects and not any(n.kind == checks.SCALED_TO_ZERO for n in self.notes):
                 raise ExportError(
