@@ -8,7 +8,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from blender.test_blender_lights import light_object
 
 
 def export(notes=None):
@@ -63,20 +62,20 @@ def test_temperature_and_constant_node_trees_tint_the_light(registered_addon):
 
     bh.fresh_scene("torus")
     bh.box("Box", 0.2, (0, 0, 0))
-    warm = light_object("POINT", "Warm", (0.3, 0, 0), energy=10.0, color=(1.0, 0.5, 0.5))
+    warm = bh.light_object("POINT", "Warm", (0.3, 0, 0), energy=10.0, color=(1.0, 0.5, 0.5))
     warm.data.use_temperature, warm.data.temperature = True, 3000.0
-    tinted = light_object("POINT", "Tinted", (0, 0.3, 0), energy=10.0)
+    tinted = bh.light_object("POINT", "Tinted", (0, 0.3, 0), energy=10.0)
     emission_tree(tinted.data, strength=2.5, colour=(0.2, 0.4, 0.8))
-    hot = light_object("POINT", "Hot", (0, 0, 0.3), energy=10.0)
+    hot = bh.light_object("POINT", "Hot", (0, 0, 0.3), energy=10.0)
     _, made = emission_tree(hot.data, strength=2.0, into_colour="ShaderNodeBlackbody")
     made["colour"].inputs["Temperature"].default_value = 4500.0
-    dark = light_object("POINT", "Dark", (0, 0, -0.3), energy=10.0)
+    dark = bh.light_object("POINT", "Dark", (0, 0, -0.3), energy=10.0)
     emission, _ = emission_tree(dark.data)
     for link in list(emission.outputs["Emission"].links):
         dark.data.node_tree.links.remove(link)
-    textured = light_object("POINT", "Textured", (-0.3, 0, 0), energy=10.0)
+    textured = bh.light_object("POINT", "Textured", (-0.3, 0, 0), energy=10.0)
     emission_tree(textured.data, into_colour="ShaderNodeTexNoise")
-    falling = light_object("POINT", "Falling", (0, -0.3, 0), energy=10.0)
+    falling = bh.light_object("POINT", "Falling", (0, -0.3, 0), energy=10.0)
     emission_tree(falling.data, into_strength="ShaderNodeLightFalloff")
     scene, notes = export()
     base = 10.0 / (4 * math.pi**2)
@@ -109,8 +108,8 @@ def test_point_radius_is_a_sphere_spot_radius_is_noted(registered_addon):
 
     bh.fresh_scene("torus", scale=2.0)
     bh.box("Box", 0.2, (0, 0, 0))
-    light_object("POINT", "Bulb", (0.4, 0, 0), energy=30.0, shadow_soft_size=0.1, color=(1.0, 0.5, 0.25))
-    light_object("SPOT", "Soft Spot", (0, 0.4, 0), energy=30.0, shadow_soft_size=0.1)
+    bh.light_object("POINT", "Bulb", (0.4, 0, 0), energy=30.0, shadow_soft_size=0.1, color=(1.0, 0.5, 0.25))
+    bh.light_object("SPOT", "Soft Spot", (0, 0.4, 0), energy=30.0, shadow_soft_size=0.1)
     import bpy
 
     from thurston_addon.blender import export as ex
@@ -187,7 +186,7 @@ def soft_room():
     for name in ("Spot", "Panel"):
         bpy.data.objects.remove(bpy.data.objects[name])
     bh.lambert(bh.box("Block", (0.1, 0.1, 0.1), (0.0, 0.12, -0.12), color=(0.7, 0.7, 0.7)).active_material)
-    bulb = light_object("POINT", "Bulb", (0.02, 0.14, 0.2), energy=3.0, shadow_soft_size=0.12)
+    bulb = bh.light_object("POINT", "Bulb", (0.02, 0.14, 0.2), energy=3.0, shadow_soft_size=0.12)
     bulb.data.use_soft_falloff = False  # Cycles' sphere (the soft falloff differs only near the light)
     bulb.data.use_temperature, bulb.data.temperature = True, 3000.0
     _, made = emission_tree(bulb.data, strength=1.5, into_colour="ShaderNodeBlackbody")
