@@ -41,17 +41,19 @@ def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
     nv, nt = len(mesh.vertices), len(mesh.loop_triangles)
     if nt == 0:
         return None
-    co = _get(mesh.vertices, "co", nv * 3, np.float64).reshape(-1, 3)
+    # Read in Blender's own types (float32 coordinates, int32 indices): foreach_get copies those
+    # straight into the array, where another type goes value by value.
+    co = _get(mesh.vertices, "co", nv * 3, np.float32).reshape(-1, 3)
     tri = _get(mesh.loop_triangles, "vertices", nt * 3, np.int32).reshape(-1, 3)
     loops = _get(mesh.loop_triangles, "loops", nt * 3, np.int32).reshape(-1, 3)
     normals = None
     if mesh.normals_domain != "FACE":  # all faces flat: the triangles' own normals, as Cycles uses
-        corner = _get(mesh.corner_normals, "vector", len(mesh.corner_normals) * 3, np.float64).reshape(-1, 3)
+        corner = _get(mesh.corner_normals, "vector", len(mesh.corner_normals) * 3, np.float32).reshape(-1, 3)
         normals = corner[loops]
     uvs = None
     layer = next((layer for layer in mesh.uv_layers if layer.active_render), None)
     if layer is not None:
-        uvs = _get(layer.data, "uv", len(layer.data) * 2, np.float64).reshape(-1, 2)[loops]
+        uvs = _get(layer.data, "uv", len(layer.data) * 2, np.float32).reshape(-1, 2)[loops]
     slots = [slot.material for slot in obj.material_slots]
     materials = [material(m, original.name) for m in slots] or [material(None, original.name)]
     index = np.clip(_get(mesh.loop_triangles, "material_index", nt, np.int32), 0, len(materials) - 1)
@@ -60,7 +62,7 @@ def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
     return scenes.clean(
         scenes.SceneObject(
             name,
-            co / scale,
+            np.divide(co, scale, dtype=np.float64),
             tri,
             first.color,
             first.emission,
