@@ -54,9 +54,11 @@ def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
         corner_vert = _get(mesh.loops, "vertex_index", len(mesh.loops), np.int32)
     tri = corner_vert[loops]
     normals = None
-    if mesh.normals_domain == "POINT":  # smooth everywhere: the vertex normals, as Cycles uses
+    # as Cycles uses them: smooth everywhere (POINT), the vertex normals (what corner_normals
+    # holds then); all faces flat (FACE), none (the triangles' own normals)
+    if mesh.normals_domain == "POINT":
         normals = _get(mesh.vertex_normals, "vector", nv * 3, np.float32).reshape(-1, 3)[tri]
-    elif mesh.normals_domain == "CORNER":  # else all faces flat: the triangles' own normals
+    elif mesh.normals_domain == "CORNER":
         corner = _get(mesh.corner_normals, "vector", len(mesh.corner_normals) * 3, np.float32).reshape(-1, 3)
         normals = corner[loops]
     uvs = None
