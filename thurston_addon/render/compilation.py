@@ -39,13 +39,50 @@ def _object_copies(space: Space, obj, C):
             H = g.plane_coordinates(Y)
             outside = (H / np.linalg.norm(H, axis=1)[:, None]) @ C.T > 1e-9
             covered |= ok & ~outside.any(axis=1)
-            # drop triangles wholly outside one face plane: they cannot meet the domain
-            keep = ~np.any(outside[T[:, 0]] & outside[T[:, 1]] & outside[T[:, 2]], axis=1) & ok[T].all(axis=1)
-            if keep.any():
-                copies.append((Y, np.flatnonzero(keep), M @ home))
+            keep = _kept_triangles(T, ok, outside)
+            if len(keep):
+                copies.append((Y, keep, M @ home))
         if covered.all():
             break
     return copies, covered
+
+
+def _kept_triangles(T, ok, outside) -> np.ndarray:
+    """The indices of the triangles T that are not wholly outside one face plane (`outside`: (n,
+    faces), each vertex's side of each face) and whose vertices all stay on the chart's side
+    (`ok`). Each vertex's faces are packed into the bits of one integer, so a triangle is tested
+    by two gathers of its corners, not one per face."""
+    faces = outside.shape[1]
+    if ok.all() and not outside.any():
+        return np.arange(len(T))  # the copy holds every vertex: every triangle stays
+    if outside.all(axis=0).any():
+        return np.zeros(0, np.intp)  # every vertex beyond one face: no triangle meets the domain
+    if faces > 64:
+        keep = ~np.any(outside[T[:, 0]] & outside[T[:, 1]] & outside[T[:, 2]], axis=1) & ok[T].all(axis=1)
+        return np.flatnonzero(keep)
+    bits = next(t for t in (np.uint8, np.uint16, np.uint32, np.uint64) if np.dtype(t).itemsize * 8 >= faces)
+    code = np.zeros(len(outside), bits)
+    for f in range(faces):
+        code |= outside[:, f].astype(bits) << bits(f)
+    corner = code[T]
+    bad = ~ok[T]
+    keep = ((corner[:, 0] & corner[:, 1] & corner[:, 2]) == 0) & ~(bad[:, 0] | bad[:, 1] | bad[:, 2])
+    return np.flatnonzero(keep)
+
+
+def _used_vertices(T, count: int):
+    """(the vertices that the triangles T use, in order; T numbered among them): what
+    np.unique(T, return_inverse=True) gives, by marking instead of sorting."""
+    used = np.zeros(count, bool)
+    used[T] = True
+    index = np.flatnonzero(used)
+    renumber = np.cumsum(used) - 1
+    return index, renumber[T]
+
+
+def _taken(a, kept):
+    """a[kept], or a itself where `kept` is all of its rows (kept is increasing)."""
+    return a if len(kept) == len(a) else a[kept]
 
 
 class _Surfaces:
@@ -79,9 +116,9 @@ class _Surfaces:
         self._add(index, obj, kept, lambda: _unit(_own_normals(obj, kept)))
 
     def _add(self, index, obj, kept, normals):
-        self.material.append(obj.surface_materials()[1][kept] + self.material_offset[index])
+        self.material.append(_taken(obj.surface_materials()[1], kept) + self.material_offset[index])
         if self.with_uvs:
-            self.uvs.append(obj.corner_uvs[kept] if obj.corner_uvs is not None else np.zeros((len(kept), 3, 2)))
+            self.uvs.append(_taken(obj.corner_uvs, kept) if obj.corner_uvs is not None else np.zeros((len(kept), 3, 2)))
         if self.with_normals:
             self.normals.append(normals())
 
@@ -92,7 +129,8 @@ class _Surfaces:
             return -1 if t is None else textures[id(t)]
 
         def stacked(parts, shape):
-            return np.ascontiguousarray(np.concatenate(parts) if parts else np.zeros((0, *shape)), np.float32)
+            whole = parts[0] if len(parts) == 1 else np.concatenate(parts) if parts else np.zeros((0, *shape))
+            return np.ascontiguousarray(whole, np.float32)
 
         out = dict(
             triangle_material=np.ascontiguousarray(
@@ -121,9 +159,9 @@ def _copy_normals(space: Space, obj, Y, kept, M):
     computed by the geometry's own differentials of the chart."""
     g = space.geometry
     x = obj.vertices
-    T = obj.triangles[kept]
+    T = _taken(obj.triangles, kept)
     n = _own_normals(obj, kept)
-    used, local = np.unique(T, return_inverse=True)
+    used, local = _used_vertices(T, len(x))
     # the differential's columns: the images of the chart's unit vectors at each used vertex
     J = np.stack(
         [
@@ -132,6 +170,10 @@ def _copy_normals(space: Space, obj, Y, kept, M):
         ],
         axis=-1,
     )
+    if np.array_equal(J, np.broadcast_to(np.eye(3), J.shape)):
+        return _unit(n)  # the copy's chart is the object's own (E3's home copy): normals stay
+    if np.all(J == J[:1]):  # one differential everywhere (an affine isometry): one solve
+        return _unit(np.linalg.solve(J[0].T, n.reshape(-1, 3).T).T.reshape(n.shape))
     Jt = np.swapaxes(J, 1, 2)[local.reshape(-1, 3)]  # (m, 3, 3, 3): J^T at each corner
     return _unit(np.linalg.solve(Jt, n[..., None])[..., 0])
 
@@ -140,8 +182,8 @@ def _own_normals(obj, kept):
     """The corner normals of the kept triangles, or for flat shading each face's chart normal at
     its corners."""
     if obj.corner_normals is not None:
-        return obj.corner_normals[kept]
-    P = obj.vertices[obj.triangles[kept]]
+        return _taken(obj.corner_normals, kept)
+    P = obj.vertices[_taken(obj.triangles, kept)]
     return np.repeat(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])[:, None, :], 3, axis=1)
 
 
@@ -280,7 +322,7 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
     surfaces = _Surfaces(scene.objects)
     offset = 0
     for index, source, Y, kept, M in flat:
-        used, local = np.unique(source.triangles[kept], return_inverse=True)
+        used, local = _used_vertices(_taken(source.triangles, kept), len(source.vertices))
         verts.append(g.mesh_to_chart(Y[used]))
         tris.append(local.reshape(-1, 3) + offset)
         owner.append(np.full(len(kept), index, np.int32))
@@ -306,7 +348,7 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
             instance_transform=np.ascontiguousarray(np.vstack([np.reshape(m, (-1, 4, 4)) for m in maps_of])[:, :3]),
             instance_object=np.array(object_of, np.int32),
         )
-    V = np.vstack(verts) if verts else np.zeros((0, 3))
+    V = verts[0] if len(verts) == 1 else np.vstack(verts) if verts else np.zeros((0, 3))
     T = np.vstack(tris).astype(np.int32) if tris else np.zeros((0, 3), np.int32)
     O = np.concatenate(owner) if owner else np.zeros(0, np.int32)
     colors = np.array([o.color for o in scene.objects], np.float32).reshape(-1, 3)

@@ -306,6 +306,9 @@ class Scene:
         self.camera = other.camera or self.camera
 
 
+BLOCK = 1 << 16  # triangles measured at once by clean
+
+
 def clean(obj: SceneObject, where: str) -> SceneObject:
     """Reject non-finite vertices, vertices beyond float32 (Embree's) and bad indices; drop
     degenerate triangles with a warning."""
@@ -322,7 +325,8 @@ def clean(obj: SceneObject, where: str) -> SceneObject:
     if len(T) and (T.min() < 0 or T.max() >= len(V)):
         raise SceneError(f"{where}: object {obj.name!r} has a triangle index out of range")
     if len(T):
-        keep = ~degenerate(V[T])
+        # in blocks: the measure's temporaries stay small (each triangle is measured alone)
+        keep = np.concatenate([~degenerate(V[T[i : i + BLOCK]]) for i in range(0, len(T), BLOCK)])
         if not keep.all():
             warnings.warn(
                 f"{where}: object {obj.name!r}: skipped {int((~keep).sum())} degenerate triangle(s)", stacklevel=2

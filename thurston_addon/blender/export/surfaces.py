@@ -41,26 +41,46 @@ def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
     nv, nt = len(mesh.vertices), len(mesh.loop_triangles)
     if nt == 0:
         return None
-    co = _get(mesh.vertices, "co", nv * 3, np.float64).reshape(-1, 3)
-    tri = _get(mesh.loop_triangles, "vertices", nt * 3, np.int32).reshape(-1, 3)
+    # Blender's attribute arrays (positions, corner vertices, UV maps, face materials) are copied
+    # by foreach_get at once; the triangles' corners come from loop_triangles, and every other
+    # per-triangle value is gathered through them (what loop_triangles' own properties compute
+    # one by one).
     loops = _get(mesh.loop_triangles, "loops", nt * 3, np.int32).reshape(-1, 3)
+    co = _attribute(mesh, "position", "POINT", "vector", nv * 3, np.float32)
+    if co is None:
+        co = _get(mesh.vertices, "co", nv * 3, np.float32)
+    corner_vert = _attribute(mesh, ".corner_vert", "CORNER", "value", len(mesh.loops), np.int32)
+    if corner_vert is None:
+        corner_vert = _get(mesh.loops, "vertex_index", len(mesh.loops), np.int32)
+    tri = corner_vert[loops]
     normals = None
-    if mesh.normals_domain != "FACE":  # all faces flat: the triangles' own normals, as Cycles uses
-        corner = _get(mesh.corner_normals, "vector", len(mesh.corner_normals) * 3, np.float64).reshape(-1, 3)
+    # as Cycles uses them: smooth everywhere (POINT), the vertex normals (what corner_normals
+    # holds then); all faces flat (FACE), none (the triangles' own normals)
+    if mesh.normals_domain == "POINT":
+        normals = _get(mesh.vertex_normals, "vector", nv * 3, np.float32).reshape(-1, 3)[tri]
+    elif mesh.normals_domain == "CORNER":
+        corner = _get(mesh.corner_normals, "vector", len(mesh.corner_normals) * 3, np.float32).reshape(-1, 3)
         normals = corner[loops]
     uvs = None
     layer = next((layer for layer in mesh.uv_layers if layer.active_render), None)
     if layer is not None:
-        uvs = _get(layer.data, "uv", len(layer.data) * 2, np.float64).reshape(-1, 2)[loops]
+        uv = _attribute(mesh, layer.name, "CORNER", "vector", len(mesh.loops) * 2, np.float32)
+        if uv is None:
+            uv = _get(layer.data, "uv", len(layer.data) * 2, np.float32)
+        uvs = uv.reshape(-1, 2)[loops]
     slots = [slot.material for slot in obj.material_slots]
     surfaces = [material_surface(m, original.name) for m in slots] or [material_surface(None, original.name)]
     materials = [m for m, _ in surfaces]
-    index = np.clip(_get(mesh.loop_triangles, "material_index", nt, np.int32), 0, len(materials) - 1)
+    face_material = _attribute(mesh, "material_index", "FACE", "value", len(mesh.polygons), np.int32)
+    if face_material is None:  # (no attribute: every face has the first slot)
+        index = np.zeros(nt, np.int32)
+    else:
+        index = np.clip(face_material[_get(mesh.loop_triangle_polygons, "value", nt, np.int32)], 0, len(materials) - 1)
     for k, (_, texture) in enumerate(surfaces):  # textures read through other coordinates or a Mapping
         mine = index == k
         if texture is None or not mine.any():
             continue
-        mapped = texture_uvs(texture, mesh, co, loops[mine])
+        mapped = texture_uvs(texture, mesh, co.reshape(-1, 3), loops[mine])
         if mapped is not None:
             uvs = np.zeros((nt, 3, 2)) if uvs is None else uvs
             uvs[mine] = mapped
@@ -69,7 +89,7 @@ def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
     return scenes.clean(
         scenes.SceneObject(
             name,
-            co / scale,
+            np.divide(co.reshape(-1, 3), scale, dtype=np.float64),
             tri,
             first.color,
             first.emission,
@@ -81,6 +101,15 @@ def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
         ),
         "Blender",
     )
+
+
+def _attribute(mesh, name, domain, value, count, dtype):
+    """A mesh attribute's values (foreach_get of `value`: count numbers) in a new array; None where
+    the mesh has no such attribute on that domain."""
+    attribute = mesh.attributes.get(name)
+    if attribute is None or attribute.domain != domain:
+        return None
+    return _get(attribute.data, value, count, dtype)
 
 
 def _get(collection, attribute, count, dtype):
