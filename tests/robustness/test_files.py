@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.outputs import PREVIOUS, error_line, fill, listing, stop, tmpfs
+from support.outputs import PREVIOUS, default_signals, error_line, fill, listing, stop, tmpfs
 
 from thurston_addon import files, images
 
@@ -251,6 +251,7 @@ def test_a_signal_stops_rays_that_never_end(tmp_path, space, signum):
         ],
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=default_signals,
     )
     line = run.stderr.readline()
     while not line.startswith(f"render {space} ["):  # tracing has begun (warnings come before)

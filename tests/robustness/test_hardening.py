@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import thurston_core
-from support.outputs import INTERNALS, error_line, fill, listing, stop, tmpfs
+from support.outputs import INTERNALS, default_signals, error_line, fill, listing, stop, tmpfs
 
 from thurston_addon import cli, files, render, scenes, spaces
 from thurston_addon.scenes import Camera, scene_file
@@ -655,6 +655,7 @@ def test_a_signal_stops_the_reduction_of_far_rays(tmp_path, signum):
         ],
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=default_signals,
     )
     assert "the scene files hold no objects" in run.stderr.readline()  # loaded: the rays come next
     time.sleep(1.0)

@@ -58,6 +58,15 @@ def listing(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir())
 
 
+def default_signals():
+    """A child's preexec_fn: SIGINT and SIGTERM as a terminal's command has them. A background job
+    of a shell without job control (a CI runner's, say) starts with SIGINT ignored, and a child
+    inherits that: the signal tests would then wait for a signal that never arrives."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, (signal.SIGINT, signal.SIGTERM))
+
+
 def stop(run: subprocess.Popen, signum: int) -> tuple[int, float, str]:
     """Sends the signal to the running `thurston` and waits for it: (exit status, seconds it took
     to end, its stderr); asserts it ended as a signal ends it, with its one last line."""
