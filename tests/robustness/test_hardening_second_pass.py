@@ -125,3 +125,22 @@ def test_render_blend_png_into_the_default_folder(tmp_path, registered_addon, mo
     )
     assert run.returncode == 0, run.stderr
     assert (work / "shot_0001.png").stat().st_size > 0
+
+
+def test_a_gltf_buffer_that_is_a_fifo_is_refused_not_read(tmp_path):
+    """A .gltf whose buffer is a named pipe: one error naming the buffer, at once (trimesh's reader
+    opened it and blocked for ever)."""
+    import json
+    import os
+
+    os.mkfifo(tmp_path / "buf.bin")
+    gltf = tmp_path / "mesh.gltf"
+    gltf.write_text(json.dumps({"asset": {"version": "2.0"}, "buffers": [{"uri": "buf.bin", "byteLength": 36}]}))
+    out = tmp_path / "out.png"
+    from support.blender_helpers import THURSTON
+
+    argv = [str(THURSTON), "render", "--space", "torus", "--scene", str(gltf), "--size", "8x6", "--out", str(out)]
+    run = subprocess.run(argv, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2, run.stderr
+    assert "buffer 0" in run.stderr and "FIFO" in run.stderr and str(tmp_path / "buf.bin") in run.stderr
+    assert not out.exists()

@@ -33,6 +33,12 @@ def gltf_parts(path: Path) -> tuple[dict, bytes]:
         raise SceneError(f"{path}: its JSON is not valid: {exc.msg} (line {exc.lineno}, column {exc.colno})") from None
     if not isinstance(header, dict):
         raise SceneError(f"{path}: the glTF JSON is not an object")
+    # the buffers trimesh's reader opens: regular files within the size limit (a FIFO would block it)
+    buffers = header.get("buffers", [])
+    for k, buffer in enumerate(buffers if isinstance(buffers, list) else []):
+        uri = buffer.get("uri") if isinstance(buffer, dict) else None
+        if isinstance(uri, str) and not uri.startswith("data:"):
+            check_input(path.parent / uri, f"{path}: buffer {k}", SceneError, "mesh file")
     return header, binary
 
 
