@@ -144,3 +144,28 @@ def test_a_gltf_buffer_that_is_a_fifo_is_refused_not_read(tmp_path):
     assert run.returncode == 2, run.stderr
     assert "buffer 0" in run.stderr and "FIFO" in run.stderr and str(tmp_path / "buf.bin") in run.stderr
     assert not out.exists()
+
+
+@pytest.mark.parametrize("space_id, copies", [("s2xs1", 14), ("rp3_rp3", 8)])
+def test_s2xr_light_copies_far_below_are_kept(space_id, copies):
+    """Every copy of the light within reach 40 of the domain, against an enumeration of the group's
+    elements by their own keys (a reach of 40 kept 7 of s2xs1's 14: the copies periods below were
+    keyed by model vectors crowded at the origin, and merged)."""
+    from thurston_addon import render
+
+    space = spaces.load(space_id)
+    g = space.geometry
+    L = g.normalize_point(g.to_model(np.array([space.camera.position], float)))[0]
+    steps = [*space.generators, *(np.linalg.inv(M) for M in space.generators)]
+    distance = lambda M: g.domain_distance(g.normalize_point((M @ L)[None]), space.domain)[0]  # noqa: E731
+    found, frontier = {g.element_key(np.eye(4)): np.eye(4)}, [np.eye(4)]
+    while frontier:  # breadth first, through the copies within 60 (the group is a line of periods)
+        fresh = {}
+        for N in (S @ M for M in frontier for S in steps):
+            if g.element_key(N) not in found and distance(N) <= 60:
+                fresh[g.element_key(N)] = N
+        found.update(fresh)
+        frontier = list(fresh.values())
+    within = {k for k, M in found.items() if distance(M) <= 40 + 1e-9}
+    kept = {g.element_key(M) for M in render.cover_copies(space, L, 40.0)}
+    assert len(within) == copies and kept == within

@@ -149,6 +149,12 @@ class Geometry(abc.ABC):
         """The exact isometry nearest the almost-isometry M (removes accumulated rounding)."""
 
     @abc.abstractmethod
+    def point_coordinates(self, X):
+        """Coordinates (rows) of model points X in which distinct points differ by more than a few
+        digits of rounding (the copies of a light are told apart by them): the direction of the
+        model vector, or what keeps a geometry's far copies apart where that does not."""
+
+    @abc.abstractmethod
     def element_key(self, M) -> tuple:
         """A hashable key that tells group elements apart (to rounding)."""
 

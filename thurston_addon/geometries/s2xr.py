@@ -192,6 +192,13 @@ class S2xR(AffineGeometry):
         U, _, Wt = np.linalg.svd(R)
         return self.similarity(U @ Wt, math.log(s))
 
+    def point_coordinates(self, X):
+        """The point of the sphere and w: the model's chart point e^w u has the copies a period
+        below it crowded about the origin, where its direction and length no longer part them."""
+        x = floats(X)[..., :3] / floats(X)[..., 3:4]
+        r = np.linalg.norm(x, axis=-1, keepdims=True)
+        return np.concatenate([x / r, np.log(r)], axis=-1)
+
     def element_key(self, M):
         """The rotation part and the dilation exponent c."""
         s, R = self._scale(M)

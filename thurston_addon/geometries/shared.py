@@ -44,6 +44,12 @@ class SharedGeometry(Geometry):
         Xt, Vt = self.geodesic(X, V, t)
         return self.to_chart(Xt), self.tangent_to_chart(Xt, Vt)
 
+    def point_coordinates(self, X):
+        """The model vector's direction (a point's model vectors may differ by a factor: projective
+        models), known to ~1e-16 of its size however far the point."""
+        X = floats(X)
+        return X / np.linalg.norm(X, axis=-1, keepdims=True)
+
     def distance_bound(self, A, B):
         """An upper bound of the distance between model points A and B (the length of some curve
         between them): the distance itself where it has a closed form."""

@@ -53,7 +53,7 @@ def cover_copies(space: Space, L, reach: float) -> np.ndarray:
     to D serves as well (the walk then passes more copies, and keeps more: the tracer drops those
     out of reach), and an upper bound of rho. Cached per light and reach."""
     cached = space.__dict__.setdefault("_cover_copies", {})  # the viewport renders one scene again and again
-    (light,) = _copy_keys(np.asarray(L, float)[None])
+    (light,) = _copy_keys(space.geometry, np.asarray(L, float)[None])
     if (light, reach) not in cached:
         if len(cached) >= COVER_COPIES_CACHED:
             cached.pop(next(iter(cached)))
@@ -61,10 +61,10 @@ def cover_copies(space: Space, L, reach: float) -> np.ndarray:
     return cached[light, reach]
 
 
-def _copy_keys(Y) -> list[tuple]:
-    """Keys of model points (rows): relative, as far copies have large model vectors, known to ~1e-16
-    of their size."""
-    return list(map(tuple, np.round(Y / np.linalg.norm(Y, axis=1)[:, None], 8).tolist()))
+def _copy_keys(g, Y) -> list[tuple]:
+    """Keys of model points (rows): their geometry's point_coordinates, in which distinct copies stay
+    apart (far copies have model vectors known to ~1e-16 of their size), rounded."""
+    return list(map(tuple, np.round(g.point_coordinates(Y), 8).tolist()))
 
 
 COVER_COPIES_CACHED = 64  # lights and reaches whose copies a space keeps
@@ -75,13 +75,13 @@ def _walk_cover_copies(space: Space, L, reach: float) -> np.ndarray:
     rho = space.farthest_distance(L)
     steps = np.array([f.element for f in space.domain.faces])
 
-    found = set(_copy_keys(np.asarray(L, float)[None]))
+    found = set(_copy_keys(g, np.asarray(L, float)[None]))
     kept = [np.eye(4)]
     frontier = np.eye(4)[None]
     while len(frontier):
         candidates = {}
         products = np.einsum("sij,njk->nsik", steps, frontier).reshape(-1, 4, 4)
-        for k, M in zip(_copy_keys(g.normalize_point(products @ L)), products):
+        for k, M in zip(_copy_keys(g, g.normalize_point(products @ L)), products):
             candidates.setdefault(k, M)
         fresh = [k for k in candidates if k not in found]
         new = np.array([candidates[k] for k in fresh]).reshape(-1, 4, 4)
@@ -97,8 +97,7 @@ def _walk_cover_copies(space: Space, L, reach: float) -> np.ndarray:
             )
     # a copy whose key rounded two ways would light twice: keep one of each point
     kept = np.array(kept)
-    Y = g.normalize_point(kept @ L)
-    Y = Y / np.linalg.norm(Y, axis=1)[:, None]
+    Y = g.point_coordinates(g.normalize_point(kept @ L))
     near = np.linalg.norm(Y[:, None] - Y[None], axis=2) < 1e-6
     return kept[~np.any(np.triu(near, 1), axis=0)]
 
