@@ -13,10 +13,11 @@ import textwrap
 import numpy as np
 import pytest
 import trimesh
+from support.textured_quad import texel_centres, textured_quad
 
 from thurston_addon import cli, render, spaces
 from thurston_addon.render import denoise as denoise_module
-from thurston_addon.scenes import Camera, Material, PointLight, Scene, SceneObject
+from thurston_addon.scenes import Camera, PointLight, Scene, SceneObject
 
 pytest.importorskip("pyoidn")
 
@@ -58,29 +59,13 @@ def test_albedo_of_a_texture_and_a_plain_material():
     """A quad at x = 0.2 facing the camera: triangle 0 has a 4x4 texture (texel centres sample the
     texel), triangle 1 a plain colour; the albedo is the texel's and the colour's, lit or not."""
     torus = spaces.load("torus")
-    rng = np.random.default_rng(3)
-    texels = rng.uniform(0.1, 1.0, (4, 4, 3)).astype(np.float32)
-    V = [[0.2, -0.1, -0.1], [0.2, 0.1, -0.1], [0.2, 0.1, 0.1], [0.2, -0.1, 0.1]]
-    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1.0]])
-    T = np.array([[0, 1, 2], [0, 2, 3]])
-    plain = Material([0.2, 0.5, 0.9], [0.05, 0.0, 0.0])
-    quad = SceneObject(
-        "quad",
-        V,
-        T,
-        corner_uvs=uv[T],
-        triangle_material=[0, 1],
-        materials=[Material([1, 1, 1], [0, 0, 0], texels), plain],
-    )
+    quad, texels, plain = textured_quad()
     scene = Scene(objects=[quad], lights=[PointLight(np.zeros(3), np.ones(3), 0.3)])
-    rows, cols = np.meshgrid(np.arange(4), np.arange(4), indexing="ij")
-    u, v = (cols + 0.5) / 4, 1 - (rows + 0.5) / 4
-    off = u != v
-    targets = np.stack([np.full(off.sum(), 0.2), -0.1 + 0.2 * u[off], -0.1 + 0.2 * v[off]], axis=1)
+    targets, rows, cols, textured = texel_centres()
     g = torus.geometry
     X = g.to_model(np.zeros((len(targets), 3)))
     D = g.normalize_tangent(X, g.tangent_to_model(np.zeros((len(targets), 3)), targets))
-    expected = np.where((u > v)[off][:, None], texels[rows[off], cols[off]], plain.color)
+    expected = np.where(textured[:, None], texels[rows, cols], plain.color)
     tracer = render.make_tracer(torus, scene, light_reach=0.5)
     for shade in (False, True):
         out = tracer.trace(X, D, 0.45, 20, shade=shade)

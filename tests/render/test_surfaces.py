@@ -11,6 +11,7 @@ import json
 import numpy as np
 import pytest
 import trimesh
+from support.textured_quad import texel_centres, textured_quad
 
 from thurston_addon import render, spaces
 from thurston_addon.scenes import Material, PointLight, Scene, SceneError, SceneObject, clean, load_mesh_file
@@ -87,33 +88,16 @@ def test_corner_normals_of_the_faces_shade_as_flat(torus):
 def test_texture_and_per_face_materials_in_the_lambert_closed_form(torus):
     """A quad at x = 0.2 facing the camera and the light at the origin: triangle 0 has a 4x4
     texture (texel centres sample the texel itself), triangle 1 a plain colour and an emission."""
-    rng = np.random.default_rng(3)
-    texels = rng.uniform(0.1, 1.0, (4, 4, 3)).astype(np.float32)
-    V = [[0.2, -0.1, -0.1], [0.2, 0.1, -0.1], [0.2, 0.1, 0.1], [0.2, -0.1, 0.1]]
-    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1.0]])
-    T = np.array([[0, 1, 2], [0, 2, 3]])
-    plain = Material([0.2, 0.5, 0.9], [0.05, 0.0, 0.0])
-    quad = SceneObject(
-        "quad",
-        V,
-        T,
-        corner_uvs=uv[T],
-        triangle_material=[0, 1],
-        materials=[Material([1, 1, 1], [0, 0, 0], texels), plain],
-    )
+    quad, texels, plain = textured_quad()
     power = 0.3
     scene = Scene(objects=[quad], lights=[PointLight(np.zeros(3), np.ones(3), power)])
-    rows, cols = np.meshgrid(np.arange(4), np.arange(4), indexing="ij")
-    u, v = (cols + 0.5) / 4, 1 - (rows + 0.5) / 4  # texel centres; row 0 is the top (v = 1)
-    off = u != v  # the diagonal between the triangles is ambiguous
-    targets = np.stack([np.full(off.sum(), 0.2), -0.1 + 0.2 * u[off], -0.1 + 0.2 * v[off]], axis=1)
+    targets, rows, cols, textured = texel_centres()
     out = trace(torus, scene, targets, shade=True, light_reach=0.5)  # the light's own copy only
     r = np.linalg.norm(targets, axis=1)
     lambert = power * (0.2 / r) / r**2  # cos / r^2 for a point light in E3
-    textured = (u > v)[off]  # below the diagonal: triangle 0
     expected = np.where(
         textured[:, None],
-        texels[rows[off], cols[off]] * lambert[:, None],
+        texels[rows, cols] * lambert[:, None],
         plain.color * lambert[:, None] + plain.emission,
     )
     np.testing.assert_allclose(out["color"], expected, rtol=1e-4)
