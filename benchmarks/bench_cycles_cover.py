@@ -60,22 +60,6 @@ from thurston_addon.scenes import default_scene  # noqa: E402
 
 
 # --- the scene, built in Blender -----------------------------------------------------------------
-def floor_under_lamp(size):
-    """tests/render/test_light.py's floor_under_lamp: a floor slab and two walls spanning the
-    domain's cross-sections, a lamp 0.65 above the floor, seen from above."""
-    sc = bh.fresh_scene("torus", size=size)
-    for name, box, location in (
-        ("Floor", (1.0, 1.0, 0.02), (0.0, 0.0, -0.26)),
-        ("Left", (0.02, 1.0, 1.0), (-0.4, 0.0, 0.0)),
-        ("Right", (0.02, 1.0, 1.0), (0.45, 0.0, 0.0)),
-    ):
-        bh.lambert(bh.box(name, box, location, color=(0.7, 0.7, 0.7)).active_material)
-    lamp = bh.point_light((0.05, 0.1, 0.39), energy=3.0)
-    lamp.data.shadow_soft_size = 0.0
-    bh.camera((0.0, -0.35, 0.15), rotation=(math.radians(55), 0, 0), lens=20)
-    return sc
-
-
 def torus_default(size):
     """The torus preset's default scene as Blender objects (scale 1): its meshes with Lambert
     materials of their colours, its point light (energy = power 4 pi^2, as export_light reads it)
@@ -307,7 +291,7 @@ def main():
 
     if not hasattr(bpy.types.Scene, "thurston"):
         thurston_addon.register()
-    sc = (floor_under_lamp if a.scene == "lamp" else torus_default)(size)
+    sc = (bh.floor_under_lamp if a.scene == "lamp" else torus_default)(size)
     sc.view_settings.view_transform = "Standard"
     print(
         f"# {datetime.datetime.now():%Y-%m-%d %H:%M}  bench_cycles_cover: scene {a.scene}, {size[0]}x{size[1]}, "

@@ -21,9 +21,6 @@ from support import blender_helpers as bh  # noqa: E402
 
 SIZE = (96, 54)
 LIGHT_REACH = 0.5
-CHECKER = np.array(
-    [[[0.9, 0.1, 0.1, 1], [0.1, 0.8, 0.2, 1]], [[0.2, 0.3, 0.9, 1], [0.9, 0.9, 0.2, 1]]], np.float32
-)  # linear, top row first
 
 
 def shader_material(name):
@@ -91,7 +88,7 @@ def build_materials():
     out["MixGlossy"] = to_output(mat, m.outputs[0]), False
     mat, nodes, tree = shader_material("Tiled")
     image = bpy.data.images.new("Checker", 2, 2, float_buffer=True)
-    image.pixels.foreach_set(np.ascontiguousarray(CHECKER[::-1]).ravel())
+    image.pixels.foreach_set(np.ascontiguousarray(bh.CHECKER[::-1]).ravel())
     tex = nodes.new("ShaderNodeTexImage")
     tex.image = image
     mapping = nodes.new("ShaderNodeMapping")

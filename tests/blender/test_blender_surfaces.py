@@ -20,9 +20,6 @@ from support import blender_helpers as bh  # noqa: E402
 SIZE = (64, 36)
 # The objects lie within 0.45 of the light and its other copies a cell (at least 0.55 from them) away.
 LIGHT_REACH = 0.5
-TEXELS = np.array(
-    [[[0.9, 0.1, 0.1, 1], [0.1, 0.8, 0.2, 1]], [[0.2, 0.3, 0.9, 1], [0.9, 0.9, 0.2, 1]]], np.float32
-)  # linear, top row first
 
 
 def build():
@@ -38,7 +35,7 @@ def build():
     bpy.ops.mesh.primitive_plane_add(size=0.26, location=(0.17, 0.3, 0.02), rotation=(math.pi / 2, 0, 0))
     plane = bpy.context.object
     plane.name, plane.pass_index = "Plane", 2
-    mat, _ = bh.image_texture_material("Checker", TEXELS)
+    mat, _ = bh.image_texture_material("Checker", bh.CHECKER)
     plane.data.materials.append(mat)
     box = bh.box("Box", (0.5, 0.1, 0.04), (0.0, 0.3, -0.06), color=(0.8, 0.2, 0.2))
     box.pass_index = 3

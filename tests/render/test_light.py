@@ -136,28 +136,6 @@ def test_bad_light_reach_is_one_clear_error(reach):
 CYCLES_CELLS, CYCLES_REACH = 7, 3.5
 
 
-def floor_under_lamp():
-    """A floor slab and two walls spanning the domain's cross-sections (in the cover: a corridor
-    along y, repeated), a lamp 0.65 above the floor in plain view, seen from above. Nearest-copy
-    lighting left the floor black: the lamp's nearest copy to it lies below it. What lights a point
-    of the corridor: the lamp's copies along it, one per cell, 0.65 / r^3 falling off."""
-    from support import blender_helpers as bh
-
-    sc = bh.fresh_scene("torus", size=(48, 27))
-    sc.view_settings.view_transform = "Standard"
-    sc.thurston.quality = "standard"
-    for name, size, location in (
-        ("Floor", (1.0, 1.0, 0.02), (0.0, 0.0, -0.26)),
-        ("Left", (0.02, 1.0, 1.0), (-0.4, 0.0, 0.0)),
-        ("Right", (0.02, 1.0, 1.0), (0.45, 0.0, 0.0)),
-    ):
-        bh.lambert(bh.box(name, size, location, color=(0.7, 0.7, 0.7)).active_material)
-    lamp = bh.point_light((0.05, 0.1, 0.39), energy=3.0)
-    lamp.data.shadow_soft_size = 0.0
-    bh.camera((0.0, -0.35, 0.15), rotation=(math.radians(55), 0, 0), lens=20)
-    return sc
-
-
 def test_floor_under_the_lamp_matches_cycles_in_the_tiled_cover(tmp_path, registered_addon):
     """The floor is lit, and pixel by pixel as Cycles renders the scene tiled 7x7x7 in the universal
     cover (direct light only, all 343 lamps lighting everything): the points of the central cell
@@ -167,7 +145,7 @@ def test_floor_under_the_lamp_matches_cycles_in_the_tiled_cover(tmp_path, regist
     point, 32 samples) matches too."""
     from support import blender_helpers as bh
 
-    sc = floor_under_lamp()
+    sc = bh.floor_under_lamp()
     sc.view_layers[0].thurston.use_pass_crossings = True
     L = "ViewLayer."
     sc.thurston.light_reach = CYCLES_REACH

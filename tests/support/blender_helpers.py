@@ -275,6 +275,30 @@ def image_texture_material(name, pixels):
     return mat, image
 
 
+# A 2x2 linear RGBA checker, top row first (the surface tests' texture).
+CHECKER = np.array([[[0.9, 0.1, 0.1, 1], [0.1, 0.8, 0.2, 1]], [[0.2, 0.3, 0.9, 1], [0.9, 0.9, 0.2, 1]]], np.float32)
+
+
+def floor_under_lamp(size=(48, 27)):
+    """A floor slab and two walls spanning the torus's cross-sections (in the cover: a corridor along
+    y, repeated), a lamp 0.65 above the floor in plain view, seen from above; Standard view
+    transform, standard quality. What lights a point of the corridor: the lamp's copies along it,
+    one per cell (nearest-copy lighting left the floor black: the lamp's nearest copy lies below it)."""
+    sc = fresh_scene("torus", size=size)
+    sc.view_settings.view_transform = "Standard"
+    sc.thurston.quality = "standard"
+    for name, box_size, location in (
+        ("Floor", (1.0, 1.0, 0.02), (0.0, 0.0, -0.26)),
+        ("Left", (0.02, 1.0, 1.0), (-0.4, 0.0, 0.0)),
+        ("Right", (0.02, 1.0, 1.0), (0.45, 0.0, 0.0)),
+    ):
+        lambert(box(name, box_size, location, color=(0.7, 0.7, 0.7)).active_material)
+    lamp = point_light((0.05, 0.1, 0.39), energy=3.0)
+    lamp.data.shadow_soft_size = 0.0
+    camera((0.0, -0.35, 0.15), rotation=(math.radians(55), 0, 0), lens=20)
+    return sc
+
+
 def tile_torus_for_cycles(scene, cells=7, own_cell_light=False):
     """The torus [-0.5, 0.5]^3 unrolled for Cycles: the cells^3 translated copies of every mesh and
     light (linked duplicates, cells odd), every light copy lighting everything, as in the universal
