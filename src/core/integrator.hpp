@@ -148,15 +148,15 @@ inline typename KernelTracer<Kernel>::Reflected KernelTracer<Kernel>::illuminati
       const double cosine = kernel_.dot(H, v.S, path.direction);
       if (!(cosine > 0.0) || !(weight > 0.0) || (v.opaque && path.distance > geodesic_loop_))
         continue;
-      add_candidate(v, path, radiance, cosine * weight, 0.0, false,
-                    learn ? visibility_slot(light_slots_[l], path.lift, buffers.arcs) : -1,
-                    buffers);
+      candidates.push_back(
+          {path, &radiance, cosine * weight, 0.0, 0.0, false,
+           learn ? visibility_slot(light_slots_[l], path.lift, buffers.arcs) : -1});
     }
   }
   if (!emitters_.triangles.empty() && options.emitter_sampling != EmitterSampling::kBounces)
     for (int s = 0; s < options.light_samples; ++s)
       sample_emitters(v, options, stats, buffers, random);
-  choose_light_paths(buffers, options.light_budget, random);
+  choose_light_paths(v, buffers, options.light_budget, random);
   Reflected sum;
   for (const Candidate& c : candidates) {
     if (!(c.weight > 0.0)) continue;
@@ -185,26 +185,9 @@ inline typename KernelTracer<Kernel>::Reflected KernelTracer<Kernel>::illuminati
   return sum;
 }
 
-// A geodesic to a light, facing the vertex, as a candidate for a shadow walk: its strength is the
-// mean over RGB of the colour it adds unshadowed (the BSDF's diffuse part and its specular part).
-template <class Kernel>
-inline void KernelTracer<Kernel>::add_candidate(const Vertex& v, const LightPath& path,
-                                                const Rgb& radiance, double term,
-                                                double sample_density, bool emitter,
-                                                std::int32_t slot, LightBuffers& buffers) const {
-  const Rgb albedo = diffuse_albedo(v);
-  double strength = 0.0;
-  for (int a = 0; a < 3; ++a) strength += double(albedo[a]) * radiance[a];
-  if (v.bsdf) {
-    const Color f = v.bsdf->specular(local(v.X, v.frame, path.direction));
-    for (int a = 0; a < 3; ++a) strength += kPi * f[a] * radiance[a];
-  }
-  buffers.candidates.push_back(
-      {path, &radiance, term, term * strength / 3.0, sample_density, emitter, slot});
-}
-
 // Picks the candidates whose shadow walks are traced, with at most `budget` walks (0: all of
-// them, each of weight 1: the exact sum). A candidate's weight for the choice is its strength
+// them, each of weight 1: the exact sum). A candidate's weight for the choice is its strength (the
+// mean over RGB of the colour it adds unshadowed: the BSDF's diffuse part and its specular part)
 // times the visibility its slot has learnt (at least kLeastVisibility; 1 without a slot). Each is
 // traced with probability q = min(1, budget' weight / rest): the strongest always (q = 1; budget'
 // and rest are what is left of the budget and of the weights after them), the others by one comb
@@ -213,15 +196,23 @@ inline void KernelTracer<Kernel>::add_candidate(const Vertex& v, const LightPath
 // is weighted by 1 / q, so that the sum stays unbiased (q depends on earlier pixels' walks, never
 // on its own); a candidate of strength 0 adds nothing and is never traced.
 template <class Kernel>
-inline void KernelTracer<Kernel>::choose_light_paths(LightBuffers& buffers, int budget,
-                                                     Random& random) {
+inline void KernelTracer<Kernel>::choose_light_paths(const Vertex& v, LightBuffers& buffers,
+                                                     int budget, Random& random) const {
   std::vector<Candidate>& candidates = buffers.candidates;
   if (budget <= 0 || candidates.size() <= std::size_t(budget)) return;
   std::vector<std::uint32_t>& order = buffers.order;
   order.resize(candidates.size());
+  const Rgb albedo = diffuse_albedo(v);
   double rest = 0.0;
   for (std::uint32_t i = 0; i < order.size(); ++i) {
     Candidate& c = candidates[i];
+    double colour = 0.0;
+    for (int a = 0; a < 3; ++a) colour += double(albedo[a]) * (*c.radiance)[a];
+    if (v.bsdf) {
+      const Color f = v.bsdf->specular(local(v.X, v.frame, c.path.direction));
+      for (int a = 0; a < 3; ++a) colour += kPi * f[a] * (*c.radiance)[a];
+    }
+    c.strength = c.term * colour / 3.0;
     if (c.slot >= 0) c.strength *= std::max(buffers.visible[std::size_t(c.slot)], kLeastVisibility);
     order[i] = i;
     rest += c.strength;
@@ -348,11 +339,11 @@ inline void KernelTracer<Kernel>::sample_emitters(const Vertex& v, const TraceOp
     const double cosine = kernel_.dot(H, v.S, path.direction);
     if (!(cosine > 0.0) || !(emitted > 0.0) || (v.opaque && path.distance > geodesic_loop_))
       continue;
-    add_candidate(
-        v, path, radiance, cosine * emitted * weight,
-        weighed ? emitter_density(area_density, emitted, path, options) : 0.0, true,
-        learn ? visibility_slot(emitter_slots_[emitters_.group[t]], path.lift, buffers.arcs) : -1,
-        buffers);
+    buffers.candidates.push_back(
+        {path, &radiance, cosine * emitted * weight, 0.0,
+         weighed ? emitter_density(area_density, emitted, path, options) : 0.0, true,
+         learn ? visibility_slot(emitter_slots_[emitters_.group[t]], path.lift, buffers.arcs)
+               : -1});
   }
 }
 

@@ -72,9 +72,10 @@ class KernelTracer final : public Tracer {
   // One geodesic from a shaded point to a light (a point light's copy, or a copy of a point
   // sampled on the emitters) before its shadow walk: `term`, what it brings unshadowed but for the
   // BSDF and the radiance (cos falloff fog, times the cone, or cos' over the sampling density);
-  // `strength`, its unshadowed share of the colour (the selection's weight); the emitters' samples'
-  // density along it where a bounce may meet the same point (MIS; 0: not weighed); `weight`, set by
-  // choose_light_paths: 1 / the probability that it is traced (0: not traced).
+  // the emitters' samples' density along it where a bounce may meet the same point (MIS; 0: not
+  // weighed); set by choose_light_paths where it samples: `strength`, its unshadowed share of the
+  // colour (the selection's weight), and `weight`, 1 / the probability that it is traced (0: not
+  // traced; 1 in the exact sum).
   struct Candidate {
     LightPath path;
     const Rgb* radiance;
@@ -427,10 +428,7 @@ class KernelTracer final : public Tracer {
 
   void sample_emitters(const Vertex& v, const TraceOptions& options, TraceStats& stats,
                        LightBuffers& buffers, Random& random) const;
-  void add_candidate(const Vertex& v, const LightPath& path, const Rgb& radiance, double term,
-                     double sample_density, bool emitter, std::int32_t slot,
-                     LightBuffers& buffers) const;
-  static void choose_light_paths(LightBuffers& buffers, int budget, Random& random);
+  void choose_light_paths(const Vertex& v, LightBuffers& buffers, int budget, Random& random) const;
 
   double emission_weight(const Vertex& v, const Vec4& V, double density, double length,
                          const Found& f, const Surface& s, const TraceOptions& options,
