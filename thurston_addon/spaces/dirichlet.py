@@ -139,9 +139,10 @@ class DirichletSpace(Space):
         seen, kept = set(), []
         for name, M in given:
             R = g.reorthonormalize(M)
-            if g.element_key(R) in seen or g.element_key(np.linalg.inv(R)) in seen:
+            key = g.element_key(R)
+            if key in seen or g.element_key(np.linalg.inv(R)) in seen:
                 continue
-            seen.add(g.element_key(R))
+            seen.add(key)
             kept.append((name, M))
         return kept
 
