@@ -105,9 +105,12 @@ def _load_world(args):
 
 
 def cmd_render(args):
-    out = files.check_output(args.out, args.overwrite)
-    if out.suffix.lower() not in (".exr", ".png", ".jpg", ".jpeg", ".tif", ".tiff"):
-        raise CommandError(f"output {str(out)!r}: use .exr (all passes) or .png/.jpg/.tif (colour)")
+    stereo = _stereo(args)
+    layout = None if stereo is None else stereo.layout or render.PROJECTIONS[args.projection].stereo_layout
+    outs = [files.check_output(path, args.overwrite) for path in view_paths(args.out, layout)]
+    for out in outs:
+        if out.suffix.lower() not in (".exr", ".png", ".jpg", ".jpeg", ".tif", ".tiff"):
+            raise CommandError(f"output {str(out)!r}: use .exr (all passes) or .png/.jpg/.tif (colour)")
     space, scene = _load_world(args)
     cam = scene.camera or scenes.Camera(space.camera.position, space.camera.forward, space.camera.up, space.camera.fov)
     given = {"position": args.camera_position, "forward": args.camera_forward, "up": args.camera_up, "fov": args.fov}
@@ -133,22 +136,83 @@ def cmd_render(args):
         min_samples=args.min_samples,
         time_limit=args.time_limit,
         denoise=args.denoise,
+        stereo=stereo,
     )
     lambert = settings.shading == "lambert"
     render.camera_frame(space, camera)  # a camera that cannot be used is refused before the notes on it
     for note in checks.before_render(space, scene, camera, lambert):
         warnings.warn(note.message)
-    result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
-    for note in checks.after_render(scene, result.passes, lambert):
-        warnings.warn(note.message)
-    images.write(
-        out,
-        result.passes,
-        names=args.passes,
-        overwrite=args.overwrite,
-        metadata={"space": space.id, "quality": args.quality, "summary": result.summary()},
+    progress = Progress(f"render {space.id}")
+    if stereo is None:
+        results = [render.render(space, scene, settings, camera=camera, progress=progress)]
+    else:
+        results = render.render_eyes(space, scene, settings, camera=camera, progress=progress)
+    for result in results:
+        for note in checks.after_render(scene, result.passes, lambert):
+            warnings.warn(note.message)
+    summary = "; ".join(
+        (f"{eye} eye: " if stereo else "") + result.summary() for eye, result in zip(render.EYES, results)
     )
-    print(f"{out}: {w}x{h} {space.id}; {result.summary()}")
+    views = [r.passes for r in results] if layout in (None, "separate") else [render.side_by_side(*results, layout)]
+    omni = render.PROJECTIONS[args.projection].omni_stereo
+    for out, passes in zip(outs, views):
+        images.write(
+            out,
+            passes,
+            names=args.passes,
+            overwrite=args.overwrite,
+            metadata={"space": space.id, "quality": args.quality, "summary": summary}
+            | ({} if stereo is None else {"stereo": f"{layout}; {stereo}"}),
+            xmp=images.panorama_xmp(w, h, None if layout == "separate" else layout) if omni else None,
+        )
+        if stereo is None:
+            print(f"{out}: {w}x{h} {space.id}; {summary}")
+        else:
+            print(f"{out}: {w}x{h} per eye, {layout}, {space.id}")
+    if stereo is not None:
+        print(summary)
+
+
+def view_paths(out: str, layout: str | None) -> list[str]:
+    """The output files of a render: OUT, or for stereo views as two files OUT_L and OUT_R (Blender's
+    Individual views format and its view suffixes)."""
+    if layout != "separate":
+        return [out]
+    path = Path(out)
+    return [str(path.with_name(f"{path.stem}{suffix}{path.suffix}")) for suffix in ("_L", "_R")]
+
+
+def _stereo(args) -> render.Stereo | None:
+    """The stereo settings the arguments ask for; None without --stereo (CommandError where a stereo
+    option is given without it)."""
+    given = [
+        name
+        for name in ("interocular", "convergence", "stereo_mode", "stereo_layout", "pole_merge")
+        if getattr(args, name) is not None
+    ]
+    if not args.stereo:
+        if given:
+            raise CommandError(f"--{given[0].replace('_', '-')} needs --stereo")
+        return None
+    defaults = render.Stereo()
+    return render.Stereo(
+        interocular=defaults.interocular if args.interocular is None else args.interocular,
+        convergence=defaults.convergence if args.convergence is None else args.convergence,
+        mode=args.stereo_mode or defaults.mode,
+        layout=args.stereo_layout,
+        pole_merge=defaults.pole_merge if args.pole_merge is None else args.pole_merge or None,
+    )
+
+
+def _pole_merge(text: str):
+    """FROM,TO in degrees, or off."""
+    if text == "off":
+        return ()
+    try:
+        start, end = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected FROM,TO in degrees or off, got {text!r}") from None
+    return start, end
 
 
 def read_rays(path, space) -> tuple[np.ndarray, np.ndarray]:
@@ -354,7 +418,31 @@ def build_parser():
         help="bounces after each camera hit: global illumination by path tracing, any quality "
         "(default 0: direct light only)",
     )
-    r.add_argument("--out", required=True, metavar="FILE")
+    st = r.add_argument_group("stereo", "two eyes, as Blender's Stereoscopy places them (docs/command-line.md)")
+    st.add_argument(
+        "--stereo",
+        action="store_true",
+        help="render a left and a right view: each eye half the interocular distance from the camera along "
+        "the geodesic to its right, its frame carried by parallel transport; panoramas: omni-directional stereo",
+    )
+    st.add_argument("--interocular", type=float, help="distance between the eyes, chart units (default 0.065)")
+    st.add_argument(
+        "--convergence", type=float, help="distance at which the eyes' views agree, chart units (default 1.95)"
+    )
+    st.add_argument("--stereo-mode", choices=render.STEREO_MODES, help="Blender's convergence mode (default off-axis)")
+    st.add_argument(
+        "--stereo-layout",
+        choices=render.STEREO_LAYOUTS,
+        help="the two views side by side (left first) or top-bottom (left on top) in one image, or as OUT_L and "
+        "OUT_R (default: side-by-side; top-bottom for panoramas)",
+    )
+    st.add_argument(
+        "--pole-merge",
+        type=_pole_merge,
+        metavar="FROM,TO",
+        help="panoramas: fade the eye offset to 0 between these altitudes, degrees, or off (default 60,75)",
+    )
+    r.add_argument("--out", required=True, metavar="FILE", help="the image (stereo as two files: FILE_L and FILE_R)")
     r.set_defaults(run=cmd_render)
 
     t = sub.add_parser("trace", help="batch ray queries: RAYS.npy (N,6) float64 -> HITS.npz")

@@ -13,6 +13,47 @@ import numpy as np
 from .files import OutputError, check_memory, replacing
 from .passes import CHANNELS
 
+XMP_KEY = "XML:com.adobe.xmp"
+# Google's Spherical Video metadata (RFC v1) names a panorama's stereo layout: its values by ours
+STEREO_MODES = {None: "mono", "top-bottom": "top-bottom", "side-by-side": "left-right"}
+
+
+def panorama_xmp(width: int, height: int, layout: str | None = None) -> str:
+    """The XMP packet that marks an equirectangular panorama of one eye's width x height as such:
+    Google's Photo Sphere (GPano) properties, which panorama viewers read, and the stereo layout of
+    the two eyes in the image (layout: top-bottom or side-by-side; None: mono) as the Spherical
+    Video metadata's StereoMode (GSpherical), which headset players read."""
+    gpano = {
+        "ProjectionType": "equirectangular",
+        "UsePanoramaViewer": "True",
+        "StitchingSoftware": "Thurston",
+        "FullPanoWidthPixels": width,
+        "FullPanoHeightPixels": height,
+        "CroppedAreaImageWidthPixels": width,
+        "CroppedAreaImageHeightPixels": height,
+        "CroppedAreaLeftPixels": 0,
+        "CroppedAreaTopPixels": 0,
+    }
+    gspherical = {
+        "Spherical": "true",
+        "Stitched": "true",
+        "ProjectionType": "equirectangular",
+        "StereoMode": STEREO_MODES[layout],
+    }
+    properties = "".join(f'\n    GPano:{k}="{v}"' for k, v in gpano.items()) + "".join(
+        f'\n    GSpherical:{k}="{v}"' for k, v in gspherical.items()
+    )
+    return (
+        '<x:xmpmeta xmlns:x="adobe:ns:meta/">\n'
+        ' <rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">\n'
+        '  <rdf:Description rdf:about=""\n'
+        '    xmlns:GPano="http://ns.google.com/photos/1.0/panorama/"\n'
+        '    xmlns:GSpherical="http://ns.google.com/videos/1.0/spherical/"'
+        f"{properties}/>\n"
+        " </rdf:RDF>\n"
+        "</x:xmpmeta>"
+    )
+
 
 def linear_to_srgb(c):
     c = np.clip(np.nan_to_num(c), 0.0, 1.0)
@@ -61,10 +102,12 @@ def write(
     metadata: dict | None = None,
     overwrite: bool = False,
     to_replace: str = "pass --overwrite",
+    xmp: str | None = None,
 ) -> Path:
     """EXR: every pass in `names` (default all) as float channels, linear; other formats: the
-    colour pass, sRGB-encoded, 8 bit. Whole or not at all (files.replacing): an existing file is
-    replaced only if `overwrite`. Raises OutputError naming `path` where it cannot be written."""
+    colour pass, sRGB-encoded, 8 bit. `xmp`: an XMP packet to embed (panorama_xmp). Whole or not at
+    all (files.replacing): an existing file is replaced only if `overwrite`. Raises OutputError
+    naming `path` where it cannot be written."""
     import OpenImageIO as oiio
 
     path = Path(path)
@@ -89,6 +132,9 @@ def write(
     spec.attribute("tiff:write_exif", 0)  # an empty Exif directory fails in libtiff (a spurious error)
     for k, v in (metadata or {}).items():
         spec.attribute(f"thurston:{k}", str(v))
+    if xmp is not None:
+        # XMP's keyword in PNG (Adobe's XMP specification, part 3), and the same named attribute in EXR
+        spec.attribute(XMP_KEY, xmp)
     data = _encode(path, spec, pixels)
     with replacing(path, overwrite, to_replace) as tmp:
         tmp.write_bytes(data)

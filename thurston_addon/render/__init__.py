@@ -8,10 +8,11 @@ from ..passes import PASSES, SHADING, STOP_REASONS
 from .camera import camera_frame, camera_rays, clip_range, view_directions
 from .compilation import compile_scene, geodesic_loop, own_hits
 from .lights import LIGHT_TILE_LIMIT, cover_copies, default_light_reach, light_copies, light_reach_for, light_tiles
-from .loop import CENTRE, render, sample_offsets
+from .loop import CENTRE, render, render_eyes, sample_offsets
 from .projections import PROJECTIONS
 from .settings import (
     BYTES_PER_PIXEL,
+    EYES,
     MAX_BOUNCES,
     MAX_THREADS,
     MIN_TOLERANCE,
@@ -19,19 +20,24 @@ from .settings import (
     PATH_TRACED_LIGHT_PATHS,
     QUALITY,
     REFERENCE_PIXEL_ANGLE,
+    STEREO_LAYOUTS,
+    STEREO_MODES,
     Cancelled,
     Quality,
     RenderError,
     Settings,
+    Stereo,
     footprint,
     memory_needed,
 )
 from .statistics import Result, noise_of, pixel_errors, pixel_noise
+from .stereo import layout_of, side_by_side
 from .tracer import core_scene, make_tracer, trace
 
 __all__ = [
     "BYTES_PER_PIXEL",
     "CENTRE",
+    "EYES",
     "Cancelled",
     "LIGHT_TILE_LIMIT",
     "MAX_BOUNCES",
@@ -47,8 +53,11 @@ __all__ = [
     "RenderError",
     "Result",
     "SHADING",
+    "STEREO_LAYOUTS",
+    "STEREO_MODES",
     "STOP_REASONS",
     "Settings",
+    "Stereo",
     "camera_frame",
     "camera_rays",
     "clip_range",
@@ -68,6 +77,9 @@ __all__ = [
     "pixel_errors",
     "pixel_noise",
     "render",
+    "render_eyes",
+    "layout_of",
+    "side_by_side",
     "sample_offsets",
     "trace",
     "view_directions",

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from ..geometries.frames import orthonormalize
 from ..scenes import Camera
 from ..spaces import Space, SpaceError
 from .projections import PROJECTIONS
@@ -36,13 +37,7 @@ def camera_frame(space: Space, camera: Camera):
         X, _, M = space.bring_inside(space.to_model(p[None], label=None)[0])
     except SpaceError as exc:
         raise RenderError(f"camera: {exc}") from None
-    basis = []
-    for v in frame:
-        v = M @ v
-        for b in basis:
-            v = v - g.dot(X, v, b) * b
-        basis.append(g.normalize_tangent(X, v))
-    return X, basis
+    return X, list(orthonormalize(g, X, np.stack([M @ v for v in frame])))
 
 
 def view_directions(camera: Camera, settings: Settings, jitter=(0.5, 0.5)):
@@ -56,16 +51,20 @@ def view_directions(camera: Camera, settings: Settings, jitter=(0.5, 0.5)):
     return PROJECTIONS[settings.projection].directions(camera, j, i, W, H)
 
 
-def camera_rays(space: Space, camera: Camera, settings: Settings, jitter=(0.5, 0.5), frame=None, view=None):
+def camera_rays(space: Space, camera: Camera, settings: Settings, jitter=(0.5, 0.5), frame=None, view=None, eyes=None):
     """Origins and unit directions (model) for every pixel of the window, rows top-down. `frame`:
     the result of camera_frame(space, camera), computed once per render and passed in for every
-    sample; `view`: view_directions(camera, settings, jitter), where the caller has it. Rays start
-    at their clip start (clip_range) along their geodesics, moved into the domain."""
+    sample; `view`: view_directions(camera, settings, jitter), where the caller has it; `eyes`: an
+    omni-directional stereo view's eyes (stereo.OmniEyes), one per pixel. Rays start at their clip
+    start (clip_range) along their geodesics, moved into the domain."""
     g = space.geometry
     X, (f, r, u) = frame if frame is not None else camera_frame(space, camera)
     a, b, c = view if view is not None else view_directions(camera, settings, jitter)
-    D = np.ascontiguousarray((a[..., None] * f + b[..., None] * r + c[..., None] * u).reshape(-1, 4))
-    origins = np.broadcast_to(X, (len(D), 4)).copy()
+    if eyes is not None:
+        origins, D = eyes.rays(a, b, c)
+    else:
+        D = np.ascontiguousarray((a[..., None] * f + b[..., None] * r + c[..., None] * u).reshape(-1, 4))
+        origins = np.broadcast_to(X, (len(D), 4)).copy()
     if camera.clip_start > 0:
         origins, D = g.geodesic(origins, D, clip_range(camera, settings, a, math.inf)[0])
         origins, D, _ = space.move_inside(origins, D)

@@ -3,6 +3,7 @@ with the render's statistics."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -16,7 +17,7 @@ from .compilation import own_hits
 from .denoise import denoise
 from .lights import light_reach_for
 from .projections import PROJECTIONS
-from .settings import Cancelled, RenderError, Settings, memory_needed
+from .settings import EYES, Cancelled, RenderError, Settings, memory_needed
 from .statistics import (
     Result,
     accuracy_bound,
@@ -28,6 +29,7 @@ from .statistics import (
     pixel_noise,
     retrace_error,
 )
+from .stereo import eye_view
 from .tracer import make_tracer, trace
 
 
@@ -139,6 +141,9 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     max_crossings = space.max_crossings if settings.max_crossings is None else settings.max_crossings
     t0 = time.perf_counter()
     frame = camera_frame(space, camera)  # once: bring_inside and the re-orthonormalised frame
+    eyes = None  # an omni-directional stereo eye's per-pixel eyes
+    if settings.eye is not None:
+        camera, frame, eyes = eye_view(space, camera, settings, frame)
     tracer = tracer or make_tracer(space, scene, settings.threads, light_reach_for(space, settings))
     offsets = sample_offsets(settings.samples_per_pixel)
     W = settings.width
@@ -170,7 +175,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     light_energy = 0.0
     for k, (jitter, shaded, colour) in enumerate(jobs):
         view = view_directions(camera, settings, jitter)
-        origins, directions = camera_rays(space, camera, settings, jitter, frame=frame, view=view)
+        origins, directions = camera_rays(space, camera, settings, jitter, frame=frame, view=view, eyes=eyes)
         # every ray is traced from its clip start, as far as this sample's farthest clip end needs
         start, end = clip_range(camera, settings, view[0], reach)
         limits = (float(np.max(end - start)), max_crossings, *tolerances)
@@ -326,3 +331,26 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},
     }
     return Result(passes, stats, taken.reshape(h, w))
+
+
+def render_eyes(space: Space, scene: Scene, settings: Settings, camera=None, progress=None, tracer=None):
+    """The left and right views (Results) of a stereo render, traced by one tracer; progress(done,
+    total) counts both."""
+    tracer = tracer or make_tracer(space, scene, settings.threads, light_reach_for(space, settings))
+    results = []
+    for k, eye in enumerate(EYES):
+
+        def report(done, total, k=k):
+            return progress(k * total + done, 2 * total)
+
+        results.append(
+            render(
+                space,
+                scene,
+                dataclasses.replace(settings, eye=eye),
+                camera,
+                progress=None if progress is None else report,
+                tracer=tracer,
+            )
+        )
+    return tuple(results)

@@ -19,6 +19,10 @@ class Projection:
     width_angle: Callable  # camera -> the angle the image's width spans, radians
     # clipping by planes square to the view axis (Blender's cameras); else by spheres (panoramas)
     planar_clip: bool
+    # stereo: omni-directional (each column's own eye on a circle about the camera: panoramas),
+    # else two eyes of one frame each; and the layout of the two views where none is asked for
+    omni_stereo: bool
+    stereo_layout: str
 
 
 def _perspective(camera, j, i, W, H):
@@ -46,7 +50,21 @@ def _equirect(camera, j, i, W, H):
 PROJECTIONS = {
     p.name: p
     for p in (
-        Projection("perspective", _perspective, lambda camera: math.radians(camera.fov), planar_clip=True),
-        Projection("equirect", _equirect, lambda camera: 2 * math.pi, planar_clip=False),
+        Projection(
+            "perspective",
+            _perspective,
+            lambda camera: math.radians(camera.fov),
+            planar_clip=True,
+            omni_stereo=False,
+            stereo_layout="side-by-side",
+        ),
+        Projection(
+            "equirect",
+            _equirect,
+            lambda camera: 2 * math.pi,
+            planar_clip=False,
+            omni_stereo=True,
+            stereo_layout="top-bottom",
+        ),
     )
 }

@@ -79,6 +79,47 @@ class Cancelled(RuntimeError):
     pass
 
 
+# Blender's stereo convergence modes (Camera > Stereoscopy), its view layouts (Output > Views
+# Format: two files, or Stereo 3D side by side / top-bottom) and its eyes
+STEREO_MODES = ("off-axis", "parallel", "toe-in")
+STEREO_LAYOUTS = ("side-by-side", "top-bottom", "separate")
+EYES = ("left", "right")
+
+
+@dataclass(frozen=True)
+class Stereo:
+    """Two eyes, as Blender's Stereoscopy places them: each offset from the camera by half the
+    interocular distance (chart units; Blender's 0.065 and 1.95 are its defaults in metres) along
+    the geodesic in the camera's right direction. Perspective: off-axis (parallel eyes, lenses
+    shifted so the views agree at the convergence distance), parallel, or toe-in (eyes turned to
+    the point at the convergence distance). Panoramas: omni-directional stereo, each column's eye on
+    the circle about the camera, the offset faded to 0 towards the poles between the pole-merge
+    angles (degrees; None: no merging), and converged unless the mode is parallel. Layout: None is
+    the projection's (side by side; top-bottom for panoramas, as headset players read them)."""
+
+    interocular: float = 0.065
+    convergence: float = 1.95
+    mode: str = "off-axis"
+    layout: str | None = None
+    pole_merge: tuple[float, float] | None = (60.0, 75.0)
+
+    def check(self):
+        if not (isinstance(self.interocular, (int, float)) and 0 < self.interocular < math.inf):
+            raise RenderError(f"stereo interocular distance must be a positive number, got {self.interocular}")
+        if not (isinstance(self.convergence, (int, float)) and 0 < self.convergence < math.inf):
+            raise RenderError(f"stereo convergence distance must be a positive number, got {self.convergence}")
+        if self.mode not in STEREO_MODES:
+            raise RenderError(f"unknown stereo mode {self.mode!r} ({', '.join(STEREO_MODES)})")
+        if self.layout is not None and self.layout not in STEREO_LAYOUTS:
+            raise RenderError(f"unknown stereo layout {self.layout!r} ({', '.join(STEREO_LAYOUTS)})")
+        if self.pole_merge is not None:
+            start, end = self.pole_merge
+            if not 0 <= start < end <= 90:
+                raise RenderError(
+                    f"stereo pole merge angles must satisfy 0 <= from < to <= 90 degrees, got {start}, {end}"
+                )
+
+
 @dataclass
 class Settings:
     width: int = 640
@@ -117,6 +158,10 @@ class Settings:
     denoise: bool = False
     # the OIDN shared library to denoise with (Blender's own); None: the pyoidn binding's
     denoiser: str | None = None
+    # two eyes (render/stereo.py); a render is one eye's view: `eye` is one of EYES (None: the
+    # camera's own view)
+    stereo: Stereo | None = None
+    eye: str | None = None
 
     @property
     def window(self) -> tuple[int, int, int, int]:
@@ -214,6 +259,10 @@ class Settings:
             isinstance(self.time_limit, (int, float)) and 0 <= self.time_limit < math.inf
         ):
             raise RenderError(f"time limit must be a number of seconds >= 0 (None or 0: none), got {self.time_limit}")
+        if self.stereo is not None:
+            self.stereo.check()
+        if self.eye is not None and (self.eye not in EYES or self.stereo is None):
+            raise RenderError(f"eye {self.eye!r} needs stereo settings and is one of {', '.join(EYES)}")
         if self.denoise and self.denoiser is None and importlib.util.find_spec("pyoidn") is None:
             raise RenderError(DENOISE_MISSING)  # refused before the render, not after it
 
