@@ -138,6 +138,8 @@ def cmd_render(args):
         denoise=args.denoise,
         stereo=stereo,
     )
+    if render.PROJECTIONS[args.projection].omni_stereo and w != 2 * h:
+        warnings.warn(f"a {w}x{h} panorama is not 2:1: panorama viewers and headsets show it stretched")
     lambert = settings.shading == "lambert"
     render.camera_frame(space, camera)  # a camera that cannot be used is refused before the notes on it
     for note in checks.before_render(space, scene, camera, lambert):
@@ -187,7 +189,7 @@ def _stereo(args) -> render.Stereo | None:
     option is given without it)."""
     given = [
         name
-        for name in ("interocular", "convergence", "stereo_mode", "stereo_layout", "pole_merge")
+        for name in ("interocular", "convergence", "stereo_mode", "stereo_pivot", "stereo_layout", "pole_merge")
         if getattr(args, name) is not None
     ]
     if not args.stereo:
@@ -200,6 +202,7 @@ def _stereo(args) -> render.Stereo | None:
         convergence=defaults.convergence if args.convergence is None else args.convergence,
         mode=args.stereo_mode or defaults.mode,
         layout=args.stereo_layout,
+        pivot=args.stereo_pivot or defaults.pivot,
         pole_merge=defaults.pole_merge if args.pole_merge is None else args.pole_merge or None,
     )
 
@@ -430,6 +433,11 @@ def build_parser():
         "--convergence", type=float, help="distance at which the eyes' views agree, chart units (default 1.95)"
     )
     st.add_argument("--stereo-mode", choices=render.STEREO_MODES, help="Blender's convergence mode (default off-axis)")
+    st.add_argument(
+        "--stereo-pivot",
+        choices=render.STEREO_PIVOTS,
+        help="where the camera is: between the eyes (default), or at the left or right eye (perspective)",
+    )
     st.add_argument(
         "--stereo-layout",
         choices=render.STEREO_LAYOUTS,

@@ -117,6 +117,17 @@ def test_toe_in_eyes_look_at_the_convergence_point():
     assert abs(left - 128) < 0.5 and abs(right - 128) < 0.5
 
 
+def test_a_pivot_eye_sees_what_the_camera_sees():
+    space, scene = spaces.load("poincare"), ball_ahead(0.2, 0.05)
+    camera = Camera(np.zeros(3), FORWARD, UP, fov=60)
+    stereo = render.Stereo(interocular=0.2, mode="parallel", pivot="left")
+    s = settings(stereo, 48, 27)
+    mono = render.render(space, scene, render.Settings(**{**s.__dict__, "stereo": None}), camera)
+    left, right = render.render_eyes(space, scene, s, camera)
+    assert np.allclose(left.passes["depth"], mono.passes["depth"], rtol=0, atol=1e-12, equal_nan=True)
+    assert not np.allclose(right.passes["depth"], mono.passes["depth"], equal_nan=True)
+
+
 def test_the_panoramas_eyes_agree_where_the_pole_merge_faded_the_offset():
     """Two balls, at altitude 80 degrees (beyond the merge, offset 0) and 0: the rows beyond 75
     degrees are the same in both views, the ball on the horizon is not."""

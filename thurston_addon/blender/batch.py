@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+import tempfile
 from pathlib import Path
 
 import bpy
@@ -79,24 +82,39 @@ def _configure_output(bscene, suffix: str):
     bscene.render.use_file_extension = False
 
 
+def view_suffixes(bscene) -> list[str]:
+    """The name suffixes of a frame's files: Stereoscopy's views written as files of their own (Views
+    Format: Individual, with Blender's view suffixes: _L, _R), else one file ("": one view, or the
+    views in one image as Stereo 3D lays them out, or in one multi-view EXR)."""
+    r = bscene.render
+    if r.use_multiview and r.image_settings.views_format == "INDIVIDUAL":
+        return [v.file_suffix for v in r.views if v.use]
+    return [""]
+
+
 def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, overwrite: bool, progress_for, log):
     """Render each frame through the THURSTON engine, as `blender -b FILE -E THURSTON -f N` would (render
-    visibility, render modifier levels, animated cameras and objects), to out_dir/<name>_<frame>.<suffix>:
-    a multilayer EXR with the passes the settings ask for, or a PNG of the view-transformed colour."""
+    visibility, render modifier levels, animated cameras and objects), to out_dir/<name>_<frame>.<suffix>
+    (with Stereoscopy's individual views, <name>_<frame>_L.<suffix> and _R): a multilayer EXR with the
+    passes the settings ask for, or a PNG of the view-transformed colour."""
     open_blend(path)
     bscene = bpy.context.scene
     span = frame_range(frames, bscene)
+    views = view_suffixes(bscene)
 
-    def output(frame: int) -> Path:
-        return out_dir / f"{path.stem}_{frame:04d}.{suffix}"
+    def output(frame: int, view: str = "") -> Path:
+        return out_dir / f"{path.stem}_{frame:04d}{view}.{suffix}"
 
     make_folder(out_dir)
-    files.check_output(output(span[0]), overwrite)  # the folder and the name
+    for view in views:
+        files.check_output(output(span[0], view), overwrite)  # the folder and the name
     if not overwrite:  # refuse before spending time on any frame: the folder's files, not every frame's path
         for existing in sorted(out_dir.glob(f"{glob_escape(path.stem)}_*.{suffix}")):
-            number = existing.name[len(path.stem) + 1 : -len(suffix) - 1]
-            if number.isdigit() and int(number) in span and existing == output(int(number)):
-                files.check_output(existing, overwrite)
+            name = existing.name[len(path.stem) + 1 : -len(suffix) - 1]
+            for view in views:
+                number = name.removesuffix(view)
+                if number.isdigit() and int(number) in span and existing == output(int(number), view):
+                    files.check_output(existing, overwrite)
     _configure_output(bscene, suffix)
     outputs = []
     for frame in span:
@@ -116,16 +134,39 @@ def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, ov
             engine.progress_listeners.remove(listener)
         if not stats.valid:
             raise export.ExportError(f"frame {frame}: the render did not finish")
-        # Blender writes the file (its multilayer EXR, its view transform); whole or not at all
-        # as every output (files.replacing), and read back, since its writer may fail silently
-        with files.replacing(out, overwrite) as tmp:
-            try:
-                # absolute: Blender cannot write a bare relative name (it reads names as the .blend's)
-                bpy.data.images["Render Result"].save_render(filepath=str(Path(tmp).absolute()), scene=bscene)
-            except RuntimeError as exc:
-                raise files.OutputError(f"cannot write {str(out)!r}: {str(exc).strip()}") from None
-            images.check_image_file(tmp, out)
+        written = save_views({view: output(frame, view) for view in views}, overwrite, bscene)
         for note in stats.notes:
-            log(f"{out}: warning: {note.message}")
-        log(f"{out}: {stats.summary}")
+            log(f"{written}: warning: {note.message}")
+        log(f"{written}: {stats.summary}")
     return outputs
+
+
+def save_views(outputs: dict[str, Path], overwrite: bool, bscene) -> str:
+    """Blender writes the Render Result (its multilayer EXR, its view transform, its stereo layout) to
+    the files of `outputs` (by view suffix); each whole or not at all, as every output
+    (files.replacing), and read back, since its writer may fail silently. Returns their names."""
+    names = ", ".join(str(out) for out in outputs.values())
+    with contextlib.ExitStack() as stack:
+        temporary = {view: stack.enter_context(files.replacing(out, overwrite)) for view, out in outputs.items()}
+        # absolute: Blender cannot write a bare relative name (it reads names as the .blend's)
+        if list(outputs) == [""]:
+            _save_render(Path(temporary[""]).absolute(), bscene, names)
+        else:  # Blender writes each view beside the name it is given, with the view's suffix
+            folder = Path(stack.enter_context(tempfile.TemporaryDirectory(dir=next(iter(outputs.values())).parent)))
+            given = (folder / "frame").with_suffix(next(iter(outputs.values())).suffix)
+            views_written = [given.with_name(f"frame{view}{given.suffix}") for view in outputs]
+            _save_render(given.absolute(), bscene, names, views_written)
+            for view, written in zip(outputs, views_written):
+                os.replace(written, temporary[view])
+        for view, out in outputs.items():
+            images.check_image_file(temporary[view], out)
+    return names
+
+
+def _save_render(filepath: Path, bscene, names: str, views_written=()):
+    try:
+        bpy.data.images["Render Result"].save_render(filepath=str(filepath), scene=bscene)
+    except RuntimeError as exc:
+        # with individual views Blender writes them, then fails on the name it was given
+        if not (views_written and all(p.is_file() for p in views_written)):
+            raise files.OutputError(f"cannot write {names}: {str(exc).strip()}") from None

@@ -26,6 +26,8 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
     bl_label = "Thurston"
     bl_use_preview = False
     bl_use_postprocess = True
+    # panoramic cameras' stereo views are omni-directional (render/stereo.py), as Cycles' spherical stereo
+    bl_use_spherical_stereo = True
     bl_use_shading_nodes_custom = False
 
     def __init__(self, *args, **kwargs):
@@ -76,15 +78,16 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         for message in job.messages():
             self.report({"WARNING"}, f"Thurston: {message}")
         export.store_stats(bscene.thurston, job)
-        self.update_stats("Thurston", job.result.summary())
-        self.write_result(job, depsgraph.view_layer.name)
+        self.update_stats("Thurston", job.summary())
+        for view in job.views:  # Stereoscopy's eyes, or the one view
+            self.write_result(job, depsgraph.view_layer.name, view)
 
-    def write_result(self, job, layer_name):
+    def write_result(self, job, layer_name, view=None):
         _, _, w, h = job.settings.window
         # with a render region, Blender's result rectangle is relative to the region
-        out = self.begin_result(0, 0, w, h, layer=layer_name)
+        out = self.begin_result(0, 0, w, h, layer=layer_name, view=view or "")
         layer = out.layers[0]
-        values = {"Combined": export.combined(job.result.passes), **export.pass_values(job)}
+        values = {"Combined": export.combined(job.results[view].passes), **export.pass_values(job, view)}
         for rp in layer.passes:
             a = values.get(rp.name)
             if a is not None:

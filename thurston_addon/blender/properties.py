@@ -226,6 +226,12 @@ class ThurstonSettings(bpy.types.PropertyGroup):
         default={p.upper() for p in render.PASSES},
     )
     panorama_width: bpy.props.IntProperty(name="Panorama Width", default=2048, min=16, max=16384)
+    panorama_stereo: bpy.props.BoolProperty(
+        name="Stereo Panorama",
+        description="Bake Panorama bakes an omni-directional stereo pair, left eye on top (for headsets), with "
+        "the camera's Stereoscopy settings, into the image 'Thurston Stereo Panorama' (the World keeps its own)",
+        default=False,
+    )
     save_path: bpy.props.StringProperty(
         name="Save To",
         subtype="FILE_PATH",

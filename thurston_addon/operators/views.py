@@ -23,16 +23,17 @@ def check_save_path(settings):
     )
 
 
-def save_if_asked(settings, result: render.Result, report):
+def save_if_asked(settings, job: export.RenderJob, report, passes=None):
+    """The panel's save path: the job's passes (or the `passes` given: a stereo panorama's)."""
     out = check_save_path(settings)
     if out is None:
         return
     names = [p.lower() for p in settings.passes] or ["color"]
     images.write(
         out,
-        export.blender_passes(result, settings.scale),
+        export.blender_passes(passes or job.result.passes, settings.scale),
         names=names,
-        metadata={"summary": result.summary()},
+        metadata={"summary": job.summary()},
         overwrite=settings.overwrite,
         to_replace=OVERWRITE_IN_THE_PANEL,
     )
@@ -54,6 +55,7 @@ class _ThurstonRenderOperator(bpy.types.Operator):
     def finish(self, context, job: export.RenderJob):
         image = results.store_image(self.image_name, job.result.passes)
         results.show_image(context, image)
+        save_if_asked(context.scene.thurston, job, self.report)
 
     def execute(self, context):
         try:
@@ -102,11 +104,10 @@ class _ThurstonRenderOperator(bpy.types.Operator):
         export.store_stats(context.scene.thurston, job)
         try:
             self.finish(context, job)
-            save_if_asked(context.scene.thurston, job.result, self.report)
         except (files.OutputError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        self.report({"INFO"}, job.result.summary())
+        self.report({"INFO"}, job.summary())
         return {"FINISHED"}
 
 
@@ -117,7 +118,7 @@ class THURSTON_OT_render_view(_ThurstonRenderOperator):
     bl_label = "Render View to Image"
 
     def make_job(self, context):
-        return export.RenderJob(context.scene, context.evaluated_depsgraph_get())
+        return export.RenderJob(context.scene, context.evaluated_depsgraph_get(), stereo=None)
 
 
 class THURSTON_OT_preview(_ThurstonRenderOperator):
@@ -136,20 +137,31 @@ class THURSTON_OT_preview(_ThurstonRenderOperator):
             width=max(1, w // k),
             height=max(1, h // k),
             quality="preview",
+            stereo=None,
         )
 
 
 class THURSTON_OT_bake_panorama(_ThurstonRenderOperator):
-    """Bake the 360° view from the camera point into an equirectangular image and use it as the World background"""
+    """Bake the 360° view from the camera point into an equirectangular image and use it as the World
+    background; with Stereo, an omni-directional stereo pair (left eye on top) for headsets"""
 
     bl_idname = "thurston.bake_panorama"
     bl_label = "Bake Panorama"
     image_name = "Thurston Panorama"
+    stereo_image_name = "Thurston Stereo Panorama"
 
     def make_job(self, context):
-        w = context.scene.thurston.panorama_width
+        settings = context.scene.thurston
+        w = settings.panorama_width
+        camera = context.scene.camera
+        stereo = export.camera_stereo(camera, settings.scale) if settings.panorama_stereo and camera else None
         job = export.RenderJob(
-            context.scene, context.evaluated_depsgraph_get(), width=w, height=max(1, w // 2), projection="equirect"
+            context.scene,
+            context.evaluated_depsgraph_get(),
+            width=w,
+            height=max(1, w // 2),
+            projection="equirect",
+            stereo=stereo,
         )
         # Blender's equirectangular mapping: the image centre looks along +X, the right half of the
         # image towards -Y, up is +Z (world axes)
@@ -157,8 +169,15 @@ class THURSTON_OT_bake_panorama(_ThurstonRenderOperator):
         return job
 
     def finish(self, context, job):
-        image = results.store_image(self.image_name, job.result.passes)
-        results.set_world_panorama(context.scene, image)
+        if job.settings.stereo is None:
+            image = results.store_image(self.image_name, job.result.passes)
+            results.set_world_panorama(context.scene, image)
+            save_if_asked(context.scene.thurston, job, self.report)
+            return
+        # a stereo pair is for headsets, not a World (which shows one view): an image of its own
+        pair = render.side_by_side(*job.results.values(), "top-bottom")
+        results.store_image(self.stereo_image_name, pair)
+        save_if_asked(context.scene.thurston, job, self.report, pair)
 
 
 CLASSES = (THURSTON_OT_render_view, THURSTON_OT_preview, THURSTON_OT_bake_panorama)

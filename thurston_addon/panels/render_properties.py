@@ -85,6 +85,7 @@ class THURSTON_PT_render(_UnderThurston, bpy.types.Panel):
         col.prop(s, "save_path")
         col.prop(s, "overwrite")
         col.prop(s, "panorama_width")
+        col.prop(s, "panorama_stereo")
         draw_renders(layout)
         draw_last_render(layout, s.stats)
 

@@ -22,6 +22,7 @@ from .settings import (
     REFERENCE_PIXEL_ANGLE,
     STEREO_LAYOUTS,
     STEREO_MODES,
+    STEREO_PIVOTS,
     Cancelled,
     Quality,
     RenderError,
@@ -31,7 +32,7 @@ from .settings import (
     memory_needed,
 )
 from .statistics import Result, noise_of, pixel_errors, pixel_noise
-from .stereo import layout_of, side_by_side
+from .stereo import eye_camera, layout_of, side_by_side
 from .tracer import core_scene, make_tracer, trace
 
 __all__ = [
@@ -55,6 +56,7 @@ __all__ = [
     "SHADING",
     "STEREO_LAYOUTS",
     "STEREO_MODES",
+    "STEREO_PIVOTS",
     "STOP_REASONS",
     "Settings",
     "Stereo",
@@ -66,6 +68,7 @@ __all__ = [
     "default_light_reach",
     "footprint",
     "geodesic_loop",
+    "eye_camera",
     "light_copies",
     "light_reach_for",
     "light_tiles",

@@ -83,6 +83,7 @@ class Cancelled(RuntimeError):
 # Format: two files, or Stereo 3D side by side / top-bottom) and its eyes
 STEREO_MODES = ("off-axis", "parallel", "toe-in")
 STEREO_LAYOUTS = ("side-by-side", "top-bottom", "separate")
+STEREO_PIVOTS = ("center", "left", "right")  # where the camera is: between the eyes, or at one
 EYES = ("left", "right")
 
 
@@ -90,7 +91,8 @@ EYES = ("left", "right")
 class Stereo:
     """Two eyes, as Blender's Stereoscopy places them: each offset from the camera by half the
     interocular distance (chart units; Blender's 0.065 and 1.95 are its defaults in metres) along
-    the geodesic in the camera's right direction. Perspective: off-axis (parallel eyes, lenses
+    the geodesic in the camera's right direction (pivot center; left or right: that eye at the
+    camera, the other the whole distance from it; panoramas: center always). Perspective: off-axis (parallel eyes, lenses
     shifted so the views agree at the convergence distance), parallel, or toe-in (eyes turned to
     the point at the convergence distance). Panoramas: omni-directional stereo, each column's eye on
     the circle about the camera, the offset faded to 0 towards the poles between the pole-merge
@@ -102,6 +104,12 @@ class Stereo:
     mode: str = "off-axis"
     layout: str | None = None
     pole_merge: tuple[float, float] | None = (60.0, 75.0)
+    pivot: str = "center"
+
+    def offset(self, eye: str) -> float:
+        """The eye's signed offset from the camera along its right direction (perspective)."""
+        left = {"center": -0.5, "left": 0.0, "right": -1.0}[self.pivot] * self.interocular
+        return left if eye == "left" else left + self.interocular
 
     def check(self):
         if not (isinstance(self.interocular, (int, float)) and 0 < self.interocular < math.inf):
@@ -110,6 +118,8 @@ class Stereo:
             raise RenderError(f"stereo convergence distance must be a positive number, got {self.convergence}")
         if self.mode not in STEREO_MODES:
             raise RenderError(f"unknown stereo mode {self.mode!r} ({', '.join(STEREO_MODES)})")
+        if self.pivot not in STEREO_PIVOTS:
+            raise RenderError(f"unknown stereo pivot {self.pivot!r} ({', '.join(STEREO_PIVOTS)})")
         if self.layout is not None and self.layout not in STEREO_LAYOUTS:
             raise RenderError(f"unknown stereo layout {self.layout!r} ({', '.join(STEREO_LAYOUTS)})")
         if self.pole_merge is not None:
@@ -201,10 +211,10 @@ class Settings:
                 raise RenderError(
                     f"render region {self.region} is not a window of the {self.width}x{self.height} image"
                 )
-        need, have = memory_needed(self.width, self.height), physical_memory()
+        need, have = memory_needed(*self.window[2:]), physical_memory()  # only the window is rendered
         if have is not None and need > MEMORY_FRACTION * have:
             raise RenderError(
-                f"image size {self.width}x{self.height} needs about {need / 2**30:.1f} GiB of memory "
+                f"{'render region' if self.region else 'image size'} {self.window[2]}x{self.window[3]} needs about {need / 2**30:.1f} GiB of memory "
                 f"to render, more than {MEMORY_FRACTION:.0%} of this machine's {have / 2**30:.1f} GiB"
             )
         if self.width * self.height > 2**28:

@@ -26,26 +26,34 @@ def eye_sign(eye: str) -> float:
 
 def eye_view(space: Space, camera: Camera, settings: Settings, frame):
     """The camera, frame and per-pixel eyes (OmniEyes, or None) of settings.eye's view, from the
-    camera's own frame (camera_frame). Perspective: the eye's frame at its point; off-axis shifts the
-    lens by Blender's formula, interocular / (2 convergence) over the image width at unit distance,
-    towards the other eye; toe-in turns the eye by atan(interocular / (2 convergence)) towards the
-    other eye (both as Blender's Stereoscopy does, in the camera's tangent space)."""
+    camera's own frame (camera_frame). Perspective: the eye's frame at its point, offset by
+    Stereo.offset; off-axis shifts the lens by Blender's formula, the offset over twice the
+    convergence distance, in image widths at unit distance, towards the camera's axis; toe-in turns
+    the eye by atan(offset / convergence) to the point at the convergence distance on the camera's
+    axis (both as Blender's Stereoscopy does, in the camera's tangent space)."""
     stereo = settings.stereo
-    sign = eye_sign(settings.eye)
     if PROJECTIONS[settings.projection].omni_stereo:
-        return camera, frame, OmniEyes(space, settings, frame, sign)
+        return camera, frame, OmniEyes(space, settings, frame, eye_sign(settings.eye))
     X, (f, r, u) = frame
-    half = stereo.interocular / 2
-    points, (f, r, u) = carried_frames(space, X[None], sign * r[None], half, np.stack([f, r, u])[None])
+    offset = stereo.offset(settings.eye)
+    points, (f, r, u) = carried_frames(
+        space, X[None], math.copysign(1.0, offset) * r[None], abs(offset), np.stack([f, r, u])[None]
+    )
     eye_frame = (points[0], [f[0], r[0], u[0]])
     if stereo.mode == "toe-in":
-        turn = math.atan(half / stereo.convergence)
-        c, s = math.cos(turn), sign * math.sin(turn)
+        turn = math.atan(offset / stereo.convergence)
+        c, s = math.cos(turn), math.sin(turn)
         eye_frame = (points[0], [c * f[0] - s * r[0], c * r[0] + s * f[0], u[0]])
-    elif stereo.mode == "off-axis":
-        shift = -sign * half / (2 * stereo.convergence * math.tan(math.radians(camera.fov) / 2))
-        camera = dataclasses.replace(camera, shift=(camera.shift[0] + shift, camera.shift[1]))
-    return camera, eye_frame, None
+    return eye_camera(camera, settings), eye_frame, None
+
+
+def eye_camera(camera: Camera, settings: Settings) -> Camera:
+    """The camera of settings.eye's perspective view: off-axis, its lens shifted."""
+    stereo = settings.stereo
+    if stereo.mode != "off-axis" or PROJECTIONS[settings.projection].omni_stereo:
+        return camera
+    shift = -stereo.offset(settings.eye) / (2 * stereo.convergence * math.tan(math.radians(camera.fov) / 2))
+    return dataclasses.replace(camera, shift=(camera.shift[0] + shift, camera.shift[1]))
 
 
 def carried_frames(space: Space, X, V, t: float, vectors):

@@ -59,6 +59,7 @@ def render_settings(
     transparent=False,
     viewport=False,
     quality=None,
+    stereo=None,
 ) -> render.Settings:
     """The Blender settings as render.Settings: the render's sampling, or with `viewport` the
     rendered viewport's (Cycles' preview_* settings; it has no time limit); `quality` in place of
@@ -96,7 +97,48 @@ def render_settings(
         tolerance=settings.tolerance / settings.scale or None,
         denoise=settings.use_denoising,
         denoiser=blender_denoiser() if settings.use_denoising else None,
+        stereo=stereo,
     )
+
+
+# Blender's stereo convergence modes by the camera's names
+CONVERGENCE_MODES = {"OFFAXIS": "off-axis", "PARALLEL": "parallel", "TOE": "toe-in"}
+
+
+def export_stereo(bscene, camera_object) -> render.Stereo | None:
+    """Output > Stereoscopy (Stereo 3D) with the camera's Stereoscopy settings; None where it is off."""
+    r = bscene.render
+    if not r.use_multiview:
+        return None
+    if r.views_format != "STEREO_3D":
+        raise ExportError(
+            "Output > Stereoscopy: Multi-View (a camera per view) is not supported; choose Stereo 3D, "
+            "whose left and right eyes Thurston places along geodesics from the camera"
+        )
+    return camera_stereo(camera_object or bscene.camera, bscene.thurston.scale)
+
+
+def camera_stereo(camera_object, scale: float) -> render.Stereo:
+    """A camera's Stereoscopy settings (interocular and convergence distances, mode, pivot, pole
+    merging) as render.Stereo, in chart units. Panoramic cameras take omni-directional stereo (as
+    Cycles' spherical stereo), always."""
+    st = camera_object.data.stereo
+    return render.Stereo(
+        interocular=st.interocular_distance / scale,
+        convergence=st.convergence_distance / scale,
+        mode=CONVERGENCE_MODES[st.convergence_mode],
+        pivot=st.pivot.lower(),
+        pole_merge=(math.degrees(st.pole_merge_angle_from), math.degrees(st.pole_merge_angle_to))
+        if st.use_pole_merge
+        else None,
+    )
+
+
+def views_of(bscene, stereo) -> list[str | None]:
+    """The views a render makes: Stereoscopy's eyes that are in use, or the one view (None)."""
+    if stereo is None:
+        return [None]
+    return [v.name for v in bscene.render.views if v.use and v.name in render.EYES]
 
 
 def blender_denoiser() -> str | None:
@@ -326,8 +368,7 @@ def export_camera(bscene, depsgraph, scale: float, width: int, height: int, came
     position = M[:3, 3] / scale
     forward, up = -M[:3, 2], M[:3, 1]
     data = cam.data
-    if data.type != "PERSP":
-        raise ExportError(f"camera {cam.name!r} is {data.type.lower()}; only perspective cameras are supported")
+    camera_projection(cam)  # refuses what cannot be rendered
     # Blender's angle spans the sensor-fit side (AUTO: the larger side); its lens shift is in units of
     # that side; the tracer's angle and shift are the width's
     fit = data.sensor_fit
@@ -342,6 +383,25 @@ def export_camera(bscene, depsgraph, scale: float, width: int, height: int, came
         shift=(data.shift_x * per_width, data.shift_y * per_width),
         clip_start=data.clip_start / scale,
         clip_end=data.clip_end / scale,
+    )
+
+
+def camera_projection(cam) -> str:
+    """The projection of a Blender camera: perspective, or a whole-sphere equirectangular panorama."""
+    data = cam.data
+    if data.type == "PERSP":
+        return "perspective"
+    whole = (data.longitude_min, data.longitude_max, data.latitude_min, data.latitude_max)
+    if data.type == "PANO" and data.panorama_type == "EQUIRECTANGULAR":
+        if np.allclose(whole, (-math.pi, math.pi, -math.pi / 2, math.pi / 2), atol=1e-6):
+            return "equirect"
+        raise ExportError(
+            f"camera {cam.name!r}: only the whole sphere of an equirectangular panorama is supported; set its "
+            "longitude to -180..180 and latitude to -90..90 degrees"
+        )
+    kind = data.panorama_type.lower().replace("_", " ") + " panorama" if data.type == "PANO" else data.type.lower()
+    raise ExportError(
+        f"camera {cam.name!r} is {kind}; only perspective cameras and equirectangular panoramas are supported"
     )
 
 
@@ -457,16 +517,18 @@ class RenderJob:
         depsgraph,
         width=None,
         height=None,
-        projection=render.Settings.projection,
+        projection=None,
         camera_object=None,
         region=None,
         quality=None,
+        stereo="scene",
     ):
         settings = bscene.thurston
         self.notes: list[checks.Note] = []
         self.space = load_space(settings)
         self.scale = settings.scale
         w, h = (width, height) if width else resolution(bscene)
+        cam = camera_object or bscene.camera
         with warnings.catch_warnings(record=True) as caught:  # the scene's and the compiler's warnings
             warnings.simplefilter("always")
             self.scene = export_scene(depsgraph, settings.scale, self.notes)
@@ -483,10 +545,18 @@ class RenderJob:
             except render.RenderError as exc:
                 raise ExportError(f"camera {(camera_object or bscene.camera).name!r}: {exc}") from None
             self.settings = render_settings(
-                settings, w, h, projection, region, bscene.render.film_transparent, quality=quality
+                settings,
+                w,
+                h,
+                projection or camera_projection(cam),
+                region,
+                bscene.render.film_transparent,
+                quality=quality,
+                # "scene": Output > Stereoscopy's; else the stereo given (None: one view)
+                stereo=export_stereo(bscene, cam) if stereo == "scene" else stereo,
             )
+            self.views = views_of(bscene, self.settings.stereo)
             lambert = self.settings.shading == "lambert"
-            cam = camera_object or bscene.camera
             self.notes += [
                 _camera_note(n, cam) for n in checks.before_render(self.space, self.scene, self.camera, lambert)
             ]
@@ -504,6 +574,7 @@ class RenderJob:
         self.cancelled = False
         self.fraction = 0.0
         self.result: render.Result | None = None
+        self.results: dict[str | None, render.Result] = {}
         self.error: Exception | None = None
 
     def progress(self, done, total):
@@ -511,29 +582,41 @@ class RenderJob:
         return not self.cancelled
 
     def run(self, progress=None):
-        """Trace; the result (or the exception: cancelled or failed) is kept for the main thread."""
+        """Trace every view; the results by view (and the first as `result`), or the exception
+        (cancelled or failed), are kept for the main thread."""
+        progress = progress or self.progress
+        count = len(self.views)
         try:
-            self.result = render.render(
-                self.space,
-                self.scene,
-                self.settings,
-                camera=self.camera,
-                progress=progress or self.progress,
-                tracer=self.tracer,
-            )
-            if not any(n.kind == checks.SCENE_TOO_LARGE for n in self.notes):  # else the copies' overlap is why
-                lambert = self.settings.shading == "lambert"
-                self.notes += checks.after_render(self.scene, self.result.passes, lambert, self.exposure)
+            for k, view in enumerate(self.views):
+
+                def report(done, total, k=k):
+                    return progress(k * total + done, count * total)
+
+                self.results[view] = render.render(
+                    self.space,
+                    self.scene,
+                    replace(self.settings, eye=view),
+                    camera=self.camera,
+                    progress=report,
+                    tracer=self.tracer,
+                )
+                if not any(n.kind == checks.SCENE_TOO_LARGE for n in self.notes):  # else the copies' overlap is why
+                    lambert = self.settings.shading == "lambert"
+                    self.notes += checks.after_render(self.scene, self.results[view].passes, lambert, self.exposure)
+            self.result = self.results[self.views[0]]
         except Exception as exc:
             self.error = exc
+
+    def summary(self) -> str:
+        return "; ".join((f"{view} eye: " if view else "") + result.summary() for view, result in self.results.items())
 
     def messages(self) -> list[str]:
         return [_with_fix(n).message for n in self.notes]
 
 
-def blender_passes(result: render.Result, scale: float) -> dict:
+def blender_passes(passes: dict, scale: float) -> dict:
     """Passes in Blender's units: the lengths (depth, position) in world units (chart units x scale)."""
-    passes = dict(result.passes)
+    passes = dict(passes)
     for name in LENGTHS:
         passes[name] = passes[name] * scale
     return passes
@@ -555,15 +638,20 @@ def enable_pass(view_layer, p: BlenderPass):
     setattr(view_layer.thurston if p.addon_flag else view_layer, p.flag, True)
 
 
-def pass_values(job: RenderJob) -> dict[str, np.ndarray]:
+def pass_values(job: RenderJob, view=None) -> dict[str, np.ndarray]:
     """Each BLENDER_PASSES entry's pixels, (h, w, channels) float32, in Blender's conventions: world
     units; Depth along the camera's view axis (the geodesic distance times the cosine between the
     ray's initial direction and the optical axis), the geodesic distance as its own pass; the
-    object's pass_index; NO_HIT_DEPTH where nothing is hit."""
-    passes, scale = job.result.passes, job.scale
+    object's pass_index; NO_HIT_DEPTH where nothing is hit. `view`: the stereo eye's."""
+    passes, scale = job.results[view].passes, job.scale
     hit = np.isfinite(passes["depth"])
     distance = np.where(hit, passes["depth"] * scale, NO_HIT_DEPTH)
-    along_axis = render.view_directions(job.camera, job.settings)[0]
+    settings = replace(job.settings, eye=view)
+    camera = job.camera if view is None else render.eye_camera(job.camera, settings)
+    # Blender's Depth: along the view axis for cameras, the distance for panoramas (as Cycles)
+    along_axis = (
+        render.view_directions(camera, settings)[0] if render.PROJECTIONS[settings.projection].planar_clip else 1.0
+    )
     pass_index = np.array([o.pass_index for o in job.scene.objects] + [0])  # object -1 (none): the 0 at the end
     values = {
         "Depth": np.where(hit, distance * along_axis, NO_HIT_DEPTH),
@@ -593,7 +681,7 @@ def store_stats(settings, job: RenderJob):
     s.samples_mean, s.samples_max = st["samples_mean"], st["samples_max"]
     s.time_limit_reached = st["time_limit_reached"]
     s.denoised = bool(st.get("denoised"))
-    s.summary = job.result.summary()
+    s.summary = job.summary()
     store_notes(settings, job.notes)
 
 

@@ -12,7 +12,6 @@ IGNORED = "ignored"  # a render setting the image does not follow (the message s
 HAIR_NOTE = "hair particle systems (their meshes show without hair)"
 
 MOTION_BLUR_NOTE = "Motion Blur is not rendered: each frame shows the scene sharp, as it is at the frame"
-STEREO_NOTE = "Stereoscopy is not rendered: both views (left and right eye) show the same image, from the camera itself"
 
 # The factory World's grey (0.0509, strength 1) is Blender's default, not a choice to light with:
 # a World brighter than this is noted.
@@ -88,8 +87,6 @@ def settings_notes(bscene) -> list[checks.Note]:
                 "square pixels, the camera's view fitted to the resolution as at aspect 1:1",
             )
         )
-    if r.use_multiview:
-        notes.append(checks.Note(IGNORED, STEREO_NOTE))
     world = world_light(bscene.world)
     if world is not None:
         notes.append(
