@@ -11,6 +11,7 @@ from dataclasses import replace
 import numpy as np
 
 from .. import checks
+from ..geometries import faces
 from ..scenes import Scene, SceneError
 from ..spaces import Space, SpaceError
 from .lights import light_copies, light_reach_for
@@ -30,11 +31,19 @@ def _object_copies(space: Space, obj, C):
         raise SceneError(f"object {obj.name!r}: {exc}") from None
     X = g.to_model(obj.vertices) @ home.T
     T = obj.triangles
+    box = _box_corners(g, obj.vertices)
     for rings in range(1, g.copy_rings + 1):
         copies = []
         covered = np.zeros(len(X), bool)
         for M in space.neighbourhood(rings):
+            verdict = None if box is None else _box_verdict(box @ (M @ home).T, C)
+            if verdict is False:
+                continue  # the object's box is beyond a face: no vertex of this copy meets the domain
             Y = X @ M.T
+            if verdict is True:  # the box is inside every face: every vertex and triangle stays
+                covered[:] = True
+                copies.append((Y, np.arange(len(T)), M @ home))
+                continue
             ok = g.charted(Y)  # the copy stays on the chart's side
             H = g.plane_coordinates(Y)
             outside = (H / np.linalg.norm(H, axis=1)[:, None]) @ C.T > 1e-9
@@ -45,6 +54,32 @@ def _object_copies(space: Space, obj, C):
         if covered.all():
             break
     return copies, covered
+
+
+def _box_corners(g, x):
+    """The homogeneous corners (x, 1) (8, 4) of the chart box of the points x, where the domain's face
+    tests and the chart test of every copy are linear in (x, 1) up to a positive factor (projective
+    geometries, and chart planes with affine isometries: Nil, Sol); else None."""
+    if not (g.projective or (g.affine_isometries and isinstance(g.face_shape, faces.ChartPlanes))):
+        return None
+    lo, hi = np.min(x, axis=0), np.max(x, axis=0)
+    corners = np.array([[(lo, hi)[(k >> i) & 1][i] for i in range(3)] for k in range(8)])
+    return np.concatenate([corners, np.ones((8, 1))], axis=1)
+
+
+def _box_verdict(Z, C):
+    """What the copy's box corners Z (8, 4) say of every point in the box, for _object_copies' tests
+    (a vertex is outside face f where c_f . Y > 1e-9 |Y|, charted where Y[3] > 1e-9 |Y|): False where
+    all are outside one face, True where all are charted and inside every face, None where the
+    vertices must be tested. Sound: each c_f . Y is linear over the box, so its least and largest
+    values are at corners, and |Y| is convex, so its largest is at a corner."""
+    largest = 1e-9 * np.max(np.linalg.norm(Z, axis=1))
+    sides = Z @ C.T
+    if np.any(np.min(sides, axis=0) > largest):
+        return False
+    if np.max(sides) <= 0 and np.min(Z[:, 3]) > largest:
+        return True
+    return None
 
 
 def _kept_triangles(T, ok, outside) -> np.ndarray:
@@ -161,6 +196,11 @@ def _copy_normals(space: Space, obj, Y, kept, M):
     x = obj.vertices
     T = _taken(obj.triangles, kept)
     n = _own_normals(obj, kept)
+    if np.array_equal(M, np.eye(4)):
+        return _unit(n)  # the object's own copy: normals stay
+    if g.affine_isometries:  # M acts on (x, 1): its differential is M's linear part everywhere
+        J = np.asarray(M, float)[:3, :3]
+        return _unit(np.linalg.solve(J.T, n.reshape(-1, 3).T).T.reshape(n.shape))
     used, local = _used_vertices(T, len(x))
     # the differential's columns: the images of the chart's unit vectors at each used vertex
     J = np.stack(
@@ -170,10 +210,6 @@ def _copy_normals(space: Space, obj, Y, kept, M):
         ],
         axis=-1,
     )
-    if np.array_equal(J, np.broadcast_to(np.eye(3), J.shape)):
-        return _unit(n)  # the copy's chart is the object's own (E3's home copy): normals stay
-    if np.all(J == J[:1]):  # one differential everywhere (an affine isometry): one solve
-        return _unit(np.linalg.solve(J[0].T, n.reshape(-1, 3).T).T.reshape(n.shape))
     Jt = np.swapaxes(J, 1, 2)[local.reshape(-1, 3)]  # (m, 3, 3, 3): J^T at each corner
     return _unit(np.linalg.solve(Jt, n[..., None])[..., 0])
 
@@ -205,7 +241,7 @@ def _folded(obj, fold):
 
 
 def _unit(n):
-    return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
+    return n / np.maximum(np.sqrt(np.einsum("...i,...i->...", n, n))[..., None], 1e-300)
 
 
 def _instance_copies(space: Space, obj, C):
