@@ -141,6 +141,7 @@ def child(engine: str, triangles: int, profile: bool) -> dict:
             bpy.ops.render.render()
         stats = pstats.Stats(p, stream=sys.stderr).sort_stats("cumulative")
         stats.print_stats(40)
+        stats.sort_stats("tottime").print_stats(25)
         stats.print_callers("make_tracer")
     else:
         bpy.ops.render.render()

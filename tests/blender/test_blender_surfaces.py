@@ -83,6 +83,34 @@ def test_smooth_textured_per_face_materials_match_cycles_tiled(tmp_path):
     assert report["ball shaded flat"] > 0.05, report
 
 
+def test_an_image_texture_on_a_mesh_without_uvs_reads_uv_0_as_cycles(tmp_path):
+    """No UV map: Cycles reads an Image Texture at UV (0, 0), where its bilinear lookup with Repeat
+    blends the four corner texels of the 2x2 checker (their mean); Thurston the same, with a note."""
+    sc = bh.fresh_scene("torus", size=(48, 27))
+    sc.view_settings.view_transform = "Standard"
+    mat, _ = bh.image_texture_material("Checker", bh.CHECKER)
+    bpy.ops.mesh.primitive_cube_add(size=0.2, location=(0, 0.4, 0))
+    cube = bpy.context.active_object
+    cube.data.uv_layers.remove(cube.data.uv_layers[0])
+    cube.data.materials.append(mat)
+    bh.point_light((0.05, 0.1, 0.15), energy=2.0)
+    bh.camera()
+    sc.thurston.max_distance = 0.45
+    from thurston_addon.blender import export
+
+    job = export.RenderJob(sc, bpy.context.evaluated_depsgraph_get())
+    assert any("no UV map" in m and "UV (0, 0)" in m for m in job.messages())
+    L = "ViewLayer."
+    thurston = bh.rgb(bh.f12(sc, tmp_path / "thurston.exr"), L + "Combined.")
+    cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=8), L + "Combined.")
+    corner_mean = bh.CHECKER[..., :3].mean(axis=(0, 1))
+    for image in (thurston, cycles):
+        lit = bh.interior(image.sum(axis=-1) > 0.05)
+        assert lit.sum() > 20
+        colour = image[lit].mean(axis=0)
+        np.testing.assert_allclose(colour / colour[0], corner_mean / corner_mean[0], rtol=0.02)
+
+
 # --- glossy: the Principled BSDF's roughness, metallic and specular layer --------------------------
 GLOSSY = {
     "Metal": dict(color=(0.9, 0.6, 0.3), roughness=0.35, metallic=1.0),

@@ -129,6 +129,17 @@ if report["operator"]:
     color = px.reshape(-1, 4)[:, :3]
     report["size"] = list(image.size)
     report["summary"] = t.stats.summary
+    # saved twice and reopened: the view keeps its pixels, the scene its settings
+    blend = os.path.join(out_dir, "saved.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=blend)
+    bpy.ops.wm.save_mainfile()
+    bpy.ops.wm.open_mainfile(filepath=blend)
+    reopened = bpy.data.images.get("Thurston View")
+    again = np.zeros(len(px), np.float32)
+    if reopened is not None and len(reopened.pixels) == len(px):
+        reopened.pixels.foreach_get(again)
+    report["reopened_same"] = bool(reopened is not None and np.array_equal(again, px))
+    report["reopened_space"] = bpy.context.scene.thurston.space
 else:  # the Blender layer's operators are not there yet: the package's own API
     import importlib
     spaces = importlib.import_module(NAME + ".spaces")
@@ -287,6 +298,10 @@ def test_render_through_addon(installed):
     assert r["size"] == [32, 18]
     assert r["color_std"] > 0.01, r["summary"]  # an image, not a constant
     assert r["exr_size"] > 0  # OpenImageIO from the extension wrote it
+
+
+def test_a_saved_file_reopens_with_its_image_and_settings(installed):
+    assert installed["reopened_same"] and installed["reopened_space"] == "torus"
 
 
 def test_first_use_of_the_startup_scene(installed):

@@ -136,7 +136,8 @@ class _Surfaces:
                 if t is not None:
                     self.textures.setdefault(id(t), t)
         self.with_normals = any(o.corner_normals is not None for o in objects)
-        self.with_uvs = any(o.corner_uvs is not None for o in objects)
+        # objects without UVs read their textures at UV (0, 0), as Cycles does
+        self.with_uvs = any(o.corner_uvs is not None for o in objects) or bool(self.textures)
         self.material, self.normals, self.uvs = [], [], []
 
     def add_copy(self, space: Space, index: int, obj, Y, kept, M):

@@ -85,6 +85,11 @@ def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
             uvs = np.zeros((nt, 3, 2)) if uvs is None else uvs
             uvs[mine] = mapped
     name = original.name if not inst.is_instance else f"{original.name} ({inst.parent.original.name})"
+    if uvs is None and any(m.color_texture is not None or m.emission_texture is not None for m in materials):
+        warnings.warn(
+            f"object {name!r} has an image texture but no UV map: it shows the texture's colour at UV (0, 0), "
+            "as Cycles does; add a UV map (UV > Unwrap) to map the image"
+        )
     first = materials[index[0]]
     return scenes.clean(
         scenes.SceneObject(
