@@ -98,7 +98,7 @@ def cmd_spaces(args):
 
 def _load_world(args):
     space = spaces.load(args.space)
-    scene = scenes.load_scenes(args.scene) if args.scene else scenes.default_scene(space)
+    scene = scenes.load_scenes(args.scene, args.allow_files_outside) if args.scene else scenes.default_scene(space)
     if args.scene and not scene.objects:
         warnings.warn("the scene files hold no objects: only the background will show")
     return space, scene
@@ -268,6 +268,14 @@ def build_parser():
             action="append",
             metavar="FILE",
             help="mesh file (.obj .ply .stl .glb .gltf) or scene file (.toml); repeatable; default: the space's default scene",
+        )
+        q.add_argument(
+            "--allow-files-outside",
+            action="append",
+            default=[],
+            metavar="FOLDER",
+            help="a folder (and below) the files a scene refers to (materials, textures, buffers, meshes) "
+            "may also be read from; repeatable; default: only the scene file's own folder and below",
         )
         q.add_argument("--max-distance", type=float, help="geodesic length at which a ray stops (default: the space's)")
         q.add_argument(

@@ -64,6 +64,31 @@ def check_input(path: str | Path, what: str, error: type[Exception], limit: str 
     return path
 
 
+REFERENCE_OPTION = "--allow-files-outside FOLDER"
+
+
+def reference_folders(scene_file: str | Path, allowed=()) -> tuple[Path, ...]:
+    """The folders the files a scene file refers to may be read from: the scene file's own folder
+    (and below), then each folder the user allows (links resolved)."""
+    return tuple(Path(os.path.realpath(f)) for f in (Path(scene_file).absolute().parent, *allowed))
+
+
+def check_reference(
+    path: str | Path, folders: tuple[Path, ...], what: str, error: type[Exception], limit: str | None = None
+) -> Path:
+    """A file a scene refers to (a material library, a texture, a glTF buffer or image, a mesh file
+    of a scene file), read only from `folders` (reference_folders) and below, its links resolved,
+    so that a hostile scene cannot read the rest of the machine; then `check_input`'s checks."""
+    path = Path(path)
+    real = Path(os.path.realpath(path))
+    if not any(real.is_relative_to(folder) for folder in folders):
+        raise error(
+            f"{what} {str(path)!r} is outside the scene's folder {str(folders[0])!r}: files a scene refers "
+            f"to are read from its folder and below; pass {REFERENCE_OPTION} to allow another folder"
+        )
+    return check_input(path, what, error, limit)
+
+
 def read_text(path: str | Path, what: str, error: type[Exception], limit: str) -> str:
     """A UTF-8 text input (checked by check_input) as a string; `error` where it cannot be read."""
     path = check_input(path, what, error, limit)
