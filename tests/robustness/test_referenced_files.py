@@ -5,7 +5,6 @@ file; and a texture's header is checked against the pixel limit before its pixel
 
 from __future__ import annotations
 
-import base64
 import json
 import os
 import struct
