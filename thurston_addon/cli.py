@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import io
 import json
+import os
 import signal
 import sys
 import time
@@ -136,10 +137,17 @@ def cmd_render(args):
     )
     lambert = settings.shading == "lambert"
     render.camera_frame(space, camera)  # a camera that cannot be used is refused before the notes on it
-    for note in checks.before_render(space, scene, camera, lambert):
+    walk = checks.long_walk(
+        space,
+        w * h * settings.samples_per_pixel,
+        settings.max_distance or space.max_distance,
+        space.max_crossings if settings.max_crossings is None else settings.max_crossings,
+        settings.threads or os.cpu_count() or 1,
+    )
+    for note in checks.before_render(space, scene, camera, lambert) + ([walk] if walk else []):
         warnings.warn(note.message)
     result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
-    for note in checks.after_render(scene, result.passes, lambert):
+    for note in checks.after_render(scene, result.passes, lambert, stats=result.stats):
         warnings.warn(note.message)
     images.write(
         out,

@@ -33,15 +33,28 @@ def camera_frame(space: Space, camera: Camera):
         )
     frame = [g.tangent_to_model(p, v) for v in (f, r, u)]
     try:
-        X, _, M = space.bring_inside(space.to_model(p[None], label=None)[0])
+        with np.errstate(over="ignore", invalid="ignore"):  # (an isometry that overflows is refused below)
+            X, _, M = space.bring_inside(space.to_model(p[None], label=None)[0])
     except SpaceError as exc:
         raise RenderError(f"camera: {exc}") from None
-    basis = []
-    for v in frame:
-        v = M @ v
-        for b in basis:
-            v = v - g.dot(X, v, b) * b
-        basis.append(g.normalize_tangent(X, v))
+    far = RenderError(
+        f"camera position {p.tolist()} is too far out: the isometry that brings it into the domain "
+        "overflows float64; place the camera nearer the domain (the view is the same from the copy there)"
+    )
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        if not (np.all(np.isfinite(M)) and np.all(np.isfinite(X))):
+            raise far
+        basis = []
+        for v in frame:
+            v = M @ v
+            # only the direction counts: scaled to at most 1 before the metric squares it (Sol's
+            # isometry from |z| = 355 stretches a tangent by e^355, whose square overflows)
+            v = v / np.abs(v).max()
+            for b in basis:
+                v = v - g.dot(X, v, b) * b
+            basis.append(g.normalize_tangent(X, v / np.abs(v).max()))
+    if not all(np.all(np.isfinite(b)) for b in basis):
+        raise far
     return X, basis
 
 

@@ -279,6 +279,13 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
         raise RenderError(f"{space.name}: an infinite group needs a finite light reach")
     flat, meshes = [], []  # flat: (object index, source object, Y, kept, M); meshes: (index, chart maps)
     for index, obj in enumerate(scene.objects):
+        if len(obj.triangles) == 0:  # (not "outside the domain": there is nothing to place)
+            warnings.warn(
+                f"object {obj.name!r} has no triangle with an area (every one is degenerate, its corners "
+                "on one line): not shown",
+                stacklevel=2,
+            )
+            continue
         # a folded space's double cover holds the object's image under the fold too (flattened)
         mirrored = [] if space.fold is None else [_folded(obj.placed(), space.fold)]
         if obj.instances is not None:

@@ -48,4 +48,5 @@ def _reader_failure(exc: Exception) -> str:
         return "an entry has the wrong type (corrupt)"
     if isinstance(exc, OSError) and exc.strerror:  # the file system's (the one a texture is unpacked to)
         return exc.strerror + (f" ({exc.filename})" if exc.filename else "")
-    return str(exc)  # the reader's own words (trimesh's ValueErrors)
+    # the reader's own words (trimesh's ValueErrors), where it has any
+    return str(exc).strip() or "its data is corrupt or truncated (an embedded buffer or image that does not decode)"

@@ -523,7 +523,9 @@ class RenderJob:
             )
             if not any(n.kind == checks.SCENE_TOO_LARGE for n in self.notes):  # else the copies' overlap is why
                 lambert = self.settings.shading == "lambert"
-                self.notes += checks.after_render(self.scene, self.result.passes, lambert, self.exposure)
+                self.notes += checks.after_render(
+                    self.scene, self.result.passes, lambert, self.exposure, self.result.stats
+                )
         except Exception as exc:
             self.error = exc
 
