@@ -407,3 +407,21 @@ def test_errors_name_the_real_cause(tmp_path, capsys, kind, text, words):
         argv = ["trace", "--space", "torus", "--rays", rays, "--out", tmp_path / "hits.npz"]
     line = cli_error(argv, capsys)
     assert words in line and len(line) < 400 and "ast." not in line, line
+
+
+def test_blender_clip_end_that_ends_every_ray_is_noted(tmp_path, registered_addon):
+    """A Blender camera's clip end far inside the domain rendered black without a word: the report
+    names the clip end. (1e-300 itself is clamped by Blender to 1e-6, its clip start's least too:
+    the render is refused, naming both.)"""
+    from support import blender_helpers as bh
+
+    from thurston_addon import checks
+
+    sc = bh.fresh_scene("torus", size=(16, 10))
+    bh.box("Floor", (0.8, 0.8, 0.02), (0, 0.2, -0.12))
+    bh.point_light((0.0, 0.2, 0.1))
+    cam = bh.camera((0, -0.1, 0), lens=30.0)
+    cam.data.clip_start, cam.data.clip_end = 1e-6, 2e-6
+    bh.f12(sc, tmp_path / "a.exr")
+    notes = [n.message for n in sc.thurston.stats.notes if n.kind == checks.NOTHING_HIT]
+    assert len(notes) == 1 and "clip end" in notes[0], [n.message for n in sc.thurston.stats.notes]
