@@ -425,3 +425,40 @@ def test_blender_clip_end_that_ends_every_ray_is_noted(tmp_path, registered_addo
     bh.f12(sc, tmp_path / "a.exr")
     notes = [n.message for n in sc.thurston.stats.notes if n.kind == checks.NOTHING_HIT]
     assert len(notes) == 1 and "clip end" in notes[0], [n.message for n in sc.thurston.stats.notes]
+
+
+@pytest.mark.parametrize(
+    "spec, words",
+    [
+        ("x", "frames must be N or A..B, got 'x'"),
+        ("1..x", "frames must be N or A..B, got '1..x'"),
+        ("..3", "frames must be N or A..B, got '..3'"),
+        ("1.5", "frames must be N or A..B, got '1.5'"),
+        ("5..1", "frames '5..1': the last frame comes before the first"),
+    ],
+)
+def test_render_blend_frame_ranges_that_are_no_range(registered_addon, spec, words):
+    from thurston_addon.blender import batch, export
+
+    with pytest.raises(export.ExportError) as caught:
+        batch.frame_range(spec, None)
+    assert str(caught.value) == words
+
+
+def test_render_blend_of_what_is_no_blend_file_or_into_a_file(tmp_path, registered_addon):
+    """A .blend of random bytes is one error naming it; an output folder that is a file is refused
+    before Blender opens anything; nothing is written."""
+    from support import blender_helpers as bh
+
+    blend = tmp_path / "noise.blend"
+    blend.write_bytes(np.random.default_rng(5).bytes(4096))
+    out = tmp_path / "out"
+    run = bh.render_blend(blend, out)
+    assert run.returncode == 2 and f"cannot open {str(blend)!r}" in error_line(run.stderr), run.stderr
+    (tmp_path / "taken").write_text("a file")
+    from thurston_addon import files
+    from thurston_addon.blender import batch
+
+    with pytest.raises(files.OutputError, match="is a file: choose a folder for --out"):
+        batch.make_folder(tmp_path / "taken")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["noise.blend", "taken"]

@@ -196,3 +196,20 @@ def test_a_truncated_texture_says_why(tmp_path):
         images.read_texture(path)
     reason = str(caught.value).split(": ", 1)[1]
     assert reason.strip() and str(path) in str(caught.value), str(caught.value)
+
+
+def test_a_gltf_texture_without_texture_coordinates_is_read_at_uv_0(tmp_path):
+    """A textured glTF whose mesh has no TEXCOORD_0 (the tracer refused it: "material 0 has a
+    texture, which needs corner_uvs"): a warning, and the texel at UV (0, 0) colours it, as an OBJ
+    corner without vt."""
+    from thurston_addon import render, spaces
+
+    write_texture(tmp_path / "tex.png")
+    (tmp_path / "buf.bin").write_bytes(TRIANGLE.tobytes() + UV.tobytes())
+    path = gltf(tmp_path, "buf.bin", "tex.png")
+    tree = json.loads(path.read_text())
+    del tree["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"]
+    path.write_text(json.dumps(tree))
+    with pytest.warns(UserWarning, match="has no texture coordinates"):
+        scene = scenes.load_scene_file(path)
+    assert render.make_tracer(spaces.load("torus"), scene, threads=1).num_triangles == 1

@@ -101,7 +101,8 @@ class _Surfaces:
                 if t is not None:
                     self.textures.setdefault(id(t), t)
         self.with_normals = any(o.corner_normals is not None for o in objects)
-        self.with_uvs = any(o.corner_uvs is not None for o in objects)
+        # (a texture on an object without UVs reads UV (0, 0), as an OBJ corner without vt does)
+        self.with_uvs = bool(self.textures) or any(o.corner_uvs is not None for o in objects)
         self.material, self.normals, self.uvs = [], [], []
 
     def add_copy(self, space: Space, index: int, obj, Y, kept, M):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,12 @@ def read_trimesh_file(path: Path, folders: tuple[Path, ...] | None = None) -> li
         color, emission = _trimesh_material(mesh)
         material = getattr(mesh.visual, "material", None)
         texture = textures.get(getattr(material, "name", None))
+        if texture is not None and uvs is None:
+            warnings.warn(
+                f"{path}: object {str(node)!r}: its material's texture has no texture coordinates (TEXCOORD_0): "
+                "the texel at UV (0, 0) colours it",
+                stacklevel=2,
+            )
         name = str(getattr(material, "name", ""))
         try:
             materials = [Material(color, emission, texture, name=name, **gltf_scattering(material))]
