@@ -300,21 +300,33 @@ REFLECTIONS = '[[generator]]\nname = "inner"\nantipodal = true\nface = [0, 0, -1
     "body, words",
     [
         (DILATION.format(p=2, w=-800), "the sphere |x| = e^800, beyond the chart's range"),
-        (DILATION.format(p=100, w=-100), "the sphere |x| = e^100, beyond the chart's range"),
+        (DILATION.format(p=50, w=-50), "the sphere |x| = e^50, beyond the chart's range"),
+        (DILATION.format(p=400, w=-400), "the matrix has an entry of 5.22e+173, beyond the 3.4e+38"),
         (REFLECTIONS.format(w=-400), "the sphere |x| = e^400, beyond the chart's range"),
         (REFLECTIONS.format(w=-800), "the sphere |x| = e^800, beyond the chart's range"),
+        (DILATION.format(p=41, w=-20), "the shell between |x| = e^-21 and e^20 is 41 wide in log|x|"),
+        (REFLECTIONS.format(w=-30), "e^0 and e^30, is 30 wide in log|x|, more than the 20"),
         (REFLECTIONS.format(w=-1e-17), "is 1e-17 thick"),
         (REFLECTIONS.format(w=-1e-12), "is 1e-12 thick"),
     ],
 )
 def test_shells_far_out_or_too_thin_are_one_clear_error(tmp_path, body, words):
-    """S2xR faces and antipodal shells far out (math.exp overflowed: a traceback) or too thin (called
-    "every generator is the identity")."""
+    """S2xR faces and antipodal shells far out (math.exp overflowed: a traceback), too wide for the
+    float32 chart (the checks' words overflowed) or too thin (called "every generator is the
+    identity")."""
     path = tmp_path / "shell.toml"
     path.write_text(SHELL + body)
     with pytest.raises(spaces.SpaceError) as caught:
         spaces.load(path)
     assert words in str(caught.value) and str(path) in str(caught.value), str(caught.value)
+
+
+@pytest.mark.parametrize("body", [DILATION.format(p=30, w=-30), REFLECTIONS.format(w=-15)])
+def test_wide_shells_within_the_limits_load(tmp_path, body):
+    path = tmp_path / "shell.toml"
+    path.write_text(SHELL + body)
+    space = spaces.load(path)
+    assert math.isclose(space.volume, 4 * math.pi * (30 if "exp" in body else 15), rel_tol=1e-6)
 
 
 @pytest.mark.parametrize(
