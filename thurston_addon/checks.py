@@ -22,6 +22,20 @@ SCENE_TOO_SMALL = "scene_too_small"
 DROPPED = "dropped"  # objects or parts of them not rendered (the message names them)
 SCALED_TO_ZERO = "scaled_to_zero"  # objects left out of a frame: scaled to 0 there (named)
 EXPOSURE = "exposure"  # the lit surfaces render black or white: the note's value is the exposure to use
+NOTHING_HIT = "nothing_hit"  # every ray stopped before a surface (the distance limit, the clip end)
+CLAMPED = "clamped"  # pixels whose light summed beyond float32, clamped to its largest value
+LONG_WALK = "long_walk"  # the limits let rays that meet nothing walk for hours
+
+# The fastest walk measured (the flat torus, one thread: about 7 million face crossings a second);
+# the curved geometries' walks are slower. A render whose rays could cross more faces than
+# LONG_WALK_SECONDS of this is said before it starts.
+CROSSINGS_PER_SECOND = 1e7
+LONG_WALK_SECONDS = 600.0
+
+# Fog dims a surface at depth d by exp(-d / fog): beyond this many fog distances it shows black.
+FOG_BLACK = 80.0
+# A spot cone narrower than this (full angle, radians) lights next to nothing.
+NARROW_SPOT = 1e-6
 
 # An object whose chart diagonal exceeds the domain's this many times fills the domain with its
 # overlapping copies (one the domain's size, as its edges, does not); a scene smaller than
@@ -260,6 +274,29 @@ def before_render(space: Space, scene: Scene, camera: Camera, lambert: bool) -> 
     return notes
 
 
+def long_walk(space: Space, rays: int, max_distance: float, max_crossings: int, threads: int) -> Note | None:
+    """A note where the limits let `rays` rays that meet nothing walk for longer than
+    LONG_WALK_SECONDS: each crosses a face about every domain inradius, up to the crossings' limit."""
+    per_ray = min(float(max_crossings), max_distance / max(space.chart_inradius, 1e-300))
+    seconds = rays * per_ray / (CROSSINGS_PER_SECOND * max(threads, 1))
+    if not seconds > LONG_WALK_SECONDS:
+        return None
+    return Note(
+        LONG_WALK,
+        f"each ray may walk up to {per_ray:.3g} face crossings (max distance {max_distance:.3g}, max crossings "
+        f"{max_crossings}) before it stops: where rays meet nothing, these {rays} rays take at least "
+        f"{_duration(seconds)}; lower max distance or max crossings (the render shows its progress and "
+        "stops on Ctrl+C or Esc)",
+    )
+
+
+def _duration(seconds: float) -> str:
+    for unit, size in (("years", 3.15e7), ("days", 86400), ("hours", 3600), ("minutes", 60)):
+        if seconds >= 2 * size:
+            return f"{seconds / size:.3g} {unit}"
+    return f"{seconds:.3g} s"
+
+
 def lit_median(scene: Scene, passes: dict) -> float | None:
     """The median luminance (linear) of the pixels that show a surface lit by the lights (not an
     emitter); None where there is none."""
@@ -283,29 +320,40 @@ def proposed_exposure(scene: Scene, passes: dict, exposure: float = 0.0) -> floa
     return math.log2(MID_GREY / median)
 
 
-def after_render(scene: Scene, passes: dict, lambert: bool, exposure: float = 0.0) -> list[Note]:
-    """Notes on the rendered passes: lights that reach no surface the camera sees; lit surfaces
-    that show black or white under the `exposure` (stops) the front end applies."""
-    emissive = np.array([np.any(o.emission > 0) for o in scene.objects] + [False])
-    if not (lambert and (scene.lights or emissive.any())):  # emitters light too (a point light's sphere)
-        return []
+def after_render(
+    scene: Scene, passes: dict, lambert: bool, exposure: float = 0.0, stats: dict | None = None
+) -> list[Note]:
+    """Notes on the rendered passes: no ray reaching a surface; pixels clamped; lights that reach
+    no surface the camera sees, with the cause where the render's `stats` (Result.stats) tell it;
+    lit surfaces that show black or white under the `exposure` (stops) the front end applies."""
+    stats = stats or {}
+    notes = []
+    if stats.get("clamped_pixels"):
+        notes.append(
+            Note(
+                CLAMPED,
+                f"{stats['clamped_pixels']} pixels summed more light than float32 holds (3.4e38) and are "
+                "clamped to it: make the emitters and lights weaker (their copies add up in a closed space)",
+            )
+        )
     obj = passes["object"]
     hit = obj >= 0
+    short = _short_limit(stats)
+    if scene.objects and not hit.any() and short:
+        return notes + [Note(NOTHING_HIT, f"no ray reaches a surface: {short}")]
+    emissive = np.array([np.any(o.emission > 0) for o in scene.objects] + [False])
+    if not (lambert and (scene.lights or emissive.any())):  # emitters light too (a point light's sphere)
+        return notes
     lit_surface = hit & ~emissive[obj]
     if lit_surface.any() and not np.any(passes["color"][lit_surface] > 0):
-        return [
-            Note(
-                UNLIT,
-                "no light reaches any surface the camera sees: the lights are inside objects or "
-                "hidden from the visible surfaces; move a light into view of them",
-            )
-        ]
+        depth = float(np.min(passes["depth"][lit_surface])) if "depth" in passes else 0.0
+        return notes + [Note(UNLIT, _unlit_cause(scene, stats, depth, emissive.any()))]
     stops = proposed_exposure(scene, passes, exposure)
     if stops is None:
-        return []
+        return notes
     median = lit_median(scene, passes) * 2.0**exposure
     bright = median > EXPOSURE_BRIGHT
-    return [
+    return notes + [
         Note(
             EXPOSURE,
             f"the lit surfaces show {'white' if bright else 'black'} (their median brightness is "
@@ -321,3 +369,41 @@ def after_render(scene: Scene, passes: dict, lambert: bool, exposure: float = 0.
             value=stops,
         )
     ]
+
+
+def _short_limit(stats: dict) -> str | None:
+    """Which limit stops the rays before they reach as far as the domain's inradius, if one does
+    (then nothing may be hit): the face crossings', the camera's clip end or the distance limit."""
+    counts, span = stats.get("stop_counts", {}), stats.get("inradius", 0.0)
+    clip_end, reach = stats.get("clip_end"), stats.get("max_distance")
+    if counts.get("crossings", 0) > counts.get("distance", 0) and stats.get("max_crossings") == 0:
+        return "every ray stops at its first face crossing (max crossings 0); raise max crossings"
+    if clip_end is not None and clip_end < span and (reach is None or clip_end < reach):
+        return f"the camera's clip end {clip_end:.3g} ends every ray before a surface; raise the clip end"
+    if reach is not None and reach < span:
+        return f"every ray stops at the distance limit {reach:.3g} before a surface; raise max distance"
+    return None
+
+
+def _unlit_cause(scene: Scene, stats: dict, depth: float, emitters: bool) -> str:
+    """The unlit note's words: the cause the settings and lights show, else the usual ones."""
+    fog, reach = stats.get("fog"), stats.get("light_reach")
+    if fog and depth / fog > FOG_BLACK:
+        return (
+            f"every surface the camera sees shows black: the fog distance {fog:.3g} dims the nearest "
+            f"({depth:.3g} away, {depth / fog:.3g} fog distances) to nothing; raise the fog distance or turn fog off"
+        )
+    if reach == 0 and not emitters:
+        return "no light reaches any surface: the light reach is 0, so no geodesic to a light is summed; raise the light reach"
+    spots = [light for light in scene.lights if light.spot_direction is not None]
+    if scene.lights and len(spots) == len(scene.lights) and not emitters:
+        narrowest = min(light.spot_size for light in spots)
+        if max(light.spot_size for light in spots) < NARROW_SPOT:
+            return (
+                f"no light reaches any surface the camera sees: every light is a spot whose cone "
+                f"({math.degrees(narrowest):.3g} degrees) is too narrow to light anything; widen spot_size"
+            )
+    return (
+        "no light reaches any surface the camera sees: the lights are inside objects or "
+        "hidden from the visible surfaces; move a light into view of them"
+    )

@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import io
 import json
+import os
 import signal
 import sys
 import time
@@ -98,7 +99,7 @@ def cmd_spaces(args):
 
 def _load_world(args):
     space = spaces.load(args.space)
-    scene = scenes.load_scenes(args.scene) if args.scene else scenes.default_scene(space)
+    scene = scenes.load_scenes(args.scene, args.allow_files_outside) if args.scene else scenes.default_scene(space)
     if args.scene and not scene.objects:
         warnings.warn("the scene files hold no objects: only the background will show")
     return space, scene
@@ -142,7 +143,14 @@ def cmd_render(args):
         warnings.warn(f"a {w}x{h} panorama is not 2:1: panorama viewers and headsets show it stretched")
     lambert = settings.shading == "lambert"
     render.camera_frame(space, camera)  # a camera that cannot be used is refused before the notes on it
-    for note in checks.before_render(space, scene, camera, lambert):
+    walk = checks.long_walk(
+        space,
+        w * h * settings.samples_per_pixel,
+        settings.max_distance or space.max_distance,
+        space.max_crossings if settings.max_crossings is None else settings.max_crossings,
+        settings.threads or os.cpu_count() or 1,
+    )
+    for note in checks.before_render(space, scene, camera, lambert) + ([walk] if walk else []):
         warnings.warn(note.message)
     progress = Progress(f"render {space.id}")
     if stereo is None:
@@ -150,7 +158,7 @@ def cmd_render(args):
     else:
         results = render.render_eyes(space, scene, settings, camera=camera, progress=progress)
     for result in results:
-        for note in checks.after_render(scene, result.passes, lambert):
+        for note in checks.after_render(scene, result.passes, lambert, stats=result.stats):
             warnings.warn(note.message)
     summary = "; ".join(
         (f"{eye} eye: " if stereo else "") + result.summary() for eye, result in zip(render.EYES, results)
@@ -335,6 +343,14 @@ def build_parser():
             action="append",
             metavar="FILE",
             help="mesh file (.obj .ply .stl .glb .gltf) or scene file (.toml); repeatable; default: the space's default scene",
+        )
+        q.add_argument(
+            "--allow-files-outside",
+            action="append",
+            default=[],
+            metavar="FOLDER",
+            help="a folder (and below) the files a scene refers to (materials, textures, buffers, meshes) "
+            "may also be read from; repeatable; default: only the scene file's own folder and below",
         )
         q.add_argument("--max-distance", type=float, help="geodesic length at which a ray stops (default: the space's)")
         q.add_argument(

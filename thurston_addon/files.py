@@ -64,6 +64,31 @@ def check_input(path: str | Path, what: str, error: type[Exception], limit: str 
     return path
 
 
+REFERENCE_OPTION = "--allow-files-outside FOLDER"
+
+
+def reference_folders(scene_file: str | Path, allowed=()) -> tuple[Path, ...]:
+    """The folders the files a scene file refers to may be read from: the scene file's own folder
+    (and below), then each folder the user allows (links resolved)."""
+    return tuple(Path(os.path.realpath(f)) for f in (Path(scene_file).absolute().parent, *allowed))
+
+
+def check_reference(
+    path: str | Path, folders: tuple[Path, ...], what: str, error: type[Exception], limit: str | None = None
+) -> Path:
+    """A file a scene refers to (a material library, a texture, a glTF buffer or image, a mesh file
+    of a scene file), read only from `folders` (reference_folders) and below, its links resolved,
+    so that a hostile scene cannot read the rest of the machine; then `check_input`'s checks."""
+    path = Path(path)
+    real = Path(os.path.realpath(path))
+    if not any(real.is_relative_to(folder) for folder in folders):
+        raise error(
+            f"{what} {str(path)!r} is outside the scene's folder {str(folders[0])!r}: files a scene refers "
+            f"to are read from its folder and below; pass {REFERENCE_OPTION} to allow another folder"
+        )
+    return check_input(path, what, error, limit)
+
+
 def read_text(path: str | Path, what: str, error: type[Exception], limit: str) -> str:
     """A UTF-8 text input (checked by check_input) as a string; `error` where it cannot be read."""
     path = check_input(path, what, error, limit)
@@ -110,7 +135,13 @@ def load_npy(path: str | Path, what: str, error: type[Exception]) -> np.ndarray:
             read_header = (
                 np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
             )
-            shape, fortran_order, dtype = read_header(f)
+            try:
+                shape, fortran_order, dtype = read_header(f)
+            except (ValueError, SyntaxError, TypeError):  # numpy's words quote the parser's internals
+                raise ValueError(
+                    "its header is not a .npy header (a dictionary of 'descr', 'fortran_order' and 'shape'); "
+                    "write the file with numpy.save"
+                ) from None
             offset = f.tell()
     except (ValueError, EOFError, OSError) as exc:
         raise error(f"cannot read {name} as a .npy array: {exc}") from None
@@ -146,6 +177,7 @@ def check_output(path: str | Path, overwrite: bool, to_replace: str = "pass --ov
     in the front end's words. Checked before the work, so that it is not wasted; `replacing`
     checks again when the file is put in place."""
     path = Path(path)
+    _check_name(path)
     if path.exists() and not overwrite:
         raise OutputError(f"output {str(path)!r} exists; {to_replace} to replace it")
     if path.is_dir():
@@ -157,6 +189,35 @@ def check_output(path: str | Path, overwrite: bool, to_replace: str = "pass --ov
     return path
 
 
+def _check_name(path: Path):
+    """OutputError where the output's name cannot be written: not UTF-8 text (OpenImageIO takes
+    only UTF-8 names), or longer than the file system allows for it and its temporary file."""
+    name = str(path)
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        raw = os.fsencode(name)
+        raise OutputError(
+            f"output name {name!r} is not UTF-8 text (byte {raw[exc.start : exc.start + 1]!r}); give a UTF-8 name"
+        ) from None
+    folder = path.parent if str(path.parent) else Path(".")
+    try:
+        longest = os.pathconf(folder if folder.exists() else ".", "PC_NAME_MAX")
+    except (OSError, ValueError):
+        longest = 255
+    needed = len(os.fsencode(_temporary_name(path, "0" * 12).name))
+    if needed > longest:
+        raise OutputError(
+            f"output name {path.name[:40]!r}... is {len(os.fsencode(path.name))} bytes: with the temporary file's "
+            f"{needed - len(os.fsencode(path.name))} more that it is written to first, that is more than the "
+            f"{longest} the file system allows; give a shorter name"
+        )
+
+
+def _temporary_name(path: Path, token: str) -> Path:
+    return path.with_name(f".{path.name}.{token}.partial{path.suffix}")
+
+
 @contextlib.contextmanager
 def replacing(path: str | Path, overwrite: bool, to_replace: str = "pass --overwrite"):
     """Yields a new empty temporary file beside `path` (same suffix, so that writers choosing the
@@ -166,8 +227,11 @@ def replacing(path: str | Path, overwrite: bool, to_replace: str = "pass --overw
     KeyboardInterrupt or a signal's), or the move fails, the temporary file is removed and `path`
     is left as it was. Errors of the file system are OutputError naming `path`."""
     path = Path(path)
-    tmp = _new_temporary(path)
+    # the temporary name is claimed before its file is created: a signal's exception (Ctrl-C,
+    # cli.Terminated) landing just after the creation still finds it to remove
+    claimed: list[Path] = []
     try:
+        tmp = _new_temporary(path, claimed)
         yield tmp
         _flush(tmp)
         if overwrite:
@@ -178,8 +242,9 @@ def replacing(path: str | Path, overwrite: bool, to_replace: str = "pass --overw
     except OSError as exc:
         raise OutputError(f"cannot write {str(path)!r}: {exc.strerror or exc}") from None
     finally:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
+        for tmp in claimed:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
 
 
 def write_bytes(path: str | Path, data, overwrite: bool, to_replace: str = "pass --overwrite") -> Path:
@@ -190,17 +255,21 @@ def write_bytes(path: str | Path, data, overwrite: bool, to_replace: str = "pass
     return path
 
 
-def _new_temporary(path: Path) -> Path:
+def _new_temporary(path: Path, claimed: list[Path]) -> Path:
     """A new file of a unique name `.NAME.RANDOM.partial.SUFFIX` beside `path`, created
-    exclusively (so that concurrent writers never share one) with the mode the umask gives."""
+    exclusively (so that concurrent writers never share one) with the mode the umask gives; its
+    name is put in `claimed` before the file is created (and taken out where another has it)."""
     while True:
-        tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.partial{path.suffix}")
+        tmp = _temporary_name(path, secrets.token_hex(6))
+        claimed.append(tmp)
         try:
             os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
             return tmp
         except FileExistsError:
+            claimed.remove(tmp)  # (another writer's: not ours to remove)
             continue
         except OSError as exc:
+            claimed.remove(tmp)  # (not created)
             raise OutputError(f"cannot write {str(path)!r}: {exc.strerror}") from None
 
 

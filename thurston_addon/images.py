@@ -65,11 +65,18 @@ def srgb_to_linear(c):
     return np.where(c <= 0.04045, c / 12.92, np.power((c + 0.055) / 1.055, 2.4))
 
 
+# The most pixels a texture may have (8192 x 8192): its header is checked before any pixel is read,
+# since a small compressed file can claim a huge image (a 2 MB PNG of 16384 x 16384 took 14.5 GB).
+# Reading one takes some 50 bytes a pixel at its peak (OpenImageIO's float pixels, RGB, sRGB decoding).
+TEXTURE_PIXEL_LIMIT = 8192 * 8192
+
+
 def read_texture(path: str | Path) -> np.ndarray:
     """An image file as a float32 (H, W, 3) linear RGB texture, rows top-down. As Blender reads a
     colour image: integer formats (8/16-bit PNG, JPEG, ...) are sRGB-encoded and decoded here,
     float formats (EXR, HDR) are linear; grey images give grey RGB, alpha is dropped. Raises
-    ValueError naming the file where it cannot be read."""
+    ValueError naming the file where it cannot be read, or where its header claims more than
+    TEXTURE_PIXEL_LIMIT pixels (refused, not downsampled: the user's own scaling is the one they want)."""
     import OpenImageIO as oiio
 
     image = oiio.ImageInput.open(str(path))
@@ -77,6 +84,11 @@ def read_texture(path: str | Path) -> np.ndarray:
         raise ValueError(f"cannot read texture {str(path)!r}: {oiio.geterror() or 'not an image'}")
     try:
         spec = image.spec()
+        if spec.width * spec.height > TEXTURE_PIXEL_LIMIT:
+            raise ValueError(
+                f"texture {str(path)!r} is {spec.width}x{spec.height} pixels, more than the "
+                f"{TEXTURE_PIXEL_LIMIT // 2**20} million (8192x8192) a texture may have; scale it down"
+            )
         # its header's size, checked before the pixels are allocated (as float32, and as RGB)
         check_memory(
             4 * spec.width * spec.height * (spec.nchannels + 3),
@@ -87,7 +99,8 @@ def read_texture(path: str | Path) -> np.ndarray:
     finally:
         image.close()
     if pixels is None:
-        raise ValueError(f"cannot read texture {str(path)!r}: {oiio.geterror()}")
+        reason = oiio.geterror().strip() or "its pixel data is truncated or corrupt"
+        raise ValueError(f"cannot read texture {str(path)!r}: {reason}")
     pixels = np.asarray(pixels, np.float32).reshape(spec.height, spec.width, spec.nchannels)
     rgb = pixels[..., :3] if spec.nchannels >= 3 else np.repeat(pixels[..., :1], 3, axis=2)
     if spec.format.basetype not in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE):

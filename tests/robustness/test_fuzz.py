@@ -1,6 +1,8 @@
 """Fuzz: a few hundred malformed inputs made from valid ones with a fixed seed (truncations, byte
 flips, values of the wrong type, huge numbers, NaN, keys left out or added) through the loaders,
-in-process: TOML scenes, TOML spaces, OBJ with MTL, PLY, STL, glTF/GLB and .npy rays. Each either
+in-process: TOML scenes, TOML spaces (flat and curved: Nil, S2xR's shells), OBJ with MTL and its
+texture, PLY, STL, glTF/GLB (embedded, and with external buffers and a texture image) and .npy
+rays. Each either
 loads validly (a scene or mesh file then compiles into a tracer, rays come back finite and inside
 the domain) or raises the project's error type with a message naming the file; never another
 exception. A scene or space file's message also never shows Python's or Qhull's own words."""
@@ -244,6 +246,40 @@ def mesh_seeds():
     return out
 
 
+def texture_png() -> bytes:
+    """A 4x4 PNG texture's bytes."""
+    import tempfile
+    from pathlib import Path
+
+    from thurston_addon import images
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "t.png"
+        images.write(path, {"color": np.full((4, 4, 3), 0.5, np.float32)})
+        return path.read_bytes()
+
+
+TEXTURED_OBJ = "mtllib t.mtl\nusemtl painted\nv 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n"
+TEXTURED_MTL = "newmtl painted\nKd 1 1 1\nmap_Kd t.png\n"
+
+
+def external_gltf() -> dict[str, bytes]:
+    """A box as .gltf whose buffers are files beside it, and whose material's base colour is an
+    image file beside it: {file name: bytes}."""
+    box = trimesh.creation.box(extents=(0.1, 0.2, 0.1))
+    box.apply_translation((0.2, 0, 0))
+    box.visual = trimesh.visual.TextureVisuals(uv=(box.vertices[:, :2] - box.vertices[:, :2].min(axis=0)) * 4)
+    files = trimesh.Scene([box]).export(file_type="gltf")
+    tree = json.loads(files.pop("model.gltf"))
+    tree["images"] = [{"uri": "t.png"}]
+    tree["textures"] = [{"source": 0}]
+    tree["materials"] = [{"name": "painted", "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+    for mesh in tree["meshes"]:
+        for primitive in mesh["primitives"]:
+            primitive["material"] = 0
+    return {"model.gltf": json.dumps(tree).encode(), "t.png": texture_png(), **files}
+
+
 def npy_seed(rows) -> bytes:
     buf = io.BytesIO()
     np.save(buf, rows)
@@ -307,6 +343,26 @@ def cases():
             if name == "mesh.gltf" and k % 2:
                 mutated = json.dumps(mutate_json(rng, json.loads(data))).encode()
             out.append((f"{name}{k}", {name: mutated}, name, "mesh"))
+    curved = [(spaces.PRESET_DIR / f"{name}.toml").read_text() for name in ("s2xs1", "rp3_rp3")]
+    for k in range(24):
+        out.append((f"curved{k}", {"space.toml": mutate_text(rng, curved[k % 2])}, "space.toml", "space"))
+    textured = {"t.obj": TEXTURED_OBJ.encode(), "t.mtl": TEXTURED_MTL.encode(), "t.png": texture_png()}
+    for k in range(20):  # the texture's bytes, or the library naming it
+        files = dict(textured)
+        files["t.png" if k % 2 else "t.mtl"] = (
+            mutate_bytes(rng, files["t.png"]) if k % 2 else mutate_mesh_text(rng, TEXTURED_MTL)
+        )
+        out.append((f"texture{k}", files, "t.obj", "mesh"))
+    external = external_gltf()
+    for k in range(24):  # a buffer's bytes, the image's, or the JSON naming them
+        files = dict(external)
+        name = ("gltf_buffer_0.bin", "t.png", "model.gltf")[k % 3]
+        files[name] = (
+            json.dumps(mutate_json(rng, json.loads(files[name]))).encode()
+            if name == "model.gltf"
+            else mutate_bytes(rng, files[name])
+        )
+        out.append((f"external{k}", files, "model.gltf", "mesh"))
     for k, data in enumerate(ray_cases(rng, 40)):
         out.append((f"rays{k}", {"rays.npy": data}, "rays.npy", "rays"))
     return out
@@ -337,9 +393,14 @@ def test_the_unmutated_seeds_load_validly(tmp_path, torus):
         "torus.toml": (spaces.PRESET_DIR / "torus.toml").read_bytes(),
         "nil.toml": (spaces.PRESET_DIR / "nil.toml").read_bytes(),
         **mesh_seeds(),
+        **{name: data for name, data in external_gltf().items()},
+        "t.obj": TEXTURED_OBJ.encode(),
+        "t.mtl": TEXTURED_MTL.encode(),
     }
+    loaded = ["scene.toml", "m.obj", "rays.npy", "torus.toml", "nil.toml", *mesh_seeds(), "model.gltf", "t.obj"]
     for name, data in seeds.items():
         (tmp_path / name).write_bytes(data)
+    for name in loaded:
         kind = {"scene.toml": "scene", "rays.npy": "rays", "torus.toml": "space", "nil.toml": "space"}.get(name, "mesh")
         result = load(kind, tmp_path / name, torus)
         check_valid(kind, result, torus)
@@ -349,7 +410,9 @@ def test_the_unmutated_seeds_load_validly(tmp_path, torus):
             np.testing.assert_allclose(V[:, :3], VALID_RAYS[:, 3:] / np.linalg.norm(VALID_RAYS[0, 3:]), rtol=1e-15)
         elif kind == "mesh":
             triangles = render.make_tracer(torus, result, threads=1).num_triangles
-            assert triangles == (5 if name == "m.obj" else 12), (name, triangles)
+            assert triangles == {"m.obj": 5, "t.obj": 1}.get(name, 12), (name, triangles)
+            if name in ("t.obj", "model.gltf"):  # with its texture
+                np.testing.assert_allclose(result.objects[0].materials[0].color_texture, 0.5, atol=0.01)
         elif kind == "scene":
             # three primitives and the area light's emitter; the point and the spot light; the camera
             assert len(result.objects) == 4 and len(result.lights) == 2 and result.camera.fov == 70

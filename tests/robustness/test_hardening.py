@@ -300,7 +300,7 @@ def test_the_largest_float32_values_are_accepted(tmp_path):
         ("Ke nan 0 0", [":2: Ke", "NaN"]),
         ("Kd 0.5 -1 0", [":2: Kd", "negative"]),
         ("Kd 0.5 0.5", [":2: Kd needs 1 or 3 numbers"]),
-        ("Kd red", [":2: cannot parse 'Kd red'"]),
+        ("Kd red", [":2: cannot parse Kd: its values must be numbers"]),
     ],
 )
 def test_mtl_colours_are_checked_on_load(tmp_path, line, words):

@@ -305,7 +305,7 @@ def test_unsupported_suffix(tmp_path):
         ("v 0 0 0\nv nan 1 0\nv 0 1 0\nf 1 2 3\n", r"bad\.obj.*NaN"),
         ("v 0 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 9\n", r"bad\.obj.*vertex that does not exist"),
         ("v 0 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 0\n", r"bad\.obj.*vertex that does not exist"),
-        ("v 0 0 0\nv 1 x 0\nv 0 1 0\nf 1 2 3\n", r"bad\.obj:2: cannot parse 'v 1 x 0'"),
+        ("v 0 0 0\nv 1 x 0\nv 0 1 0\nf 1 2 3\n", r"bad\.obj:2: cannot parse 'v': its values must be numbers"),
         ("v 0 0 0\nv 1 1 0\nv 0 1 0\nf 1 two 3\n", r"bad\.obj:4: cannot parse"),
         ("v 0 0 0\nv 1 1 0\n", r"bad\.obj.*no triangles"),
     ],

@@ -51,12 +51,18 @@ def parallel_transport(g: Geometry, X, V, t: float, vectors):
 
 
 def orthonormalize(g: Geometry, X, vectors):
-    """Gram-Schmidt in the metric: model tangents vectors (..., k, 4) at model points X (..., 4) made
+    """Gram-Schmidt in the metric: model tangent vectors (..., k, 4) at model points X (..., 4) made
     tangent there and orthonormal, in their order."""
     frame = []
     for i in range(vectors.shape[-2]):
-        w = vectors[..., i, :]
+        # only directions count: each scaled to at most 1 before the metric squares it (Sol's
+        # isometry from |z| = 355 stretches a tangent by e^355, whose square overflows)
+        w = _scaled(vectors[..., i, :])
         for b in frame:
             w = w - g.dot(X, w, b)[..., None] * b
-        frame.append(g.normalize_tangent(X, w))
+        frame.append(g.normalize_tangent(X, _scaled(w)))
     return np.stack(frame, axis=-2)
+
+
+def _scaled(v):
+    return v / np.abs(v).max(axis=-1, keepdims=True)

@@ -34,10 +34,21 @@ def camera_frame(space: Space, camera: Camera):
         )
     frame = [g.tangent_to_model(p, v) for v in (f, r, u)]
     try:
-        X, _, M = space.bring_inside(space.to_model(p[None], label=None)[0])
+        with np.errstate(over="ignore", invalid="ignore"):  # (an isometry that overflows is refused below)
+            X, _, M = space.bring_inside(space.to_model(p[None], label=None)[0])
     except SpaceError as exc:
         raise RenderError(f"camera: {exc}") from None
-    return X, list(orthonormalize(g, X, np.stack([M @ v for v in frame])))
+    far = RenderError(
+        f"camera position {p.tolist()} is too far out: the isometry that brings it into the domain "
+        "overflows float64; place the camera nearer the domain (the view is the same from the copy there)"
+    )
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        if not (np.all(np.isfinite(M)) and np.all(np.isfinite(X))):
+            raise far
+        basis = list(orthonormalize(g, X, np.stack([M @ v for v in frame])))
+    if not all(np.all(np.isfinite(b)) for b in basis):
+        raise far
+    return X, basis
 
 
 def view_directions(camera: Camera, settings: Settings, jitter=(0.5, 0.5)):

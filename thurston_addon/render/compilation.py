@@ -136,8 +136,8 @@ class _Surfaces:
                 if t is not None:
                     self.textures.setdefault(id(t), t)
         self.with_normals = any(o.corner_normals is not None for o in objects)
-        # objects without UVs read their textures at UV (0, 0), as Cycles does
-        self.with_uvs = any(o.corner_uvs is not None for o in objects) or bool(self.textures)
+        # objects without UVs read their textures at UV (0, 0), as Cycles does (and an OBJ corner without vt)
+        self.with_uvs = bool(self.textures) or any(o.corner_uvs is not None for o in objects)
         self.material, self.normals, self.uvs = [], [], []
 
     def add_copy(self, space: Space, index: int, obj, Y, kept, M):
@@ -316,6 +316,13 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
         raise RenderError(f"{space.name}: an infinite group needs a finite light reach")
     flat, meshes = [], []  # flat: (object index, source object, Y, kept, M); meshes: (index, chart maps)
     for index, obj in enumerate(scene.objects):
+        if len(obj.triangles) == 0:  # (not "outside the domain": there is nothing to place)
+            warnings.warn(
+                f"object {obj.name!r} has no triangle with an area (every one is degenerate, its corners "
+                "on one line): not shown",
+                stacklevel=2,
+            )
+            continue
         # a folded space's double cover holds the object's image under the fold too (flattened)
         mirrored = [] if space.fold is None else [_folded(obj.placed(), space.fold)]
         if obj.instances is not None:

@@ -10,7 +10,7 @@ import time
 import numpy as np
 
 from ..passes import STOP_REASONS, colorize
-from ..scenes import Camera, Scene
+from ..scenes import FLOAT32_MAX, Camera, Scene
 from ..spaces import Space
 from .camera import camera_frame, camera_rays, camera_space_normals, clip_range, view_directions
 from .compilation import own_hits
@@ -122,6 +122,9 @@ def render(
         ) from None
 
 
+MAX_LENS_SHIFT = 10.0  # image widths, Blender's range
+
+
 def _render(space, scene, settings, camera, progress, tracer) -> Result:
     """render() after the settings' check.
     Colour: the average of the stratified samples of sample_offsets. The other passes (depth,
@@ -132,6 +135,11 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     )
     if not (0 < camera.fov < 180):
         raise RenderError(f"camera field of view must be between 0 and 180 degrees, got {camera.fov}")
+    if not all(abs(s) <= MAX_LENS_SHIFT for s in camera.shift):  # (NaN included)
+        raise RenderError(
+            f"camera lens shift {[float(s) for s in camera.shift]} must be within ±{MAX_LENS_SHIFT:g} image widths "
+            "(as Blender's); a larger one aims every ray along the image plane"
+        )
     reach = settings.max_distance or space.max_distance
     if not (0 <= camera.clip_start < min(reach, camera.clip_end or math.inf)):
         raise RenderError(
@@ -260,8 +268,14 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     seconds = time.perf_counter() - t0
     full = bool(np.all(taken == len(offsets)))
     position, normal = own_hits(space, first)
+    # light summed beyond float32 (emitters near its limit, their copies adding up) is clamped to
+    # its largest value, and counted for the note, rather than written as infinite pixels
+    with np.errstate(over="ignore", invalid="ignore"):
+        mean_color = color_sum / taken[:, None]
+        beyond = np.any(mean_color > FLOAT32_MAX, axis=1)
+        mean_color = np.minimum(mean_color, FLOAT32_MAX)
     passes = {
-        "color": (color_sum / taken[:, None]).reshape(h, w, 3).astype(np.float32),
+        "color": mean_color.reshape(h, w, 3).astype(np.float32),
         # the colour of a miss is 0, so the colour is premultiplied by this alpha
         "alpha": (hit_sum / taken if settings.transparent else np.ones(w * h)).reshape(h, w).astype(np.float32),
         "depth": (first["depth"] + first_start).reshape(h, w),
@@ -329,6 +343,13 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "denoised": denoised,
         **light_stats(space, settings, tracer, light_paths, light_energy, shaded_points, shadow_walks, shadowed),
         "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},
+        # the limits the notes name (checks.after_render)
+        "max_distance": reach,
+        "max_crossings": max_crossings,
+        "clip_end": camera.clip_end,
+        "fog": settings.fog,
+        "inradius": float(space.inradius),
+        "clamped_pixels": int(beyond.sum()),
     }
     return Result(passes, stats, taken.reshape(h, w))
 

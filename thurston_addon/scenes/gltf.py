@@ -9,12 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..files import check_input
+from ..files import check_reference
 from .model import SceneError, checked_texture
 
 
-def gltf_parts(path: Path) -> tuple[dict, bytes]:
-    """A glTF/GLB file's JSON and its binary chunk (b"" for .gltf); ({}, b"") for other files."""
+def gltf_parts(path: Path, folders: tuple[Path, ...]) -> tuple[dict, bytes]:
+    """A glTF/GLB file's JSON and its binary chunk (b"" for .gltf); ({}, b"") for other files. Its
+    external buffers are checked where they lie (`folders`: files.reference_folders)."""
     if path.suffix.lower() not in (".glb", ".gltf"):
         return {}, b""
     data = path.read_bytes()
@@ -38,11 +39,11 @@ def gltf_parts(path: Path) -> tuple[dict, bytes]:
     for k, buffer in enumerate(buffers if isinstance(buffers, list) else []):
         uri = buffer.get("uri") if isinstance(buffer, dict) else None
         if isinstance(uri, str) and not uri.startswith("data:"):
-            check_input(path.parent / uri, f"{path}: buffer {k}", SceneError, "mesh file")
+            check_reference(path.parent / uri, folders, f"{path}: buffer {k}", SceneError, "mesh file")
     return header, binary
 
 
-def gltf_base_textures(path: Path, header: dict, binary: bytes) -> dict[str, np.ndarray]:
+def gltf_base_textures(path: Path, header: dict, binary: bytes, folders: tuple[Path, ...]) -> dict[str, np.ndarray]:
     """Material name -> its base colour texture (linear), read here since trimesh needs Pillow
     for images. Materials are matched to trimesh's by name, so unnamed ones get no texture."""
     import base64
@@ -59,7 +60,8 @@ def gltf_base_textures(path: Path, header: dict, binary: bytes) -> dict[str, np.
         uri = image.get("uri", "")
         where = f"{path}: material {material['name']!r}"
         if uri and not uri.startswith("data:"):
-            out[material["name"]] = checked_texture(path.parent / uri, where)
+            image_file = check_reference(path.parent / uri, folders, f"{where}: image", SceneError, "texture")
+            out[material["name"]] = checked_texture(image_file, where)
             continue
         if uri:
             blob = base64.b64decode(uri.split(",", 1)[1])
@@ -72,8 +74,8 @@ def gltf_base_textures(path: Path, header: dict, binary: bytes) -> dict[str, np.
                 else (
                     base64.b64decode(buffer["uri"].split(",", 1)[1])
                     if buffer["uri"].startswith("data:")
-                    else check_input(
-                        path.parent / buffer["uri"], f"{path}: buffer", SceneError, "mesh file"
+                    else check_reference(
+                        path.parent / buffer["uri"], folders, f"{path}: buffer", SceneError, "mesh file"
                     ).read_bytes()
                 )
             )
@@ -88,6 +90,31 @@ def gltf_base_textures(path: Path, header: dict, binary: bytes) -> dict[str, np.
             except ValueError:
                 raise SceneError(f"{where}: its base colour image cannot be decoded") from None
     return out
+
+
+def gltf_resolver(path: Path, folders: tuple[Path, ...]):
+    """trimesh's resolver for the files a glTF refers to, under the same rule as every file a scene
+    refers to (check_reference), and its errors in those words (trimesh's own resolver reads
+    anywhere or refuses in its internals' words)."""
+    import trimesh
+
+    class SceneFolderResolver(trimesh.resolvers.Resolver):
+        def __init__(self):
+            pass
+
+        def get(self, name: str) -> bytes:
+            return check_reference(path.parent / name, folders, f"{path}: file", SceneError, "mesh file").read_bytes()
+
+        def write(self, name, data):
+            raise SceneError(f"{path}: reading a mesh file writes nothing ({name!r})")
+
+        def namespaced(self, namespace):
+            return gltf_resolver(path.parent / namespace / path.name, folders)
+
+        def keys(self):
+            return iter(())
+
+    return SceneFolderResolver()
 
 
 def gltf_scattering(material) -> dict:

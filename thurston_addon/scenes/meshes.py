@@ -5,7 +5,7 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
-from ..files import check_input
+from ..files import check_input, reference_folders
 from .model import SceneError, SceneObject, clean
 from .obj import read_obj
 from .trimesh_formats import read_trimesh_file
@@ -13,7 +13,9 @@ from .trimesh_formats import read_trimesh_file
 MESH_SUFFIXES = {".obj", ".ply", ".stl", ".glb", ".gltf"}
 
 
-def load_mesh_file(path: str | Path) -> list[SceneObject]:
+def load_mesh_file(path: str | Path, folders: tuple[Path, ...] | None = None) -> list[SceneObject]:
+    """The cleaned objects of a mesh file; the files it refers to (material libraries, textures,
+    buffers) are read from `folders` (files.reference_folders; default: its own folder)."""
     path = check_input(
         path, "scene file", SceneError, "OBJ file" if Path(path).suffix.lower() == ".obj" else "mesh file"
     )
@@ -22,7 +24,8 @@ def load_mesh_file(path: str | Path) -> list[SceneObject]:
             f"{path}: unsupported file type {path.suffix!r} (mesh files: {', '.join(sorted(MESH_SUFFIXES))}; scenes: .toml)"
         )
     try:
-        objects = read_obj(path) if path.suffix.lower() == ".obj" else read_trimesh_file(path)
+        folders = folders or reference_folders(path)
+        objects = read_obj(path, folders) if path.suffix.lower() == ".obj" else read_trimesh_file(path, folders)
     except SceneError:
         raise
     except Exception as exc:  # trimesh and the file system raise many types
@@ -45,4 +48,5 @@ def _reader_failure(exc: Exception) -> str:
         return "an entry has the wrong type (corrupt)"
     if isinstance(exc, OSError) and exc.strerror:  # the file system's (the one a texture is unpacked to)
         return exc.strerror + (f" ({exc.filename})" if exc.filename else "")
-    return str(exc)  # the reader's own words (trimesh's ValueErrors)
+    # the reader's own words (trimesh's ValueErrors), where it has any
+    return str(exc).strip() or "its data is corrupt or truncated (an embedded buffer or image that does not decode)"

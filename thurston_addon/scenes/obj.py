@@ -4,20 +4,24 @@ material and loses their order)."""
 from __future__ import annotations
 
 import math
+import os
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from ..files import check_input
+from ..files import check_reference, reference_folders
 from .model import DEFAULT_COLOR, Material, SceneError, SceneObject, colour
 
 
-def read_obj(path: Path) -> list[SceneObject]:
+def read_obj(path: Path, folders: tuple[Path, ...] | None = None) -> list[SceneObject]:
     """OBJ objects in file order (trimesh regroups OBJ objects by material and loses their order).
     Reads v, vt, vn, f (v, v/vt, v//vn, v/vt/vn; polygons fanned; negative indices), o/g, usemtl
     (a material per face) and mtllib (Kd, Ke, map_Kd). Corners without vn get their face's normal,
-    corners without vt UV (0, 0)."""
+    corners without vt UV (0, 0). Its material libraries and textures are read from `folders`
+    (files.reference_folders; default: the file's own folder). Errors name the line and what it
+    needs, never quoting it (a file the user did not name may be read)."""
+    folders = folders or reference_folders(path)
     lists: dict[str, list[list[float]]] = {"v": [], "vt": [], "vn": []}
     objects: list[tuple[str, list, list[str | None]]] = []
     materials: dict[str, Material] = {}
@@ -44,11 +48,11 @@ def read_obj(path: Path) -> list[SceneObject]:
                 if tag == "vt" and len(args) == 1:  # vt u [v [w]]: v defaults to 0
                     args = args + ["0"]
                 if len(args) < width:
-                    raise SceneError(f"{path}:{lineno}: {tag!r} needs {width} numbers, got {raw.strip()!r}")
+                    raise SceneError(f"{path}:{lineno}: {tag!r} needs {width} numbers, got {len(args)}")
                 lists[tag].append([float(a) for a in args[:width]])
             elif tag == "f":
                 if len(args) < 3:
-                    raise SceneError(f"{path}:{lineno}: a face needs at least 3 vertices, got {raw.strip()!r}")
+                    raise SceneError(f"{path}:{lineno}: a face needs at least 3 vertices, got {len(args)}")
                 refs = []
                 for a in args:
                     fields = (a.split("/") + ["", ""])[:3]
@@ -61,11 +65,11 @@ def read_obj(path: Path) -> list[SceneObject]:
             elif tag == "usemtl" and args:
                 mtl = args[0]
             elif tag == "mtllib" and args:
-                materials.update(_read_mtl(path.parent / " ".join(args)))
+                materials.update(_read_mtl(path.parent / " ".join(args), folders))
         except SceneError:
             raise
         except ValueError:
-            raise SceneError(f"{path}:{lineno}: cannot parse {raw.strip()!r}") from None
+            raise SceneError(f"{path}:{lineno}: cannot parse {tag!r}: its values must be numbers") from None
     flush()
     V, VT, VN = (np.array(lists[t], dtype=np.float64).reshape(-1, 2 if t == "vt" else 3) for t in ("v", "vt", "vn"))
     out = []
@@ -108,15 +112,15 @@ def read_obj(path: Path) -> list[SceneObject]:
     return out
 
 
-def _read_mtl(path: Path) -> dict[str, Material]:
+def _read_mtl(path: Path, folders: tuple[Path, ...]) -> dict[str, Material]:
     """Kd, Ke and map_Kd (a path relative to the library; as Blender imports it, the texture
     replaces Kd) of each material, and its scattering as Blender's importer reads it: roughness Pr
     (else from the exponent Ns, 1 - sqrt(Ns / 1000)), metallic Pm, the specular level the mean of
     Ks, the index Ni (where it is one, >= 1)."""
-    if not path.exists():
+    if not os.path.lexists(path):
         warnings.warn(f"material library {path} not found; using default colours", stacklevel=3)
         return {}
-    check_input(path, "material library", SceneError, "material library")
+    check_reference(path, folders, "material library", SceneError, "material library")
     specs: dict[str, dict] = {}
     current = None
     for lineno, raw in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
@@ -127,18 +131,19 @@ def _read_mtl(path: Path) -> dict[str, Material]:
             try:
                 values = [float(p) for p in parts[1:]]
             except ValueError:
-                raise SceneError(f"{path}:{lineno}: cannot parse {raw.strip()!r}") from None
+                raise SceneError(f"{path}:{lineno}: cannot parse {parts[0]}: its values must be numbers") from None
             if len(values) not in (1, 3):  # r g b, or r for grey
-                raise SceneError(f"{path}:{lineno}: {parts[0]} needs 1 or 3 numbers, got {raw.strip()!r}")
+                raise SceneError(f"{path}:{lineno}: {parts[0]} needs 1 or 3 numbers, got {len(values)}")
             current[parts[0]] = colour(values * 3 if len(values) == 1 else values, f"{path}:{lineno}: {parts[0]}")
         elif current is not None and len(parts) >= 2 and parts[0] in ("Pr", "Pm", "Ns", "Ni"):
             try:
                 current[parts[0]] = float(parts[1])
             except ValueError:
-                raise SceneError(f"{path}:{lineno}: cannot parse {raw.strip()!r}") from None
+                raise SceneError(f"{path}:{lineno}: cannot parse {parts[0]}: its value must be a number") from None
         elif current is not None and len(parts) >= 2 and parts[0] == "map_Kd":
             # options (-s 1 1 1, ...) come before the file name
-            current["map_Kd"] = path.parent / (parts[-1] if parts[1].startswith("-") else " ".join(parts[1:]))
+            texture = path.parent / (parts[-1] if parts[1].startswith("-") else " ".join(parts[1:]))
+            current["map_Kd"] = check_reference(texture, folders, f"{path}:{lineno}: map_Kd", SceneError, "texture")
     out = {}
     for name, spec in specs.items():
         texture = spec.get("map_Kd")

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..files import check_keys, read_text
+from ..files import check_keys, check_reference, read_text, reference_folders
 from .meshes import load_mesh_file
 from .model import (
     SCATTERING,
@@ -89,8 +89,11 @@ def _tables(data: dict, key: str, path: Path) -> list[dict]:
     return value
 
 
-def load_scene_file(path: str | Path) -> Scene:
+def load_scene_file(path: str | Path, allowed=()) -> Scene:
     """A mesh file, or a TOML scene file:
+
+    The files it refers to (mesh files, their material libraries, textures and buffers) are read
+    from its folder and below, and from the `allowed` folders (files.check_reference).
 
     [[object]]            # file = "mesh.obj" (relative to the scene file) or primitive = "sphere"
     file = "knot.glb"     # every object of the file, in its order
@@ -124,8 +127,9 @@ def load_scene_file(path: str | Path) -> Scene:
     shift = [0, 0]; clip_start = 0  # lens shift in image widths; clip_end (absent: none)
     """
     path = Path(path)
+    folders = reference_folders(path, allowed)
     if path.suffix.lower() != ".toml":
-        return Scene(objects=load_mesh_file(path))
+        return Scene(objects=load_mesh_file(path, folders))
     text = read_text(path, "scene file", SceneError, "scene file")
     try:
         data = tomllib.loads(text)
@@ -135,10 +139,10 @@ def load_scene_file(path: str | Path) -> Scene:
         raise SceneError(
             f"cannot read scene file {str(path)!r}: its tables or arrays nest too deeply; a scene needs a few levels"
         ) from None
-    return _scene_from_toml(data, path)
+    return _scene_from_toml(data, path, folders)
 
 
-def _scene_from_toml(data: dict, path: Path) -> Scene:
+def _scene_from_toml(data: dict, path: Path, folders: tuple[Path, ...]) -> Scene:
     check_keys(data, SCENE_KEYS, str(path), SceneError)
     scene = Scene()
     primitive_triangles = 0
@@ -151,7 +155,8 @@ def _scene_from_toml(data: dict, path: Path) -> Scene:
             if not isinstance(spec["file"], str):
                 raise SceneError(f"{where}: file must be a path string, got {spec['file']!r}")
             try:
-                objs = load_mesh_file(path.parent / spec["file"])
+                mesh_file = check_reference(path.parent / spec["file"], folders, "mesh file", SceneError)
+                objs = load_mesh_file(mesh_file, folders)
             except SceneError as exc:
                 raise SceneError(f"{where}: {exc}") from None
         elif "primitive" in spec:
@@ -305,8 +310,10 @@ def primitive(spec: dict, where: str) -> SceneObject:
     return clean(SceneObject(name, mesh.vertices + center, mesh.faces), where)
 
 
-def load_scenes(paths) -> Scene:
+def load_scenes(paths, allowed=()) -> Scene:
+    """The scene files' objects and lights in order; `allowed`: folders beyond each file's own that
+    the files they refer to may be read from."""
     scene = Scene()
     for p in paths:
-        scene.extend(load_scene_file(p))
+        scene.extend(load_scene_file(p, allowed))
     return scene

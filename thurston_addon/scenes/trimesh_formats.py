@@ -2,23 +2,27 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from .gltf import gltf_base_textures, gltf_parts, gltf_scattering
+from ..files import reference_folders
+from .gltf import gltf_base_textures, gltf_parts, gltf_resolver, gltf_scattering
 from .model import DEFAULT_COLOR, Material, SceneError, SceneObject
 
 
-def read_trimesh_file(path: Path) -> list[SceneObject]:
+def read_trimesh_file(path: Path, folders: tuple[Path, ...] | None = None) -> list[SceneObject]:
     """Meshes of PLY, STL and glTF/GLB files with their vertex normals where the file has them
-    (else flat shading), glTF's TEXCOORD_0 and base colour textures."""
+    (else flat shading), glTF's TEXCOORD_0 and base colour textures; the files a glTF refers to are
+    read from `folders` (files.reference_folders; default: the file's own folder)."""
     import trimesh
 
-    header, binary = gltf_parts(path)  # (first: its own errors are clearer than the reader's)
-    loaded = trimesh.load(str(path), force="scene", process=False)
+    folders = folders or reference_folders(path)
+    header, binary = gltf_parts(path, folders)  # (first: its own errors are clearer than the reader's)
+    loaded = trimesh.load(str(path), force="scene", process=False, resolver=gltf_resolver(path, folders))
     order = {str(n.get("name", i)): i for i, n in enumerate(header.get("nodes", []))}
-    textures = gltf_base_textures(path, header, binary)
+    textures = gltf_base_textures(path, header, binary, folders)
     out = []
     for node in sorted(loaded.graph.nodes_geometry, key=lambda n: order.get(n, len(order))):
         transform, geom_name = loaded.graph[node]
@@ -38,6 +42,12 @@ def read_trimesh_file(path: Path) -> list[SceneObject]:
         color, emission = _trimesh_material(mesh)
         material = getattr(mesh.visual, "material", None)
         texture = textures.get(getattr(material, "name", None))
+        if texture is not None and uvs is None:
+            warnings.warn(
+                f"{path}: object {str(node)!r}: its material's texture has no texture coordinates (TEXCOORD_0): "
+                "the texel at UV (0, 0) colours it",
+                stacklevel=2,
+            )
         name = str(getattr(material, "name", ""))
         try:
             materials = [Material(color, emission, texture, name=name, **gltf_scattering(material))]

@@ -53,12 +53,19 @@ def from_data(data: dict, source: str) -> Space:
     chart origin."""
     _check_keys(data, source)
     gens = data.get("generator")
+    folded = isinstance(gens, list) and any(isinstance(g, dict) and "antipodal" in g for g in gens)
+    if folded and not isinstance(read_geometry(data, source).face_shape, faces.Spheres):
+        first = next(g for g in gens if isinstance(g, dict) and "antipodal" in g)
+        raise SpaceError(
+            f"{source}: generator {first.get('name', '?')!r}: 'antipodal' is a reflection in a sphere "
+            f"|x| = R, which only a geometry whose faces are spheres has; give {data.get('geometry')} "
+            "generators a 'matrix'"
+        )
     given = isinstance(gens, list) and any(isinstance(g, dict) and "face" in g for g in gens)
     if not given:
         return DirichletSpace(data, source)
     if not isinstance(read_geometry(data, source).face_shape, faces.Spheres):
         return CoordinateSpace(data, source)
-    folded = any(isinstance(g, dict) and "antipodal" in g for g in gens)
     return (FoldedShellSpace if folded else ShellSpace)(data, source)
 
 

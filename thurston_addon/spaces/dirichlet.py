@@ -19,6 +19,7 @@ from .values import SpaceError
 
 _SHORTENING_ROUNDS = 64  # passes over the generator pairs that shorten a generating set (each pass
 # shortens every generator as far as single products go; a discrete group's set settles in a few)
+MAX_FINITE_ORDER = 10000  # the largest order a generator is looked for up to, where the group must be finite
 CENTRE_RESOLUTION = 1e-6  # elements moving the domain centre by less are not told apart from the identity
 
 
@@ -94,6 +95,9 @@ class DirichletSpace(Space):
         for name, M in given:
             self._check_moves_centre(M, f"generator {name!r}", generator=True)
         given = self._distinct(given)
+        if math.isfinite(g.diameter):
+            for name, M in given:
+                self._check_finite_order(name, M)
         self._steps = [M for _, M in given]
         shortened, moved = self._shortened(self._steps)
         # (the shortened ones too where shortening changed them: else theirs is the polyhedron just tried)
@@ -131,6 +135,21 @@ class DirichletSpace(Space):
                 continue
             self._elements, self._radius = [np.eye(4)], 0.0  # enumerate again with face steps
             return self.domain
+
+    def _check_finite_order(self, name: str, M):
+        """In a geometry of finite diameter a discrete group is finite: SpaceError where a
+        generator's powers up to MAX_FINITE_ORDER do not return to the identity (a rotation by an
+        angle that is no rational multiple of 2 pi generates a group that is not discrete)."""
+        P = M
+        for k in range(1, MAX_FINITE_ORDER + 1):
+            if np.allclose(P, np.eye(4), rtol=0, atol=1e-8):
+                return
+            P = P @ M if k % 64 else self.geometry.reorthonormalize(P @ M)
+        raise SpaceError(
+            f"{self.source}: generator {name!r} has no finite order (its first {MAX_FINITE_ORDER} powers do not "
+            f"return to the identity): a group of {self.geometry.name} must be finite to be discrete; use "
+            "rotations by angles 2 pi k / n"
+        )
 
     def _distinct(self, given: list[tuple[str, np.ndarray]]) -> list[tuple[str, np.ndarray]]:
         """The named generators without repeats: one equal to an earlier one or to its inverse adds

@@ -13,14 +13,30 @@ from .domains import Domain, Face, Fold
 from .space import read_geometry
 from .values import SpaceError, vector
 
+# The largest |log|x|| of a shell's sphere, and the widest shell (log R_out - log R_in): the tracer
+# keeps chart points in float32 (to 3.4e38 = e^88.7), so the shell's neighbouring copies must lie
+# within e^80; and the domain test squares points that words of a few face maps reach in float64.
+MAX_SPHERE_LOG = 40.0
+MAX_SHELL_WIDTH = 40.0
+# The thinnest shell (log R_out - log R_in) a folded shell may be: its face maps are the
+# dilations by e^(2 width), which float64 must tell from the identity with room to spare.
+MIN_SHELL_WIDTH = 1e-6
+
 
 def _sphere_face(c, where, geometry) -> tuple[float, bool]:
     """(w0, whether the shell lies inside it) of a shell's face covector (0, 0, c, d): the sphere
-    c log|x| + d = 0, the domain on the side <= 0."""
+    c log|x| + d = 0, the domain on the side <= 0, within e^-MAX_SPHERE_LOG < |x| < e^MAX_SPHERE_LOG."""
     try:
-        return geometry.face_shape.sphere(c)
+        w0, outside = geometry.face_shape.sphere(c)
     except ValueError as exc:
         raise SpaceError(f"{where}: {exc}") from None
+    if not abs(w0) <= MAX_SPHERE_LOG:
+        raise SpaceError(
+            f"{where}: its face is the sphere |x| = e^{w0:.6g}, beyond the chart's range: a shell's spheres "
+            f"must lie between |x| = e^-{MAX_SPHERE_LOG:g} and e^{MAX_SPHERE_LOG:g} (the tracer keeps chart "
+            "points and their copies in float32); move the face nearer |x| = 1"
+        )
+    return w0, outside
 
 
 class ShellSpace(CoordinateSpace):
@@ -41,6 +57,12 @@ class ShellSpace(CoordinateSpace):
         if any(abs(w - (outer if s else inner)) > 1e-12 * (1 + abs(w)) for w, s in bounds):
             raise SpaceError(
                 f"{where}: a face sphere does not bound the shell between |x| = e^{inner:g} and e^{outer:g}"
+            )
+        if outer - inner > MAX_SHELL_WIDTH:
+            raise SpaceError(
+                f"{where}: the shell between |x| = e^{inner:.6g} and e^{outer:.6g} is {outer - inner:.6g} wide in "
+                f"log|x|, more than the {MAX_SHELL_WIDTH:g} whose neighbouring copies the tracer's float32 chart "
+                "holds; bring its spheres nearer each other"
             )
         axes = np.vstack([np.eye(3), -np.eye(3)])
         vertices = np.vstack([math.exp(inner) * axes, math.exp(outer) * axes])
@@ -175,6 +197,17 @@ class FoldedShellSpace(ShellSpace):
             raise SpaceError(
                 f"{source}: the two reflections' faces do not bound a shell (the inner sphere's face is "
                 "[0, 0, -1, log R_in], the outer's [0, 0, 1, -log R_out], R_in < R_out)"
+            )
+        if 2 * (b - a) > MAX_SHELL_WIDTH:  # (its double cover, which is traced, is twice as wide)
+            raise SpaceError(
+                f"{source}: the shell between the two reflections' spheres, |x| = e^{a:.6g} and e^{b:.6g}, is "
+                f"{b - a:.6g} wide in log|x|, more than the {MAX_SHELL_WIDTH / 2:g} whose double cover's copies the "
+                "tracer's float32 chart holds; bring its spheres nearer each other"
+            )
+        if b - a < MIN_SHELL_WIDTH:  # (else the dilation the reflections compose to rounds to the identity)
+            raise SpaceError(
+                f"{source}: the shell between the two reflections' spheres, |x| = e^{a:.6g} and e^{b:.6g}, is "
+                f"{b - a:.3g} thick, thinner than the {MIN_SHELL_WIDTH:g} a domain in float64 needs; move the spheres apart"
             )
         self.folded_radii = (math.exp(a), math.exp(b))
         shape = g.face_shape

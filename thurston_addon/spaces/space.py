@@ -362,6 +362,12 @@ def _generator_tables(data, where, geometry):
         if not isinstance(rows, list) or len(rows) != 4:
             raise SpaceError(f"{w}: 'matrix' must be 4 rows of 4 numbers")
         M = np.array([vector(r, 4, f"{w} row {k}") for k, r in enumerate(rows)])
+        largest = float(np.finfo(np.float32).max)  # (beyond it the isometry test's determinant overflows)
+        if np.abs(M).max() > largest:
+            raise SpaceError(
+                f"{w}: the matrix has an entry of {np.abs(M).max():.3g}, beyond the {largest:.3g} of the "
+                "tracer's float32 numbers"
+            )
         if not geometry.is_isometry(M, tol=1e-9):
             raise SpaceError(f"{w}: the matrix is not an isometry of {geometry.name}")
         problem = geometry.generator_problem(M)

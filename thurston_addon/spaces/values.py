@@ -47,12 +47,19 @@ _OPS = {
 }
 
 
+def quoted(value, longest: int = 80) -> str:
+    """A value as an error quotes it: whole where short, else its start and its length (an 800 KB
+    expression quoted whole buries the message)."""
+    text = repr(value)
+    return text if len(text) <= longest else f"{text[: longest - 20]}... ({len(text)} characters)"
+
+
 def evaluate(value, where: str) -> float:
     """A number, or a string of arithmetic with sqrt, sin, ..., pi, phi."""
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         return float(value)
     if not isinstance(value, str):
-        raise SpaceError(f"{where}: expected a number or an arithmetic string, got {value!r}")
+        raise SpaceError(f"{where}: expected a number or an arithmetic string, got {quoted(value)}")
 
     def ev(node):
         if isinstance(node, ast.Expression):
@@ -72,20 +79,21 @@ def evaluate(value, where: str) -> float:
             and len(node.args) == 1
         ):
             return _FUNCS[node.func.id](ev(node.args[0]))
-        raise SpaceError(f"{where}: cannot evaluate {value!r} (numbers, + - * / **, pi, phi, sqrt, sin, cos, ... only)")
+        raise SpaceError(f"{where}: cannot evaluate {shown} (numbers, + - * / **, pi, phi, sqrt, sin, cos, ... only)")
 
+    shown = quoted(value)
     try:
         result = ev(ast.parse(value, mode="eval"))
     except SpaceError:
         raise
     except SyntaxError:
-        raise SpaceError(f"{where}: cannot evaluate {value!r}: it is not an arithmetic expression") from None
+        raise SpaceError(f"{where}: cannot evaluate {shown}: it is not an arithmetic expression") from None
     except (OverflowError, MemoryError, RecursionError):
-        raise SpaceError(f"{where}: cannot evaluate {value!r}: it is too large") from None
+        raise SpaceError(f"{where}: cannot evaluate {shown}: it is too large") from None
     except (ZeroDivisionError, ValueError, TypeError) as exc:  # division by zero, math domain error
-        raise SpaceError(f"{where}: cannot evaluate {value!r}: {exc}") from None
+        raise SpaceError(f"{where}: cannot evaluate {shown}: {exc}") from None
     if not isinstance(result, float) or not math.isfinite(result):
-        raise SpaceError(f"{where}: cannot evaluate {value!r}: not a finite real number")
+        raise SpaceError(f"{where}: cannot evaluate {shown}: not a finite real number")
     return result
 
 

@@ -136,7 +136,7 @@ Surfaces make_surfaces(const SurfaceArrays& given, std::int64_t NT) {
                            one_sided[m] == 1, scattering[m]});
   s.corner_normals = corner_rows<3>(given.corner_normals, NT, "corner_normals");
   s.corner_uvs = corner_rows<2>(given.corner_uvs, NT, "corner_uvs");
-  if (s.corner_uvs.empty())
+  if (s.corner_uvs.empty() && NT > 0)  // (no triangles reach the domain: no texture is read)
     for (std::int64_t m = 0; m < NM; ++m)
       if (s.materials[m].color_texture >= 0 || s.materials[m].emission_texture >= 0)
         throw nb::value_error(

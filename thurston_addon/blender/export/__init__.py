@@ -592,7 +592,7 @@ class RenderJob:
                 def report(done, total, k=k):
                     return progress(k * total + done, count * total)
 
-                self.results[view] = render.render(
+                result = self.results[view] = render.render(
                     self.space,
                     self.scene,
                     replace(self.settings, eye=view),
@@ -602,7 +602,7 @@ class RenderJob:
                 )
                 if not any(n.kind == checks.SCENE_TOO_LARGE for n in self.notes):  # else the copies' overlap is why
                     lambert = self.settings.shading == "lambert"
-                    self.notes += checks.after_render(self.scene, self.results[view].passes, lambert, self.exposure)
+                    self.notes += checks.after_render(self.scene, result.passes, lambert, self.exposure, result.stats)
             self.result = self.results[self.views[0]]
         except Exception as exc:
             self.error = exc
