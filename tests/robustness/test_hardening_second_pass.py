@@ -474,3 +474,20 @@ def test_render_blend_of_what_is_no_blend_file_or_into_a_file(tmp_path, register
     with pytest.raises(files.OutputError, match="is a file: choose a folder for --out"):
         batch.make_folder(tmp_path / "taken")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["noise.blend", "taken"]
+
+
+def test_the_default_scene_of_a_wide_shell_is_built_whole(tmp_path):
+    """A shell from 1 to e^39: its default scene's meshes are merged as s2xs1's (the same outline,
+    ring and sphere), without numpy's overflow warnings (trimesh's int64 merge grid overflowed)."""
+    import warnings
+
+    from thurston_addon import scenes
+
+    path = tmp_path / "wide.toml"
+    path.write_text(SHELL + DILATION.format(p=39, w=-39))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        wide = scenes.default_scene(spaces.load(path))
+    narrow = scenes.default_scene(spaces.load("s2xs1"))
+    assert [len(o.vertices) for o in wide.objects] == [len(o.vertices) for o in narrow.objects]
+    assert all(np.all(np.isfinite(o.vertices)) for o in wide.objects)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .model import PointLight, Scene, SceneObject
@@ -31,11 +33,17 @@ def default_scene(space) -> Scene:
         ]
     )
     objects = []
+    # trimesh merges a mesh's vertices on a grid of 1e-8 in int64: a domain spanning more than about
+    # 1e6 (S2xR's wide shells) has its meshes built at a power-of-two scale (exact) and scaled back
+    unit = 1.0 if size < 1e6 else 2.0 ** round(math.log2(size))
     for c, segments in enumerate(space.outline(inset=2 * radius)):
         tubes = trimesh.util.concatenate(
-            [trimesh.creation.cylinder(radius=radius, segment=[p, q], sections=10) for p, q in segments]
+            [
+                trimesh.creation.cylinder(radius=radius / unit, segment=[p / unit, q / unit], sections=10)
+                for p, q in segments
+            ]
         )
-        objects.append(SceneObject(f"edges {c}", tubes.vertices, tubes.faces, palette[c % len(palette)]))
+        objects.append(SceneObject(f"edges {c}", tubes.vertices * unit, tubes.faces, palette[c % len(palette)]))
     inr = space.chart_inradius
     cam = space.camera
     forward = np.asarray(cam.forward, float) / np.linalg.norm(cam.forward)
@@ -43,19 +51,22 @@ def default_scene(space) -> Scene:
     side /= np.linalg.norm(side)
     up = np.cross(side, forward)
     ring = trimesh.creation.torus(
-        major_radius=0.22 * inr, minor_radius=0.07 * inr, major_sections=48, minor_sections=16
+        major_radius=0.22 * inr / unit, minor_radius=0.07 * inr / unit, major_sections=48, minor_sections=16
     )
     ring.apply_transform(trimesh.geometry.align_vectors([0, 0, 1], forward + 0.6 * side + 0.4 * up))
     objects.append(
         SceneObject(
-            "ring", ring.vertices + cam.position + inr * (0.7 * forward + 0.25 * side), ring.faces, (0.95, 0.75, 0.3)
+            "ring",
+            ring.vertices * unit + cam.position + inr * (0.7 * forward + 0.25 * side),
+            ring.faces,
+            (0.95, 0.75, 0.3),
         )
     )
-    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.12 * inr)
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.12 * inr / unit)
     objects.append(
         SceneObject(
             "sphere",
-            ball.vertices + cam.position + inr * (0.5 * forward - 0.45 * side - 0.1 * up),
+            ball.vertices * unit + cam.position + inr * (0.5 * forward - 0.45 * side - 0.1 * up),
             ball.faces,
             (0.3, 0.6, 0.95),
         )
