@@ -1,0 +1,102 @@
+"""A farm's driver: a render split into parts, the job put once in Ray's object store, one task
+per part not kept from an earlier run, one progress line for the job, the parts kept as they
+finish and merged; Ctrl-C (or a failure) cancels every task."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+from .. import render as single
+from . import cluster, work
+from .jobs import Job, split
+from .merge import merge
+from .resume import Kept
+
+# a task whose worker process dies is run again (elsewhere, or on a new worker) up to this often
+RETRIES = 3
+DEFAULT_TILES = 16
+
+
+def render(
+    space,
+    scene,
+    settings: single.Settings,
+    camera,
+    address: str,
+    out: Path,
+    tiles: int | None = None,
+    sample_passes: int = 1,
+    write=None,
+    progress=None,
+) -> single.Result:
+    """The render render.render(space, scene, settings, camera) gives, by tasks on the Ray cluster
+    of `address` (cluster.parse_address), passed to write(result), which writes `out`; the finished
+    parts are kept beside `out` until it is written. progress(done, total, busy) is called as
+    parts finish (default: one line on stderr)."""
+    settings.check()
+    single.camera_frame(space, camera)  # a camera that cannot be used is refused before the cluster starts
+    tiles = tiles or (1 if sample_passes > 1 else min(DEFAULT_TILES, settings.height))
+    parts = split(settings, tiles, sample_passes)
+    job = Job(space, scene, settings, camera)
+    key = job.key(parts)
+    kept = Kept(out, key)
+    results = kept.start()
+    progress = progress or Line(parts[0].plural)
+    t0 = time.perf_counter()
+    todo = [p for p in parts if p.index not in results]
+    if todo:
+        with cluster.connected(address):
+            _run(job, key, todo, results, kept, len(parts), progress)
+    progress(len(parts), len(parts), 0)
+    result = merge(job, parts, results, time.perf_counter() - t0)
+    if write is not None:
+        write(result)
+    kept.clear()
+    return result
+
+
+def _run(job, key, todo, results, kept, total, progress):
+    ray = cluster.import_ray()
+    threads = job.settings.threads or 1  # each task one slot's CPUs, not the whole machine's
+    task = ray.remote(work.render_part).options(num_cpus=threads, max_retries=RETRIES)
+    shared = ray.put(dataclasses.replace(job, settings=dataclasses.replace(job.settings, threads=threads)))
+    running = {task.remote(shared, key, part): part for part in todo}
+    try:
+        while running:
+            finished, _ = ray.wait(list(running), num_returns=1, timeout=0.5)
+            for ref in finished:
+                part = running.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except ray.exceptions.RayTaskError as exc:
+                    cause = exc.cause if isinstance(exc.cause, Exception) else exc
+                    raise type(cause)(f"{part.label} {part.index}: {cause}") from None
+                except ray.exceptions.RayError as exc:
+                    raise cluster.FarmError(f"{part.label} {part.index} failed on the cluster: {exc}") from None
+                kept.keep(part.index, result)
+                results[part.index] = result
+            progress(len(results), total, cluster.cpus_busy() // threads)
+    finally:
+        for ref in running:  # Ctrl-C or a failure: no task left running for nothing
+            ray.cancel(ref, force=True)
+
+
+class Line:
+    """One progress line for the job on stderr: parts done, workers busy, time, ETA (redrawn on a
+    terminal; in a log, a line per finished part)."""
+
+    def __init__(self, label: str):
+        self.label, self.start, self.done = label, time.perf_counter(), -1
+        self.tty = sys.stderr.isatty()
+
+    def __call__(self, done: int, total: int, busy: int):
+        if done == self.done and not self.tty:
+            return
+        self.done = done
+        elapsed = time.perf_counter() - self.start
+        eta = f", ETA {elapsed / done * (total - done):.0f} s" if 0 < done < total else ""
+        line = f"farm: {done}/{total} {self.label}, {busy} workers busy, {elapsed:.1f} s{eta}"
+        print(f"{line:<72}", end="\r" if self.tty and done < total else "\n", file=sys.stderr, flush=True)
