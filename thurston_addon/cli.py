@@ -138,17 +138,34 @@ def cmd_render(args):
     render.camera_frame(space, camera)  # a camera that cannot be used is refused before the notes on it
     for note in checks.before_render(space, scene, camera, lambert):
         warnings.warn(note.message)
-    result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
-    for note in checks.after_render(scene, result.passes, lambert):
-        warnings.warn(note.message)
-    images.write(
-        out,
-        result.passes,
-        names=args.passes,
-        overwrite=args.overwrite,
-        metadata={"space": space.id, "quality": args.quality, "summary": result.summary()},
-    )
+
+    def write(result):
+        for note in checks.after_render(scene, result.passes, lambert):
+            warnings.warn(note.message)
+        images.write(
+            out,
+            result.passes,
+            names=args.passes,
+            overwrite=args.overwrite,
+            metadata={"space": space.id, "quality": args.quality, "summary": result.summary()},
+        )
+
+    if args.cluster:
+        result = _farm_render(args, space, scene, settings, camera, out, write)
+    else:
+        result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
+        write(result)
     print(f"{out}: {w}x{h} {space.id}; {result.summary()}")
+
+
+def _farm_render(args, space, scene, settings, camera, out, write):
+    """The render on a Ray cluster (thurston_addon/farm, docs/farm.md): Ray is imported only here."""
+    from . import farm
+
+    try:
+        return farm.render(space, scene, settings, camera, args.cluster, out, args.tiles, args.sample_passes, write)
+    except farm.FarmError as exc:
+        raise CommandError(str(exc)) from None
 
 
 def read_rays(path, space) -> tuple[np.ndarray, np.ndarray]:
@@ -355,6 +372,14 @@ def build_parser():
         "(default 0: direct light only)",
     )
     r.add_argument("--out", required=True, metavar="FILE")
+    r.add_argument(
+        "--cluster",
+        metavar="ADDRESS",
+        help="render on a Ray cluster: local[:N] (N workers on this machine, loopback only) or HOST:PORT "
+        "(a running cluster); needs the 'farm' extra (docs/farm.md)",
+    )
+    r.add_argument("--tiles", type=int, help="with --cluster: bands of rows, a task each (default: 16)")
+    r.add_argument("--sample-passes", type=int, default=1, help="with --cluster: passes of the samples, a task each")
     r.set_defaults(run=cmd_render)
 
     t = sub.add_parser("trace", help="batch ray queries: RAYS.npy (N,6) float64 -> HITS.npz")

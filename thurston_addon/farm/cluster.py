@@ -7,9 +7,11 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import socket
 
 RAY_MISSING = "--cluster needs Ray: install the 'farm' extra (pip install 'thurston[farm]', or pip install ray==2.60.0)"
 LOOPBACK = "127.0.0.1"
+CONNECT_SECONDS = 10
 
 
 class FarmError(Exception):
@@ -54,6 +56,7 @@ def connected(address: str):
                 **quiet,
             )
         else:
+            _check_reachable(where)
             ray.init(address=where, **quiet)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         raise FarmError(f"--cluster {address}: cannot connect: {str(exc).strip().splitlines()[0]}") from None
@@ -61,6 +64,18 @@ def connected(address: str):
         yield int(ray.cluster_resources().get("CPU", 0))
     finally:
         ray.shutdown()
+
+
+def _check_reachable(address: str):
+    """Ray waits minutes for a head that is not there: a plain connection to it first."""
+    host, _, port = address.rpartition(":")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_SECONDS).close()
+    except OSError as exc:
+        raise FarmError(
+            f"--cluster {address}: no Ray cluster answers there ({exc.strerror or exc}); start one with "
+            f"`ray start --head --port={port}` on that machine, or check the address"
+        ) from None
 
 
 def cpus_busy() -> int:

@@ -26,10 +26,6 @@ class Kept:
         for other in self.out.parent.glob(f".{glob.escape(self.out.name)}.farm-*"):
             if other != self.folder and other.is_dir():
                 shutil.rmtree(other, ignore_errors=True)
-        try:
-            self.folder.mkdir(exist_ok=True)
-        except OSError as exc:
-            raise files.OutputError(f"cannot keep the finished parts in {str(self.folder)!r}: {exc.strerror}") from None
         kept = {}
         for path in sorted(self.folder.glob("part-*.npz")):
             try:
@@ -40,6 +36,10 @@ class Kept:
 
     def keep(self, index: int, result: dict):
         """One finished part, written whole or not at all."""
+        try:
+            self.folder.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise files.OutputError(f"cannot keep the finished parts in {str(self.folder)!r}: {exc.strerror}") from None
         buffer = io.BytesIO()
         arrays = {f"a:{name}": a for name, a in result["arrays"].items()}
         np.savez(buffer, stats=np.array(json.dumps(result["stats"], default=_plain)), **arrays)

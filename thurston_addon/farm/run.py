@@ -36,6 +36,7 @@ def render(
     of `address` (cluster.parse_address), passed to write(result), which writes `out`; the finished
     parts are kept beside `out` until it is written. progress(done, total, busy) is called as
     parts finish (default: one line on stderr)."""
+    cluster.parse_address(address)  # refused before anything is kept
     settings.check()
     single.camera_frame(space, camera)  # a camera that cannot be used is refused before the cluster starts
     tiles = tiles or (1 if sample_passes > 1 else min(DEFAULT_TILES, settings.height))
