@@ -1,0 +1,161 @@
+"""Renders on a real two-node Ray cluster on loopback (the `cluster` fixture) against the single
+process's render of the same settings and seed: tiles and sample passes, a worker killed mid-job,
+a job stopped and resumed, the command line; and the plain render path without Ray."""
+
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thurston_addon import cli, farm, images, render, scenes
+
+pytestmark = pytest.mark.slow  # a Ray cluster starts in about 10 s here
+
+# bounces draw random numbers per pixel; light paths 0 (the exact sum) keeps each pixel's light
+# independent of the pixels traced before it in the same task
+SETTINGS = render.Settings(width=32, height=18, quality="draft", samples=4, bounces=1, light_paths=0, threads=1)
+
+
+@pytest.fixture(scope="module")
+def world(space_of):
+    space = space_of("torus")
+    c = space.camera
+    return space, scenes.default_scene(space), scenes.Camera(c.position, c.forward, c.up, c.fov)
+
+
+def single(world, settings):
+    space, scene, camera = world
+    return render.render(space, scene, settings, camera=camera)
+
+
+def on_farm(world, cluster, settings, out, **split):
+    space, scene, camera = world
+    return farm.render(space, scene, settings, camera, cluster["address"], out, progress=lambda *a: None, **split)
+
+
+def assert_same_passes(a, b):
+    assert a.passes.keys() == b.passes.keys()
+    for name in a.passes:
+        np.testing.assert_array_equal(a.passes[name], b.passes[name], err_msg=name)
+
+
+def test_tiles_are_the_single_process_render(world, cluster, tmp_path):
+    merged = on_farm(world, cluster, SETTINGS, tmp_path / "t.exr", tiles=3)
+    reference = single(world, SETTINGS)
+    assert_same_passes(merged, reference)
+    assert merged.stats["rays"] == reference.stats["rays"]
+    assert merged.stats["noise"] == pytest.approx(reference.stats["noise"], rel=1e-9)
+    assert not list(tmp_path.iterdir())  # nothing kept once written
+
+
+def test_two_passes_of_four_samples_are_one_render_of_eight(world, cluster, tmp_path):
+    """Pass p takes samples p, p + 2, ... of the 8-sample render (its sub-pixel positions and its
+    seeds), so the merged image is that render's, up to float rounding of the sums."""
+    eight = dataclasses.replace(SETTINGS, samples=8)
+    merged = on_farm(world, cluster, eight, tmp_path / "s.exr", sample_passes=2)
+    reference = single(world, eight)
+    four = single(world, SETTINGS)
+    for name in reference.passes:
+        np.testing.assert_allclose(merged.passes[name], reference.passes[name], rtol=1e-6, atol=1e-6, err_msg=name)
+    assert merged.stats["samples_per_pixel"] == 8
+    assert merged.stats["noise"] == pytest.approx(reference.stats["noise"], rel=1e-6)
+    assert np.abs(merged.passes["color"] - four.passes["color"]).max() > 1e-3  # more samples, another image
+
+
+def _workers_rendering(folder):
+    """The Ray worker processes of the test cluster running a farm task."""
+    found = []
+    for pid in os.listdir("/proc"):
+        try:
+            line = Path(f"/proc/{pid}/cmdline").read_bytes()
+        except OSError:
+            continue
+        if line.startswith(b"ray::render_part"):
+            found.append(int(pid))
+    return found
+
+
+def test_a_killed_worker_loses_nothing(world, cluster, tmp_path):
+    settings = dataclasses.replace(SETTINGS, width=64, height=36, samples=16)
+    done, killed = {}, []
+
+    def run():
+        done["result"] = on_farm(world, cluster, settings, tmp_path / "k.exr", tiles=4)
+
+    job = threading.Thread(target=run)
+    job.start()
+    deadline = time.monotonic() + 60
+    while not killed and job.is_alive() and time.monotonic() < deadline:
+        workers = _workers_rendering(cluster["folder"])
+        if workers:
+            os.kill(workers[0], signal.SIGKILL)
+            killed.append(workers[0])
+        time.sleep(0.05)
+    job.join(120)
+    assert killed, "no worker was seen rendering"
+    assert_same_passes(done["result"], single(world, settings))
+
+
+def test_a_stopped_job_resumes_and_a_changed_one_starts_afresh(world, cluster, tmp_path):
+    out = tmp_path / "r.exr"
+    space, scene, camera = world
+
+    def stop_after_two(done, total, busy):
+        if done >= 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        farm.render(space, scene, SETTINGS, camera, cluster["address"], out, tiles=6, progress=stop_after_two)
+    (folder,) = tmp_path.iterdir()
+    kept = {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
+    assert 2 <= len(kept) < 6
+    first_report = []
+
+    def record(done, total, busy):
+        first_report.append(done) if not first_report else None
+
+    def written(result):
+        assert {p.name: p.stat().st_mtime_ns for p in folder.iterdir() if p.name in kept} == kept  # not redone
+        images.write(out, result.passes)
+
+    merged = farm.render(
+        space, scene, SETTINGS, camera, cluster["address"], out, tiles=6, progress=record, write=written
+    )
+    assert first_report[0] >= len(kept)  # the kept tiles count as done from the start
+    assert_same_passes(merged, single(world, SETTINGS))
+    assert [p.name for p in tmp_path.iterdir()] == ["r.exr"]  # the kept parts removed once written
+
+    with pytest.raises(KeyboardInterrupt):
+        farm.render(space, scene, SETTINGS, camera, cluster["address"], out, tiles=6, progress=stop_after_two)
+    (before,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    changed = dataclasses.replace(SETTINGS, samples=2)
+    with pytest.raises(KeyboardInterrupt):
+        farm.render(space, scene, changed, camera, cluster["address"], out, tiles=6, progress=stop_after_two)
+    (after,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    assert after != before  # another job's parts: the old ones removed, none reused
+
+
+def test_command_line_render_on_the_cluster(cluster, tmp_path):
+    common = ["render", "--space", "torus", "--size", "32x18", "--quality", "draft", "--bounces", "1"]
+    common += ["--light-paths", "0", "--threads", "1"]
+    assert cli.main([*common, "--out", str(tmp_path / "one.exr")]) == 0
+    args = [*common, "--out", str(tmp_path / "farm.exr"), "--cluster", cluster["address"], "--tiles", "2"]
+    assert cli.main(args) == 0
+    one, farmed = (images.read_texture(tmp_path / n) for n in ("one.exr", "farm.exr"))
+    np.testing.assert_array_equal(one, farmed)
+
+
+def test_plain_render_does_not_import_ray(tmp_path):
+    code = (
+        "import sys; from thurston_addon import cli; "
+        f"assert cli.main(['render', '--space', 'torus', '--size', '8x6', '--quality', 'draft', '--out', "
+        f"{str(tmp_path / 'p.png')!r}]) == 0; assert 'ray' not in sys.modules, 'ray imported'"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
