@@ -256,6 +256,17 @@ def cmd_render_blend(args):
             "or run inside Blender: blender -b FILE.blend -E THURSTON -f 1"
         ) from None
     try:
+        if args.cluster:  # the frames on a Ray cluster (docs/farm.md)
+            from . import farm
+            from .blender import farm_frames
+
+            try:
+                farm_frames.render_blend(
+                    Path(args.blend), args.frames, Path(args.out), args.format, args.overwrite, args.cluster
+                )
+            except farm.FarmError as exc:
+                raise CommandError(str(exc)) from None
+            return
         batch.render_frames(
             Path(args.blend),
             args.frames,
@@ -399,6 +410,12 @@ def build_parser():
     )
     b.add_argument("--format", choices=("exr", "png"), default="exr")
     b.add_argument("--overwrite", action="store_true", help="replace existing frame files")
+    b.add_argument(
+        "--cluster",
+        metavar="ADDRESS",
+        help="render the frames on a Ray cluster: local[:N] or HOST:PORT; a job stopped and started again "
+        "renders only the frames it has not finished (docs/farm.md)",
+    )
     b.set_defaults(run=cmd_render_blend)
     return p
 

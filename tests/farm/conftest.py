@@ -1,6 +1,7 @@
 """A real Ray cluster on loopback for the farm tests: a head and a second node, separate processes
 (`ray start --block`, each in its own process group), one CPU each, their files under a temporary
-folder; started once per module and always torn down, every process they started killed."""
+folder; started once per test session (a Ray driver keeps the first cluster's token) and always
+torn down, every process they started killed."""
 
 import contextlib
 import os
@@ -48,10 +49,10 @@ def _started_by(folder: str) -> list[int]:
     return sorted(ours)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def cluster(tmp_path_factory):
     """The head's address (127.0.0.1:PORT) of a two-node cluster; its processes are killed after
-    the module and checked gone."""
+    the tests and checked gone."""
     folder = str(tmp_path_factory.mktemp("ray"))
     port = _free_port()
     common = ["--block", "--num-cpus=1", "--node-ip-address=127.0.0.1", "--disable-usage-stats"]
@@ -89,7 +90,7 @@ def cluster(tmp_path_factory):
         for node in nodes:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(node.pid, signal.SIGTERM)
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + 3  # Ray drains for up to 30 s: then killed
         while _started_by(folder) and time.monotonic() < deadline:
             time.sleep(0.2)
         for pid in _started_by(folder):

@@ -159,3 +159,23 @@ def test_plain_render_does_not_import_ray(tmp_path):
         f"{str(tmp_path / 'p.png')!r}]) == 0; assert 'ray' not in sys.modules, 'ray imported'"
     )
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
+
+
+def test_adaptive_sampling_over_sample_passes(world, cluster, tmp_path):
+    """Rounds of the single process's samples in its order (the first 4, then one per pass and
+    round), the pooled noise estimate deciding after each round which pixels take more; the single
+    process decides after every sample. So a pixel that stopped there at a round's end (4, 6, ...,
+    or never) stops at the same count here, with the same samples (the same colour), and one that
+    stopped after an odd count takes more here (no round's end before it let it stop)."""
+    adaptive = dataclasses.replace(SETTINGS, samples=12, bounces=2, noise_threshold=0.05, min_samples=4)
+    merged = on_farm(world, cluster, adaptive, tmp_path / "a.exr", sample_passes=2)
+    reference = single(world, adaptive)
+    farm_taken, single_taken = merged.samples_taken, reference.samples_taken
+    assert set(np.unique(farm_taken)) <= {4, 6, 8, 10, 12}
+    at_round_end = single_taken % 2 == 0
+    assert 0 < at_round_end.mean() < 1 and farm_taken.min() < 12  # both kinds of pixel, some stopped
+    np.testing.assert_array_equal(farm_taken[at_round_end], single_taken[at_round_end])
+    assert np.all(farm_taken[~at_round_end] > single_taken[~at_round_end])
+    same = farm_taken == single_taken
+    np.testing.assert_allclose(merged.passes["color"][same], reference.passes["color"][same], rtol=1e-6, atol=1e-6)
+    assert merged.stats["samples_mean"] == pytest.approx(farm_taken.mean())

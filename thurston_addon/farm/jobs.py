@@ -45,6 +45,9 @@ class Part:
     region: tuple[int, int, int, int] | None = None
     samples: tuple[int, ...] | None = None
     centre: bool = False
+    # adaptive sampling over sample passes: the parts of a round run once the earlier rounds have
+    # decided which pixels still take samples
+    round: int = 0
 
     @property
     def label(self) -> str:
@@ -57,7 +60,8 @@ class Part:
 
 def split(settings: render.Settings, tiles: int = 1, sample_passes: int = 1) -> list[Part]:
     """The parts of a render: `tiles` bands of rows, or `sample_passes` passes, sample k of the
-    render's n in pass k mod sample_passes (each pass spread over the pixel's strata)."""
+    render's n in pass k mod sample_passes (each pass spread over the pixel's strata); under
+    adaptive sampling in rounds (Part.round)."""
     if tiles < 1 or sample_passes < 1:
         raise FarmError(f"tiles and sample passes must be at least 1, got {tiles} and {sample_passes}")
     if tiles > 1 and sample_passes > 1:
@@ -75,12 +79,18 @@ def split(settings: render.Settings, tiles: int = 1, sample_passes: int = 1) -> 
                 f"sample passes shift the camera's lens by each sample's sub-pixel position, which the "
                 f"{settings.projection} projection has not: split it into tiles"
             )
-        if settings.noise_threshold > 0:
-            raise FarmError(
-                "adaptive sampling (--noise-threshold) decides per pixel after every sample: split into "
-                "tiles, which keep it exact, not sample passes"
-            )
-        return [Part(p, samples=tuple(range(p, n, sample_passes)), centre=p == 0) for p in range(sample_passes)]
+        if settings.noise_threshold <= 0:
+            return [Part(p, samples=tuple(range(p, n, sample_passes)), centre=p == 0) for p in range(sample_passes)]
+        # adaptive: the first min_samples in the first round, then a sample per pass and round, each
+        # round deciding from the pooled samples of those before it which pixels take more
+        first = settings.min_samples_per_pixel
+        rounds = [range(first)] + [range(c, min(c + sample_passes, n)) for c in range(first, n, sample_passes)]
+        parts = []
+        for r, samples in enumerate(rounds):
+            for p in range(sample_passes):
+                if samples[p::sample_passes]:
+                    parts.append(Part(len(parts), samples=tuple(samples[p::sample_passes]), centre=not parts, round=r))
+        return parts
     if tiles > settings.height:
         raise FarmError(f"{tiles} tiles need an image at least {tiles} rows high, got {settings.height}")
     if tiles > 1 and settings.shading in IMAGE_SCALED_SHADING:

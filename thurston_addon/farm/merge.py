@@ -48,29 +48,48 @@ def _tiles(s, parts, results):
     return passes, taken, stats
 
 
-def _sample_passes(s, parts, results):
-    n = s.samples_per_pixel
+def pooled(parts, results) -> dict:
+    """The sample passes' sums over the parts that finished (the centre's passes among them)."""
     sums = {}
     for part in parts:
-        for name, a in results[part.index]["arrays"].items():
-            sums[name] = a if name not in sums else sums[name] + a
+        if part.index in results:
+            for name, a in results[part.index]["arrays"].items():
+                sums[name] = a if name not in sums else sums[name] + a
+    return sums
+
+
+def still_sampling(s, sums, active):
+    """Adaptive sampling after a round: the pixels (h, w) whose standard error, from the pooled
+    samples, is still at or above the noise threshold (and that were still taking samples)."""
+    error = render.pixel_errors(sums["sum:color"].reshape(-1, 3), sums["squares"].ravel(), sums["taken"].ravel())
+    below = (error < s.noise_threshold).reshape(sums["taken"].shape)
+    return ~below if active is None else active & ~below
+
+
+def _sample_passes(s, parts, results):
+    n = s.samples_per_pixel
+    sums = pooled(parts, results)
+    taken = sums["taken"]
     passes = {name: a for name, a in sums.items() if name in render.PASSES}  # the centre's
     for name in SUMMED_PASSES:
-        passes[name] = (sums[f"sum:{name}"] / n).astype(np.float32)
+        a = sums[f"sum:{name}"]
+        passes[name] = (a / taken.reshape(taken.shape + (1,) * (a.ndim - 2))).astype(np.float32)
     if not s.transparent:
         passes["alpha"] = np.ones_like(passes["alpha"])
-    every = [st for p in parts for st in results[p.index]["stats"]]
+    every = [st for p in parts if p.index in results for st in results[p.index]["stats"]]
     stats = combine_stats(every, [1] * len(every))
-    colour = sums["sum:color"].reshape(-1, 3)
+    colour, squares = sums["sum:color"].reshape(-1, 3), sums["squares"].ravel()
     stats.update(
         samples_per_pixel=n,
-        samples_mean=float(n),
-        samples_max=n,
-        noise=render.pixel_noise(colour, sums["squares"].ravel(), n),
+        samples_mean=float(taken.mean()),
+        samples_max=int(taken.max()),
+        noise=render.pixel_noise(colour, squares, n)
+        if np.all(taken == n)
+        else render.noise_of(colour, squares, taken.ravel()),
         # each sample's own render states its footprint for one sample per pixel
         footprint=every[0]["footprint"] / math.sqrt(n),
     )
-    return passes, np.full((s.height, s.width), n, np.int64), stats
+    return passes, taken, stats
 
 
 def combine_stats(stats: list[dict], weights) -> dict:

@@ -12,7 +12,7 @@ from pathlib import Path
 from .. import render as single
 from . import cluster, work
 from .jobs import Job, split
-from .merge import merge
+from .merge import merge, pooled, still_sampling
 from .resume import Kept
 
 # a task whose worker process dies is run again (elsewhere, or on a new worker) up to this often
@@ -46,43 +46,71 @@ def render(
     kept = Kept(out, key)
     results = kept.start()
     progress = progress or Line(parts[0].plural)
-    t0 = time.perf_counter()
-    todo = [p for p in parts if p.index not in results]
-    if todo:
+    seconds = 0.0  # the job's time on the cluster (from its start, or joining it, to the last part)
+    if any(p.index not in results for p in parts):
         with cluster.connected(address):
-            _run(job, key, todo, results, kept, len(parts), progress)
+            t0 = time.perf_counter()
+            active = None  # adaptive sampling over rounds: the pixels still taking samples
+            for r in range(parts[-1].round + 1):
+                if r > 0:
+                    active = still_sampling(settings, pooled(parts, results), active)
+                    if not active.any():
+                        break  # every pixel has stopped: the later rounds are not needed
+                todo = [p for p in parts if p.round == r and p.index not in results]
+                if todo:
+                    _run(job, key, todo, active, results, kept, len(parts), progress)
+            seconds = time.perf_counter() - t0
     progress(len(parts), len(parts), 0)
-    result = merge(job, parts, results, time.perf_counter() - t0)
+    result = merge(job, parts, results, seconds)
     if write is not None:
         write(result)
     kept.clear()
     return result
 
 
-def _run(job, key, todo, results, kept, total, progress):
-    ray = cluster.import_ray()
+def _run(job, key, todo, active, results, kept, total, progress):
     threads = job.settings.threads or 1  # each task one slot's CPUs, not the whole machine's
-    task = ray.remote(work.render_part).options(num_cpus=threads, max_retries=RETRIES)
-    shared = ray.put(dataclasses.replace(job, settings=dataclasses.replace(job.settings, threads=threads)))
-    running = {task.remote(shared, key, part): part for part in todo}
+    shared = dataclasses.replace(job, settings=dataclasses.replace(job.settings, threads=threads))
+
+    def finished(part, result):
+        kept.keep(part.index, result)
+        results[part.index] = result
+
+    run_tasks(
+        work.render_part,
+        shared,
+        [((key, part, active), part) for part in todo],
+        finished,
+        threads,
+        lambda busy: progress(len(results), total, busy),
+    )
+
+
+def run_tasks(function, shared, calls, finished, cpus: int, report):
+    """function(shared, *args) for each (args, part) of `calls` as Ray tasks of `cpus` CPUs each,
+    `shared` put in the object store once; finished(part, result) as each ends (on this thread),
+    report(workers busy) after; a task whose worker dies is run again. Ctrl-C or a failure
+    cancels every task still running."""
+    ray = cluster.import_ray()
+    task = ray.remote(function).options(num_cpus=cpus, max_retries=RETRIES)
+    ref = ray.put(shared)
+    running = {task.remote(ref, *args): part for args, part in calls}
     try:
         while running:
-            finished, _ = ray.wait(list(running), num_returns=1, timeout=0.5)
-            for ref in finished:
-                part = running.pop(ref)
+            done, _ = ray.wait(list(running), num_returns=1, timeout=0.5)
+            for r in done:
+                part = running.pop(r)
                 try:
-                    result = ray.get(ref)
+                    result = ray.get(r)
                 except ray.exceptions.RayTaskError as exc:
-                    cause = exc.cause if isinstance(exc.cause, Exception) else exc
-                    raise type(cause)(f"{part.label} {part.index}: {cause}") from None
+                    raise cluster.FarmError(f"{part.label} {part.index}: {exc.cause}") from None
                 except ray.exceptions.RayError as exc:
                     raise cluster.FarmError(f"{part.label} {part.index} failed on the cluster: {exc}") from None
-                kept.keep(part.index, result)
-                results[part.index] = result
-            progress(len(results), total, cluster.cpus_busy() // threads)
+                finished(part, result)
+            report(cluster.cpus_busy() // cpus)
     finally:
-        for ref in running:  # Ctrl-C or a failure: no task left running for nothing
-            ray.cancel(ref, force=True)
+        for r in running:  # no task left running for nothing
+            ray.cancel(r, force=True)
 
 
 class Line:

@@ -25,11 +25,12 @@ def tracer_for(job: Job, key: str):
     return _tracers[key]
 
 
-def render_part(job: Job, key: str, part: Part) -> dict:
+def render_part(job: Job, key: str, part: Part, active=None) -> dict:
     """{"arrays": name -> array, "stats": [render statistics]}: a tile's passes (and the samples
     its pixels took), or a sample pass's sums over its samples of the SUMMED_PASSES ("sum:NAME")
-    and of the squared brightness ("squares", the noise estimate's second moment), with the
-    pixel centre's passes where part.centre. Denoising is the merged image's, not a part's."""
+    and of the squared brightness ("squares", the noise estimate's second moment) and the samples
+    each pixel took ("taken"; `active`, (h, w) bool: the pixels that take samples, None: all),
+    with the pixel centre's passes where part.centre. Denoising is the merged image's, not a part's."""
     tracer = tracer_for(job, key)
     settings = dataclasses.replace(job.settings, denoise=False)
     if part.region is not None:
@@ -38,13 +39,18 @@ def render_part(job: Job, key: str, part: Part) -> dict:
         )
         return {"arrays": {**result.passes, "samples_taken": result.samples_taken}, "stats": [result.stats]}
     n = settings.samples_per_pixel
-    sums, stats = {}, []
+    took = np.ones((settings.height, settings.width)) if active is None else np.asarray(active, np.float64)
+    sums, stats = {"taken": len(part.samples) * took.astype(np.int64)}, []
     for k in part.samples:  # sample k of the n-sample render: its sub-pixel position and random numbers
         camera, one = progressive.one_sample(job.camera, settings, k, n)
         result = render.render(job.space, job.scene, one, camera, tracer=tracer)
         for name in SUMMED_PASSES:
-            sums[f"sum:{name}"] = sums.get(f"sum:{name}", 0.0) + result.passes[name].astype(np.float64)
-        sums["squares"] = sums.get("squares", 0.0) + result.passes["color"].astype(np.float64).mean(axis=-1) ** 2
+            value = result.passes[name].astype(np.float64)
+            sums[f"sum:{name}"] = sums.get(f"sum:{name}", 0.0) + value * took.reshape(
+                took.shape + (1,) * (value.ndim - 2)
+            )
+        brightness = result.passes["color"].astype(np.float64).mean(axis=-1) * took
+        sums["squares"] = sums.get("squares", 0.0) + brightness**2
         stats.append(result.stats)
     if part.centre:  # the passes of the ray through each pixel's centre: the unshaded centre sample
         centre = dataclasses.replace(

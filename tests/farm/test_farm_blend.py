@@ -1,0 +1,70 @@
+"""render-blend's frames on the real two-node Ray cluster (tests/farm/conftest.py) against the
+single-process render-blend of the same file: the same files, a rerun renders only the frames
+not finished, a changed file starts afresh."""
+
+import numpy as np
+import pytest
+from support import blender_helpers as bh
+
+pytestmark = [pytest.mark.slow, pytest.mark.blender]
+
+
+@pytest.fixture(scope="module")
+def blend(tmp_path_factory):
+    bpy = bh.bpy()
+    import thurston_addon
+
+    if not hasattr(bpy.types.Scene, "thurston"):
+        thurston_addon.register()
+    sc = bh.fresh_scene("torus", size=(16, 9))
+    bh.box("Box", 0.2, (0.0, 0.3, 0.0), color=(0.8, 0.3, 0.2))
+    bh.point_light((0.1, 0.1, 0.1))
+    cam = bh.camera((0, 0, 0))
+    sc.frame_start, sc.frame_end = 1, 3
+    cam.keyframe_insert("location", frame=1)
+    cam.location.x += 0.1
+    cam.keyframe_insert("location", frame=3)
+    path = tmp_path_factory.mktemp("blend") / "anim.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    return path
+
+
+def test_frames_on_the_cluster_are_render_blends(blend, cluster, tmp_path):
+    one, farmed = tmp_path / "one", tmp_path / "farm"
+    one.mkdir()
+    run = bh.render_blend(blend, one, frames="1..3")
+    assert run.returncode == 0, run.stderr
+    run = bh.render_blend(blend, farmed, "--cluster", cluster["address"], frames="1..3")
+    assert run.returncode == 0, run.stderr
+    names = ["anim_0001.exr", "anim_0002.exr", "anim_0003.exr"]
+    assert sorted(p.name for p in farmed.iterdir()) == names  # and nothing kept once done
+    for name in names:
+        a, b = bh.read_exr(one / name), bh.read_exr(farmed / name)
+        assert a.keys() == b.keys()
+        for channel in a:
+            np.testing.assert_array_equal(a[channel], b[channel], err_msg=f"{name} {channel}")
+
+
+def test_a_rerun_renders_only_the_frames_not_finished(blend, cluster, tmp_path):
+    from thurston_addon.blender import farm_frames
+
+    out = tmp_path / "out"
+    lines = []
+
+    def stop_after_one(line):
+        lines.append(line)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        farm_frames.render_blend(blend, "1..3", out, "png", False, cluster["address"], log=stop_after_one)
+    (first,) = [p for p in out.iterdir() if p.suffix == ".png"]
+    stamp = first.stat().st_mtime_ns
+    lines.clear()
+    written = farm_frames.render_blend(blend, "1..3", out, "png", False, cluster["address"], log=lines.append)
+    assert [p.name for p in written] == ["anim_0001.png", "anim_0002.png", "anim_0003.png"]
+    assert first.stat().st_mtime_ns == stamp  # kept, not rendered again
+    assert sum(".png: " in line and "warning" not in line for line in lines) == 2  # two frames rendered
+    assert sorted(p.name for p in out.iterdir()) == [p.name for p in written]
+    # the same frames asked again, no job of theirs kept: refused as render-blend refuses
+    with pytest.raises(Exception, match="exists"):
+        farm_frames.render_blend(blend, "1..3", out, "png", False, cluster["address"])
