@@ -68,3 +68,34 @@ def test_a_rerun_renders_only_the_frames_not_finished(blend, cluster, tmp_path):
     # the same frames asked again, no job of theirs kept: refused as render-blend refuses
     with pytest.raises(Exception, match="exists"):
         farm_frames.render_blend(blend, "1..3", out, "png", False, cluster["address"])
+
+
+def test_render_on_cluster_from_blender(blend, cluster, tmp_path):
+    """The panel's operator: the saved file through the thurston command in a child process (no
+    Ray in Blender), the frame loaded as an image; a clear report for an unsaved file and for a
+    cluster that does not answer."""
+    bpy = bh.bpy()
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    sc = bpy.context.scene
+    sc.thurston.farm_address = cluster["address"]
+    sc.thurston.farm_command = str(bh.THURSTON)
+    sc.render.filepath = f"{tmp_path / 'out'}/"
+    sc.frame_current = 2
+    saved = tmp_path / "panel.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(saved))
+    assert bpy.ops.thurston.farm_render() == {"FINISHED"}
+    image = bpy.data.images["panel_0002.png"]
+    assert tuple(image.size) == (16, 9)
+    one = tmp_path / "one"
+    one.mkdir()
+    assert bh.render_blend(saved, one, "--format", "png", frames="2").returncode == 0
+    reference = bpy.data.images.load(str(one / "panel_0002.png"))
+    np.testing.assert_array_equal(bh.image_pixels(image), bh.image_pixels(reference))
+
+    sc.thurston.farm_address = "127.0.0.1:1"
+    bpy.ops.wm.save_mainfile()
+    with pytest.raises(RuntimeError, match="no Ray cluster answers"):
+        bpy.ops.thurston.farm_render()
+    bh.fresh_scene()  # a new file, never saved
+    with pytest.raises(RuntimeError, match="save the .blend file first"):
+        bpy.ops.thurston.farm_render()
