@@ -179,3 +179,22 @@ def test_adaptive_sampling_over_sample_passes(world, cluster, tmp_path):
     same = farm_taken == single_taken
     np.testing.assert_allclose(merged.passes["color"][same], reference.passes["color"][same], rtol=1e-6, atol=1e-6)
     assert merged.stats["samples_mean"] == pytest.approx(farm_taken.mean())
+
+
+def test_a_jobs_key_is_the_same_in_another_process(world):
+    """The key that finds a stopped job's parts, computed by a later run (another process, other
+    hash seeds), is the same; another setting gives another."""
+    space, scene, camera = world
+    parts = farm.split(SETTINGS, 4)
+    key = farm.Job(space, scene, SETTINGS, camera).key(parts)
+    code = (
+        "from thurston_addon import farm, render, scenes, spaces; s = spaces.load('torus'); c = s.camera; "
+        f"settings = render.{SETTINGS!r}; "
+        "job = farm.Job(s, scenes.default_scene(s), settings, scenes.Camera(c.position, c.forward, c.up, c.fov)); "
+        "print(job.key(farm.split(settings, 4)))"
+    )
+    env = {**os.environ, "PYTHONHASHSEED": "12345"}
+    other = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert other.stdout.strip() == key, other.stderr
+    changed = dataclasses.replace(SETTINGS, samples=5)
+    assert farm.Job(space, scene, changed, camera).key(farm.split(changed, 4)) != key

@@ -93,35 +93,3 @@ def render_blend(path: Path, frames: str | None, out_dir: Path, suffix: str, ove
     progress(len(span), len(span), 0)
     shutil.rmtree(kept, ignore_errors=True)
     return [outputs[f] for f in span]
-
-
-def command(bscene, animation: bool) -> tuple[list[str], Path]:
-    """For Blender's Render on Cluster: the `thurston render-blend --cluster` command line that
-    renders the saved file's current frame (or its frame range) into the folder of Blender's output
-    path, in its format (EXR, else PNG), overwriting only where Blender's Overwrite is on; and the
-    last frame's file. ExportError where the file is not saved or no thurston command is found."""
-    from . import export
-
-    if not bpy.data.filepath:
-        raise export.ExportError("save the .blend file first: the cluster renders the saved file")
-    if bpy.data.is_dirty and not bpy.app.background:  # (without a UI, Blender counts every file as changed)
-        raise export.ExportError(
-            "the .blend file has unsaved changes: save it first (the cluster renders the saved file)"
-        )
-    s = bscene.thurston
-    thurston = bpy.path.abspath(s.farm_command) if s.farm_command else shutil.which("thurston")
-    if not thurston or not Path(thurston).is_file():
-        raise export.ExportError(
-            f"no thurston command{' at ' + repr(thurston) if thurston else ' on the PATH'}: set Thurston Command "
-            "to the thurston of an install with the 'farm' extra (its .venv/bin/thurston)"
-        )
-    output = bpy.path.abspath(bscene.render.filepath or "//")
-    folder = Path(output) if output.endswith(("/", "\\")) else Path(output).parent
-    suffix = "exr" if bscene.render.image_settings.file_format.startswith("OPEN_EXR") else "png"
-    first, last = (bscene.frame_start, bscene.frame_end) if animation else (bscene.frame_current,) * 2
-    blend = Path(bpy.data.filepath)
-    argv = [thurston, "render-blend", str(blend), "--frames", f"{first}..{last}", "--out", str(folder)]
-    argv += ["--format", suffix, "--cluster", s.farm_address]
-    if bscene.render.use_overwrite:
-        argv.append("--overwrite")
-    return argv, folder / f"{blend.stem}_{last:04d}.{suffix}"

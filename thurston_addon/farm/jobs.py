@@ -8,6 +8,7 @@ import dataclasses
 import hashlib
 import pickle
 from dataclasses import dataclass
+from pathlib import Path
 
 from .. import render, scenes, spaces
 from .cluster import FarmError
@@ -28,10 +29,13 @@ class Job:
     camera: scenes.Camera
 
     def key(self, parts: list[Part]) -> str:
-        """A hash of the job's contents and its split: a changed scene, setting or split gives
-        another key (threads are left out: they change no pixel)."""
+        """A hash of the job's contents and its split: a changed space (its file), scene, setting
+        or split gives another key (threads are left out: they change no pixel). The space counts
+        by its file and generators, not by its pickle, which holds what renders cached on it."""
         settings = dataclasses.replace(self.settings, threads=0)
-        content = pickle.dumps((self.space, self.scene, settings, self.camera, parts), protocol=5)
+        source = Path(self.space.source)
+        space = (self.space.source, source.read_bytes() if source.is_file() else None, self.space.generators)
+        content = pickle.dumps((space, self.scene, settings, self.camera, parts), protocol=5)
         return hashlib.sha256(content).hexdigest()[:24]
 
 

@@ -11,7 +11,7 @@ import threading
 
 import bpy
 
-from ..blender import export, farm_frames, results
+from ..blender import export, farm_command, results
 
 
 class THURSTON_OT_farm_render(bpy.types.Operator):
@@ -31,7 +31,7 @@ class THURSTON_OT_farm_render(bpy.types.Operator):
 
     def execute(self, context):
         try:
-            argv, self._last = farm_frames.command(context.scene, self.animation)
+            argv, self._last = farm_command.command(context.scene, self.animation)
         except export.ExportError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
