@@ -8,6 +8,7 @@ import bpy
 
 from .. import files, images
 from . import engine, export, registration
+from .frame_files import frame_path
 
 
 def ensure_registered():
@@ -88,7 +89,7 @@ def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, ov
     span = frame_range(frames, bscene)
 
     def output(frame: int) -> Path:
-        return out_dir / f"{path.stem}_{frame:04d}.{suffix}"
+        return frame_path(path, out_dir, frame, suffix)
 
     make_folder(out_dir)
     files.check_output(output(span[0]), overwrite)  # the folder and the name

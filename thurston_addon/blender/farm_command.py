@@ -10,6 +10,7 @@ from pathlib import Path
 import bpy
 
 from . import export
+from .frame_files import frame_path
 
 
 def command(bscene, animation: bool) -> tuple[list[str], Path]:
@@ -39,4 +40,4 @@ def command(bscene, animation: bool) -> tuple[list[str], Path]:
     argv += ["--format", suffix, "--cluster", s.farm_address]
     if bscene.render.use_overwrite:
         argv.append("--overwrite")
-    return argv, folder / f"{blend.stem}_{last:04d}.{suffix}"
+    return argv, frame_path(blend, folder, last, suffix)

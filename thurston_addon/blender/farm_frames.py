@@ -18,6 +18,7 @@ import bpy
 from .. import files
 from ..farm import Line, connected, parse_address, run_tasks
 from . import batch
+from .frame_files import frame_path
 
 
 @dataclass(frozen=True)
@@ -64,7 +65,7 @@ def render_blend(path: Path, frames: str | None, out_dir: Path, suffix: str, ove
     span = batch.frame_range(frames, bpy.context.scene)
     data = path.read_bytes()
     key = hashlib.sha256(data + repr((span.start, span.stop, suffix)).encode()).hexdigest()[:24]
-    outputs = {f: out_dir / f"{path.stem}_{f:04d}.{suffix}" for f in span}
+    outputs = {f: frame_path(path, out_dir, f, suffix) for f in span}
     batch.make_folder(out_dir)
     kept = out_dir / f".{path.name}.farm-{key}"
     for other in out_dir.glob(f".{batch.glob_escape(path.name)}.farm-*"):

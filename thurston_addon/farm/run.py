@@ -45,7 +45,14 @@ def render(
     key = job.key(parts)
     kept = Kept(out, key)
     results = kept.start()
-    progress = progress or Line(parts[0].plural)
+
+    def samples() -> str:  # the progress line's detail
+        n = settings.samples_per_pixel
+        if parts[0].region is not None:
+            return f"{n} samples/pixel"
+        return f"{sum(len(p.samples) for p in parts if p.index in results)}/{n} samples/pixel"
+
+    progress = progress or Line(parts[0].plural, samples)
     seconds = 0.0  # the job's time on the cluster (from its start, or joining it, to the last part)
     if any(p.index not in results for p in parts):
         with cluster.connected(address):
@@ -114,11 +121,11 @@ def run_tasks(function, shared, calls, finished, cpus: int, report):
 
 
 class Line:
-    """One progress line for the job on stderr: parts done, workers busy, time, ETA (redrawn on a
-    terminal; in a log, a line per finished part)."""
+    """One progress line for the job on stderr: parts done, detail() (the samples), workers busy,
+    time, ETA (redrawn on a terminal; in a log, a line per finished part)."""
 
-    def __init__(self, label: str):
-        self.label, self.start, self.done = label, time.perf_counter(), -1
+    def __init__(self, label: str, detail=None):
+        self.label, self.detail, self.start, self.done = label, detail, time.perf_counter(), -1
         self.tty = sys.stderr.isatty()
 
     def __call__(self, done: int, total: int, busy: int):
@@ -127,5 +134,6 @@ class Line:
         self.done = done
         elapsed = time.perf_counter() - self.start
         eta = f", ETA {elapsed / done * (total - done):.0f} s" if 0 < done < total else ""
-        line = f"farm: {done}/{total} {self.label}, {busy} workers busy, {elapsed:.1f} s{eta}"
-        print(f"{line:<72}", end="\r" if self.tty and done < total else "\n", file=sys.stderr, flush=True)
+        detail = f" ({self.detail()})" if self.detail else ""
+        line = f"farm: {done}/{total} {self.label}{detail}, {busy} workers busy, {elapsed:.1f} s{eta}"
+        print(f"{line:<80}", end="\r" if self.tty and done < total else "\n", file=sys.stderr, flush=True)
