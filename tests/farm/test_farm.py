@@ -55,6 +55,16 @@ def test_tiles_are_the_single_process_render(world, cluster, tmp_path):
     assert not list(tmp_path.iterdir())  # nothing kept once written
 
 
+def test_tiles_are_denoised_whole(world, cluster, tmp_path):
+    """Denoising is the merged image's, once, as the single process denoises its whole image."""
+    denoised = dataclasses.replace(SETTINGS, denoise=True)
+    merged = on_farm(world, cluster, denoised, tmp_path / "d.exr", tiles=3)
+    reference = single(world, denoised)
+    np.testing.assert_array_equal(merged.passes["noisy"], reference.passes["noisy"])
+    np.testing.assert_allclose(merged.passes["color"], reference.passes["color"], rtol=1e-5, atol=1e-6)
+    assert merged.stats["denoised"]
+
+
 def test_two_passes_of_four_samples_are_one_render_of_eight(world, cluster, tmp_path):
     """Pass p takes samples p, p + 2, ... of the 8-sample render (its sub-pixel positions and its
     seeds), so the merged image is that render's, up to float rounding of the sums."""
@@ -198,3 +208,15 @@ def test_a_jobs_key_is_the_same_in_another_process(world):
     assert other.stdout.strip() == key, other.stderr
     changed = dataclasses.replace(SETTINGS, samples=5)
     assert farm.Job(space, scene, changed, camera).key(farm.split(changed, 4)) != key
+
+
+def test_without_ray_one_error_names_the_extra(tmp_path):
+    code = (
+        "import sys; sys.modules['ray'] = None; from thurston_addon import cli; "
+        f"sys.exit(cli.main(['render', '--space', 'torus', '--size', '8x6', '--out', {str(tmp_path / 'p.png')!r}, "
+        "'--cluster', 'local:1']))"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2
+    assert "install the 'farm' extra" in run.stderr and "Traceback" not in run.stderr
+    assert not list(tmp_path.iterdir())

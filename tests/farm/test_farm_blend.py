@@ -2,6 +2,8 @@
 single-process render-blend of the same file: the same files, a rerun renders only the frames
 not finished, a changed file starts afresh."""
 
+import subprocess
+
 import numpy as np
 import pytest
 from support import blender_helpers as bh
@@ -99,3 +101,17 @@ def test_render_on_cluster_from_blender(blend, cluster, tmp_path):
     bh.fresh_scene()  # a new file, never saved
     with pytest.raises(RuntimeError, match="save the .blend file first"):
         bpy.ops.thurston.farm_render()
+
+
+def test_the_scenes_frame_step_on_the_cluster(blend, cluster, tmp_path):
+    """Without --frames, the scene's frame range by its step, as Blender renders an animation."""
+    bpy = bh.bpy()
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    bpy.context.scene.frame_step = 2
+    stepped = tmp_path / "step.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(stepped), copy=True)
+    out = tmp_path / "out"
+    argv = [str(bh.THURSTON), "render-blend", str(stepped), "--out", str(out), "--format", "png"]
+    run = subprocess.run([*argv, "--cluster", cluster["address"]], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["step_0001.png", "step_0003.png"]

@@ -26,8 +26,10 @@ def open_blend(path: Path):
 
 
 def frame_range(spec: str | None, bscene) -> range:
+    """The frames of `--frames` (N or A..B, every frame), or else the scene's frame range by its
+    step, as Blender renders an animation."""
     if not spec:
-        return range(bscene.frame_start, bscene.frame_end + 1)
+        return range(bscene.frame_start, bscene.frame_end + 1, bscene.frame_step)
     try:
         a, _, b = spec.partition("..")
         first, last = int(a), int(b or a)
