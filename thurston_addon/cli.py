@@ -406,7 +406,8 @@ def build_parser():
         "--out",
         default=".",
         metavar="DIR",
-        help="folder for <name>_<frame>.<format>, created where missing (default: .)",
+        help="folder for <name>_<frame>.<format>, or a path whose '#' run is the frame number "
+        "(frames/shot_### -> frames/shot_001.<format>), created where missing (default: .)",
     )
     b.add_argument("--format", choices=("exr", "png"), default="exr")
     b.add_argument("--overwrite", action="store_true", help="replace existing frame files")

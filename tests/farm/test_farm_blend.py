@@ -81,12 +81,12 @@ def test_render_on_cluster_from_blender(blend, cluster, tmp_path):
     sc = bpy.context.scene
     sc.thurston.farm_address = cluster["address"]
     sc.thurston.farm_command = str(bh.THURSTON)
-    sc.render.filepath = f"{tmp_path / 'out'}/"
+    sc.render.filepath = str(tmp_path / "out" / "frame_###")
     sc.frame_current = 2
     saved = tmp_path / "panel.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(saved))
     assert bpy.ops.thurston.farm_render() == {"FINISHED"}
-    image = bpy.data.images["panel_0002.png"]
+    image = bpy.data.images["frame_002.png"]
     assert tuple(image.size) == (16, 9)
     one = tmp_path / "one"
     one.mkdir()
@@ -104,14 +104,15 @@ def test_render_on_cluster_from_blender(blend, cluster, tmp_path):
 
 
 def test_the_scenes_frame_step_on_the_cluster(blend, cluster, tmp_path):
-    """Without --frames, the scene's frame range by its step, as Blender renders an animation."""
+    """Without --frames, the scene's frame range by its step, as Blender renders an animation; an
+    output path with '#' names the frames as Blender's do."""
     bpy = bh.bpy()
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     bpy.context.scene.frame_step = 2
     stepped = tmp_path / "step.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(stepped), copy=True)
     out = tmp_path / "out"
-    argv = [str(bh.THURSTON), "render-blend", str(stepped), "--out", str(out), "--format", "png"]
+    argv = [str(bh.THURSTON), "render-blend", str(stepped), "--out", str(out / "shot_##"), "--format", "png"]
     run = subprocess.run([*argv, "--cluster", cluster["address"]], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["step_0001.png", "step_0003.png"]
+    assert sorted(p.name for p in out.iterdir()) == ["shot_01.png", "shot_03.png"]

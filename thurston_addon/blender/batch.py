@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import bpy
 
 from .. import files, images
 from . import engine, export, registration
-from .frame_files import frame_path
+from .frame_files import FrameFiles
 
 
 def ensure_registered():
@@ -43,6 +44,16 @@ def frame_range(spec: str | None, bscene) -> range:
 def glob_escape(name: str) -> str:
     """A name as a glob pattern that matches only itself."""
     return "".join(f"[{c}]" if c in "*?[" else c for c in name)
+
+
+def existing_frames(names: FrameFiles, frames: range) -> list[Path]:
+    """The files of `frames` already there (from the folder's listing, not each frame's path)."""
+    found = []
+    for file in sorted(names.folder.glob(f"{glob_escape(names.head)}*{glob_escape(names.tail)}")):
+        number = file.name[len(names.head) : len(file.name) - len(names.tail)]
+        if re.fullmatch(r"-?\d+", number) and int(number) in frames and file == names.path(int(number)):
+            found.append(file)
+    return found
 
 
 def make_folder(folder: Path):
@@ -84,22 +95,20 @@ def _configure_output(bscene, suffix: str):
 
 def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, overwrite: bool, progress_for, log):
     """Render each frame through the THURSTON engine, as `blender -b FILE -E THURSTON -f N` would (render
-    visibility, render modifier levels, animated cameras and objects), to out_dir/<name>_<frame>.<suffix>:
+    visibility, render modifier levels, animated cameras and objects), to out_dir/<name>_<frame>.<suffix>
+    (or out_dir a path with '#': frame_files.FrameFiles):
     a multilayer EXR with the passes the settings ask for, or a PNG of the view-transformed colour."""
     open_blend(path)
     bscene = bpy.context.scene
     span = frame_range(frames, bscene)
 
-    def output(frame: int) -> Path:
-        return frame_path(path, out_dir, frame, suffix)
-
-    make_folder(out_dir)
+    names = FrameFiles.of(path, out_dir, suffix)
+    output = names.path
+    make_folder(names.folder)
     files.check_output(output(span[0]), overwrite)  # the folder and the name
-    if not overwrite:  # refuse before spending time on any frame: the folder's files, not every frame's path
-        for existing in sorted(out_dir.glob(f"{glob_escape(path.stem)}_*.{suffix}")):
-            number = existing.name[len(path.stem) + 1 : -len(suffix) - 1]
-            if number.isdigit() and int(number) in span and existing == output(int(number)):
-                files.check_output(existing, overwrite)
+    if not overwrite:  # refuse before spending time on any frame
+        for existing in existing_frames(names, span):
+            files.check_output(existing, overwrite)
     _configure_output(bscene, suffix)
     outputs = []
     for frame in span:

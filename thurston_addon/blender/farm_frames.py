@@ -18,7 +18,7 @@ import bpy
 from .. import files
 from ..farm import Line, connected, parse_address, run_tasks
 from . import batch
-from .frame_files import frame_path
+from .frame_files import FrameFiles
 
 
 @dataclass(frozen=True)
@@ -65,10 +65,11 @@ def render_blend(path: Path, frames: str | None, out_dir: Path, suffix: str, ove
     span = batch.frame_range(frames, bpy.context.scene)
     data = path.read_bytes()
     key = hashlib.sha256(data + repr((span.start, span.stop, suffix)).encode()).hexdigest()[:24]
-    outputs = {f: frame_path(path, out_dir, f, suffix) for f in span}
-    batch.make_folder(out_dir)
-    kept = out_dir / f".{path.name}.farm-{key}"
-    for other in out_dir.glob(f".{batch.glob_escape(path.name)}.farm-*"):
+    names = FrameFiles.of(path, out_dir, suffix)
+    outputs = {f: names.path(f) for f in span}
+    batch.make_folder(names.folder)
+    kept = names.folder / f".{path.name}.farm-{key}"
+    for other in names.folder.glob(f".{batch.glob_escape(path.name)}.farm-*"):
         if other != kept:
             shutil.rmtree(other, ignore_errors=True)  # another job's (the file or the frames changed)
     finished = {f for f in span if (kept / f"frame-{f}").exists() and outputs[f].exists()}
