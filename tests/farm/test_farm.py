@@ -55,6 +55,17 @@ def test_tiles_are_the_single_process_render(world, cluster, tmp_path):
     assert not list(tmp_path.iterdir())  # nothing kept once written
 
 
+def test_tiles_keep_adaptive_sampling_exact(world, cluster, tmp_path):
+    """Adaptive sampling decides per pixel: a tile's pixels take the samples they take in the whole image."""
+    adaptive = dataclasses.replace(SETTINGS, samples=12, bounces=2, noise_threshold=0.05, min_samples=4)
+    merged = on_farm(world, cluster, adaptive, tmp_path / "a.exr", tiles=3)
+    reference = single(world, adaptive)
+    assert reference.samples_taken.min() < 12  # some pixels stopped early
+    np.testing.assert_array_equal(merged.samples_taken, reference.samples_taken)
+    assert_same_passes(merged, reference)
+    assert merged.stats["noise"] == pytest.approx(reference.stats["noise"], rel=1e-9)
+
+
 def test_tiles_are_denoised_whole(world, cluster, tmp_path):
     """Denoising is the merged image's, once, as the single process denoises its whole image."""
     denoised = dataclasses.replace(SETTINGS, denoise=True)

@@ -116,3 +116,20 @@ def test_the_scenes_frame_step_on_the_cluster(blend, cluster, tmp_path):
     run = subprocess.run([*argv, "--cluster", cluster["address"]], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     assert sorted(p.name for p in out.iterdir()) == ["shot_01.png", "shot_03.png"]
+
+
+def test_a_worker_without_the_file_renders_the_copy_shipped(blend, tmp_path):
+    """A worker on another machine has no file at the .blend's path: it renders the bytes shipped."""
+    from thurston_addon import images
+    from thurston_addon.blender import farm_frames
+
+    data = blend.read_bytes()
+    here = farm_frames.BlendFile(blend.name, data, str(blend))
+    elsewhere = farm_frames.BlendFile(blend.name, data, str(tmp_path / "not-here" / blend.name))
+    pixels = []
+    for key, shipped in (("here", here), ("elsewhere", elsewhere)):
+        png, lines = farm_frames.render_frame(shipped, key, 2, "png", "shown.png")
+        assert lines and lines[-1].startswith("shown.png: ")
+        (tmp_path / f"{key}.png").write_bytes(png)
+        pixels.append(images.read_texture(tmp_path / f"{key}.png"))
+    np.testing.assert_array_equal(*pixels)

@@ -37,23 +37,27 @@ class Frame:
     label = "frame"
 
 
-# per worker process: the job key -> the .blend file it opens
+# per worker process: the job key -> the .blend file it opens (and the folder of its copy, if any)
 _opened: dict = {}
 
 
 def render_frame(blend: BlendFile, key: str, frame: int, suffix: str, output: str) -> tuple[bytes, list[str]]:
     """On a worker: the frame's output file (its bytes) and the render's log lines (naming it `output`)."""
     if key not in _opened:
-        source = Path(blend.source)
-        if not (source.is_file() and source.stat().st_size == len(blend.data) and source.read_bytes() == blend.data):
-            source = Path(tempfile.mkdtemp(prefix="thurston-farm-")) / blend.name
-            source.write_bytes(blend.data)
+        for _, copy in _opened.values():  # a worker holds one job's file at a time
+            if copy is not None:
+                shutil.rmtree(copy, ignore_errors=True)
         _opened.clear()
-        _opened[key] = source
+        source, copy = Path(blend.source), None
+        if not (source.is_file() and source.stat().st_size == len(blend.data) and source.read_bytes() == blend.data):
+            copy = Path(tempfile.mkdtemp(prefix="thurston-farm-"))
+            source = copy / blend.name
+            source.write_bytes(blend.data)
+        _opened[key] = (source, copy)
     lines: list[str] = []
     with tempfile.TemporaryDirectory(prefix="thurston-frame-") as out:
         (written,) = batch.render_frames(
-            _opened[key], str(frame), Path(out), suffix, True, lambda label: lambda done, total: True, lines.append
+            _opened[key][0], str(frame), Path(out), suffix, True, lambda label: lambda done, total: True, lines.append
         )
         return written.read_bytes(), [line.replace(str(written), output) for line in lines]
 

@@ -71,6 +71,11 @@ class THURSTON_OT_farm_render(bpy.types.Operator):
         return self._conclude(context)
 
     def _conclude(self, context):
+        if self._process.returncode in (130, -2):  # stopped (Esc): SIGINT, as Ctrl-C
+            self.report(
+                {"WARNING"}, "Render on Cluster stopped: the frames finished are kept, run it again for the rest"
+            )
+            return {"CANCELLED"}
         if self._process.returncode != 0:
             said = [line.removeprefix("thurston: error: ") for line in self._lines if line.startswith("thurston:")]
             self.report({"ERROR"}, f"Render on Cluster: {said[-1] if said else 'the thurston command failed'}")
