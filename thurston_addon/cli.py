@@ -386,7 +386,7 @@ def build_parser():
     r.add_argument(
         "--cluster",
         metavar="ADDRESS",
-        help="render on a Ray cluster: local[:N] (N workers on this machine, loopback only) or HOST:PORT "
+        help="render on a Ray cluster: local[:N] (N workers on this machine) or HOST:PORT "
         "(a running cluster); needs the 'farm' extra (docs/farm.md)",
     )
     r.add_argument("--tiles", type=int, help="with --cluster: bands of rows, a task each (default: 16)")

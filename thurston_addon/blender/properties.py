@@ -240,7 +240,7 @@ class ThurstonSettings(bpy.types.PropertyGroup):
     farm_address: bpy.props.StringProperty(
         name="Cluster",
         default="local:2",
-        description="The Ray cluster: local:N (N workers on this machine, loopback only) or HOST:PORT",
+        description="The Ray cluster: local:N (N workers on this machine) or HOST:PORT",
     )
     farm_command: bpy.props.StringProperty(
         name="Thurston Command",

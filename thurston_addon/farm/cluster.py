@@ -1,6 +1,7 @@
-"""The cluster a farm runs on: `local[:N]`, Ray started in this process with N worker slots, bound
-to the loopback interface only; `HOST:PORT`, a running cluster joined. Ray is imported here, when a
-farm runs, never by the plain render path."""
+"""The cluster a farm runs on: `local[:N]`, Ray started in this process with N worker slots, its node
+on the loopback address, no dashboard, token authentication on (Ray 2.60's servers still listen on
+every interface: docs/farm.md, "Security"); `HOST:PORT`, a running cluster joined. Ray is imported
+here, when a farm runs, never by the plain render path."""
 
 from __future__ import annotations
 
@@ -43,7 +44,7 @@ def parse_address(address: str) -> tuple[str, int | None]:
 @contextlib.contextmanager
 def connected(address: str):
     """Ray connected to the cluster of `address` for the block (a local one started and stopped
-    with it); yields the number of CPUs the cluster has."""
+    with it)."""
     ray = import_ray()
     where, workers = parse_address(address)
     quiet = dict(logging_level="ERROR", log_to_driver=False, configure_logging=True)
@@ -52,7 +53,7 @@ def connected(address: str):
             ray.init(
                 num_cpus=workers or os.cpu_count() or 1,
                 include_dashboard=False,
-                _node_ip_address=LOOPBACK,  # every port of the local cluster on loopback only
+                _node_ip_address=LOOPBACK,  # its processes reach each other over loopback
                 **quiet,
             )
         else:
@@ -61,7 +62,7 @@ def connected(address: str):
     except (ConnectionError, RuntimeError, ValueError) as exc:
         raise FarmError(f"--cluster {address}: cannot connect: {str(exc).strip().splitlines()[0]}") from None
     try:
-        yield int(ray.cluster_resources().get("CPU", 0))
+        yield
     finally:
         ray.shutdown()
 
