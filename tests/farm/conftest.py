@@ -85,7 +85,7 @@ def cluster(tmp_path_factory):
             _wait_for(lambda: sum(n["Alive"] for n in ray.nodes()) == 2, "the second node")
         finally:
             ray.shutdown()
-        yield {"address": address, "folder": folder}
+        yield {"address": address, "folder": folder, "processes": lambda: _started_by(folder)}
     finally:
         for node in nodes:
             with contextlib.suppress(ProcessLookupError):

@@ -90,16 +90,15 @@ def test_two_passes_of_four_samples_are_one_render_of_eight(world, cluster, tmp_
     assert np.abs(merged.passes["color"] - four.passes["color"]).max() > 1e-3  # more samples, another image
 
 
-def _workers_rendering(folder):
-    """The Ray worker processes of the test cluster running a farm task."""
+def _workers_rendering(cluster):
+    """The test cluster's worker processes running a farm task."""
     found = []
-    for pid in os.listdir("/proc"):
+    for pid in cluster["processes"]():
         try:
-            line = Path(f"/proc/{pid}/cmdline").read_bytes()
+            if Path(f"/proc/{pid}/cmdline").read_bytes().startswith(b"ray::render_part"):
+                found.append(pid)
         except OSError:
             continue
-        if line.startswith(b"ray::render_part"):
-            found.append(int(pid))
     return found
 
 
@@ -114,7 +113,7 @@ def test_a_killed_worker_loses_nothing(world, cluster, tmp_path):
     job.start()
     deadline = time.monotonic() + 60
     while not killed and job.is_alive() and time.monotonic() < deadline:
-        workers = _workers_rendering(cluster["folder"])
+        workers = _workers_rendering(cluster)
         if workers:
             os.kill(workers[0], signal.SIGKILL)
             killed.append(workers[0])
