@@ -118,10 +118,14 @@ def test_the_scenes_frame_step_on_the_cluster(blend, cluster, tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["shot_01.png", "shot_03.png"]
 
 
-def test_a_worker_without_the_file_renders_the_copy_shipped(blend, tmp_path):
+def test_a_worker_without_the_file_renders_the_copy_shipped(blend, tmp_path, monkeypatch):
     """A worker on another machine has no file at the .blend's path: it renders the bytes shipped."""
+    import tempfile
+
     from thurston_addon import images
     from thurston_addon.blender import farm_frames
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the copy (this process is the worker)
 
     data = blend.read_bytes()
     here = farm_frames.BlendFile(blend.name, data, str(blend))

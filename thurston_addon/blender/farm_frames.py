@@ -7,6 +7,7 @@ a frame file not of this job is not overwritten unless asked."""
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import shutil
 import tempfile
@@ -51,6 +52,7 @@ def render_frame(blend: BlendFile, key: str, frame: int, suffix: str, output: st
         source, copy = Path(blend.source), None
         if not (source.is_file() and source.stat().st_size == len(blend.data) and source.read_bytes() == blend.data):
             copy = Path(tempfile.mkdtemp(prefix="thurston-farm-"))
+            atexit.register(shutil.rmtree, copy, True)  # also when the worker ends
             source = copy / blend.name
             source.write_bytes(blend.data)
         _opened[key] = (source, copy)
