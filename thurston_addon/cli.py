@@ -152,6 +152,8 @@ def cmd_render(args):
 
     if args.cluster:
         result = _farm_render(args, space, scene, settings, camera, out, write)
+    elif args.tiles or args.sample_passes != 1:
+        raise CommandError("--tiles and --sample-passes split a render for --cluster: give --cluster ADDRESS")
     else:
         result = render.render(space, scene, settings, camera=camera, progress=Progress(f"render {space.id}"))
         write(result)
