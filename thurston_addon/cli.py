@@ -152,35 +152,47 @@ def cmd_render(args):
     )
     for note in checks.before_render(space, scene, camera, lambert) + ([walk] if walk else []):
         warnings.warn(note.message)
+    if (args.tiles or args.sample_passes != 1) and not args.cluster:
+        raise CommandError("--tiles and --sample-passes split a render for --cluster: give --cluster ADDRESS")
+
+    def write(results):
+        for result in results:
+            for note in checks.after_render(scene, result.passes, lambert, stats=result.stats):
+                warnings.warn(note.message)
+        summary = "; ".join(
+            (f"{eye} eye: " if stereo else "") + result.summary() for eye, result in zip(render.EYES, results)
+        )
+        views = [r.passes for r in results] if layout in (None, "separate") else [render.side_by_side(*results, layout)]
+        omni = render.PROJECTIONS[args.projection].omni_stereo
+        for out, passes in zip(outs, views):
+            images.write(
+                out,
+                passes,
+                names=args.passes,
+                overwrite=args.overwrite,
+                metadata={"space": space.id, "quality": args.quality, "summary": summary}
+                | ({} if stereo is None else {"stereo": f"{layout}; {stereo}"}),
+                xmp=images.panorama_xmp(w, h, None if layout == "separate" else layout) if omni else None,
+            )
+            if stereo is None:
+                print(f"{out}: {w}x{h} {space.id}; {summary}")
+            else:
+                print(f"{out}: {w}x{h} per eye, {layout}, {space.id}")
+        if stereo is not None:
+            print(summary)
+
+    if args.cluster:  # each eye a job on the cluster; the files written when the last is merged
+        eyes = render.EYES if stereo else (None,)
+        done = []
+        for eye in eyes:
+            last = (lambda result: write(done + [result])) if eye == eyes[-1] else None
+            done.append(_farm_render(args, space, scene, dataclasses.replace(settings, eye=eye), camera, outs[0], last))
+        return
     progress = Progress(f"render {space.id}")
     if stereo is None:
-        results = [render.render(space, scene, settings, camera=camera, progress=progress)]
+        write([render.render(space, scene, settings, camera=camera, progress=progress)])
     else:
-        results = render.render_eyes(space, scene, settings, camera=camera, progress=progress)
-    for result in results:
-        for note in checks.after_render(scene, result.passes, lambert, stats=result.stats):
-            warnings.warn(note.message)
-    summary = "; ".join(
-        (f"{eye} eye: " if stereo else "") + result.summary() for eye, result in zip(render.EYES, results)
-    )
-    views = [r.passes for r in results] if layout in (None, "separate") else [render.side_by_side(*results, layout)]
-    omni = render.PROJECTIONS[args.projection].omni_stereo
-    for out, passes in zip(outs, views):
-        images.write(
-            out,
-            passes,
-            names=args.passes,
-            overwrite=args.overwrite,
-            metadata={"space": space.id, "quality": args.quality, "summary": summary}
-            | ({} if stereo is None else {"stereo": f"{layout}; {stereo}"}),
-            xmp=images.panorama_xmp(w, h, None if layout == "separate" else layout) if omni else None,
-        )
-        if stereo is None:
-            print(f"{out}: {w}x{h} {space.id}; {summary}")
-        else:
-            print(f"{out}: {w}x{h} per eye, {layout}, {space.id}")
-    if stereo is not None:
-        print(summary)
+        write(render.render_eyes(space, scene, settings, camera=camera, progress=progress))
 
 
 def view_paths(out: str, layout: str | None) -> list[str]:
@@ -224,6 +236,16 @@ def _pole_merge(text: str):
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected FROM,TO in degrees or off, got {text!r}") from None
     return start, end
+
+
+def _farm_render(args, space, scene, settings, camera, out, write):
+    """The render on a Ray cluster (thurston_addon/farm, docs/farm.md): Ray is imported only here."""
+    from . import farm
+
+    try:
+        return farm.render(space, scene, settings, camera, args.cluster, out, args.tiles, args.sample_passes, write)
+    except farm.FarmError as exc:
+        raise CommandError(str(exc)) from None
 
 
 def read_rays(path, space) -> tuple[np.ndarray, np.ndarray]:
@@ -314,6 +336,17 @@ def cmd_render_blend(args):
             "or run inside Blender: blender -b FILE.blend -E THURSTON -f 1"
         ) from None
     try:
+        if args.cluster:  # the frames on a Ray cluster (docs/farm.md)
+            from . import farm
+            from .blender import farm_frames
+
+            try:
+                farm_frames.render_blend(
+                    Path(args.blend), args.frames, Path(args.out), args.format, args.overwrite, args.cluster
+                )
+            except farm.FarmError as exc:
+                raise CommandError(str(exc)) from None
+            return
         batch.render_frames(
             Path(args.blend),
             args.frames,
@@ -467,6 +500,14 @@ def build_parser():
         help="panoramas: fade the eye offset to 0 between these altitudes, degrees, or off (default 60,75)",
     )
     r.add_argument("--out", required=True, metavar="FILE", help="the image (stereo as two files: FILE_L and FILE_R)")
+    r.add_argument(
+        "--cluster",
+        metavar="ADDRESS",
+        help="render on a Ray cluster: local[:N] (N workers on this machine) or HOST:PORT "
+        "(a running cluster); needs the 'farm' extra (docs/farm.md)",
+    )
+    r.add_argument("--tiles", type=int, help="with --cluster: bands of rows, a task each (default: 16)")
+    r.add_argument("--sample-passes", type=int, default=1, help="with --cluster: passes of the samples, a task each")
     r.set_defaults(run=cmd_render)
 
     t = sub.add_parser("trace", help="batch ray queries: RAYS.npy (N,6) float64 -> HITS.npz")
@@ -482,10 +523,17 @@ def build_parser():
         "--out",
         default=".",
         metavar="DIR",
-        help="folder for <name>_<frame>.<format>, created where missing (default: .)",
+        help="folder for <name>_<frame>.<format>, or a path whose '#' run is the frame number "
+        "(frames/shot_### -> frames/shot_001.<format>), created where missing (default: .)",
     )
     b.add_argument("--format", choices=("exr", "png"), default="exr")
     b.add_argument("--overwrite", action="store_true", help="replace existing frame files")
+    b.add_argument(
+        "--cluster",
+        metavar="ADDRESS",
+        help="render the frames on a Ray cluster: local[:N] or HOST:PORT; a job stopped and started again "
+        "renders only the frames it has not finished (docs/farm.md)",
+    )
     b.set_defaults(run=cmd_render_blend)
     return p
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -11,6 +12,7 @@ import bpy
 
 from .. import files, images
 from . import engine, export, registration
+from .frame_files import FrameFiles
 
 
 def ensure_registered():
@@ -28,8 +30,10 @@ def open_blend(path: Path):
 
 
 def frame_range(spec: str | None, bscene) -> range:
+    """The frames of `--frames` (N or A..B, every frame), or else the scene's frame range by its
+    step, as Blender renders an animation."""
     if not spec:
-        return range(bscene.frame_start, bscene.frame_end + 1)
+        return range(bscene.frame_start, bscene.frame_end + 1, bscene.frame_step)
     try:
         a, _, b = spec.partition("..")
         first, last = int(a), int(b or a)
@@ -43,6 +47,20 @@ def frame_range(spec: str | None, bscene) -> range:
 def glob_escape(name: str) -> str:
     """A name as a glob pattern that matches only itself."""
     return "".join(f"[{c}]" if c in "*?[" else c for c in name)
+
+
+def existing_frames(names: FrameFiles, frames: range, views=("",)) -> list[Path]:
+    """The files of `frames` (and their `views`: view_suffixes) already there, from the folder's
+    listing, not each frame's path."""
+    found = []
+    extension = names.tail[names.tail.rfind(".") :]
+    for file in sorted(names.folder.glob(f"{glob_escape(names.head)}*{glob_escape(extension)}")):
+        middle = file.name[len(names.head) : len(file.name) - len(extension)]
+        for view in views:
+            number = re.match(r"-?\d+", middle)
+            if number and int(number[0]) in frames and file == names.path(int(number[0]), view):
+                found.append(file)
+    return found
 
 
 def make_folder(folder: Path):
@@ -95,31 +113,26 @@ def view_suffixes(bscene) -> list[str]:
 def render_frames(path: Path, frames: str | None, out_dir: Path, suffix: str, overwrite: bool, progress_for, log):
     """Render each frame through the THURSTON engine, as `blender -b FILE -E THURSTON -f N` would (render
     visibility, render modifier levels, animated cameras and objects), to out_dir/<name>_<frame>.<suffix>
-    (with Stereoscopy's individual views, <name>_<frame>_L.<suffix> and _R): a multilayer EXR with the
-    passes the settings ask for, or a PNG of the view-transformed colour."""
+    (or out_dir a path with '#': frame_files.FrameFiles; with Stereoscopy's individual views,
+    <name>_<frame>_L.<suffix> and _R): a multilayer EXR with the passes the settings ask for, or a PNG
+    of the view-transformed colour."""
     open_blend(path)
     bscene = bpy.context.scene
     span = frame_range(frames, bscene)
     views = view_suffixes(bscene)
 
-    def output(frame: int, view: str = "") -> Path:
-        return out_dir / f"{path.stem}_{frame:04d}{view}.{suffix}"
-
-    make_folder(out_dir)
+    names = FrameFiles.of(path, out_dir, suffix)
+    output = names.path
+    make_folder(names.folder)
     for view in views:
         files.check_output(output(span[0], view), overwrite)  # the folder and the name
-    if not overwrite:  # refuse before spending time on any frame: the folder's files, not every frame's path
-        for existing in sorted(out_dir.glob(f"{glob_escape(path.stem)}_*.{suffix}")):
-            name = existing.name[len(path.stem) + 1 : -len(suffix) - 1]
-            for view in views:
-                number = name.removesuffix(view)
-                if number.isdigit() and int(number) in span and existing == output(int(number), view):
-                    files.check_output(existing, overwrite)
+    if not overwrite:  # refuse before spending time on any frame
+        for existing in existing_frames(names, span, views):
+            files.check_output(existing, overwrite)
     _configure_output(bscene, suffix)
     outputs = []
     for frame in span:
-        out = output(frame)
-        outputs.append(out)
+        outputs += [output(frame, view) for view in views]
         bscene.frame_set(frame)
         listener = progress_for(f"frame {frame}")
         engine.progress_listeners.append(listener)

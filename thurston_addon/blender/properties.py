@@ -242,6 +242,18 @@ class ThurstonSettings(bpy.types.PropertyGroup):
         name="Overwrite", default=False, description="Replace the file at Save To if it exists"
     )
     threads: bpy.props.IntProperty(name="Threads", default=0, min=0, max=render.MAX_THREADS, description="0: all cores")
+    # Render on Cluster (docs/farm.md): the saved .blend rendered by `thurston render-blend --cluster`
+    farm_address: bpy.props.StringProperty(
+        name="Cluster",
+        default="local:2",
+        description="The Ray cluster: local:N (N workers on this machine) or HOST:PORT",
+    )
+    farm_command: bpy.props.StringProperty(
+        name="Thurston Command",
+        subtype="FILE_PATH",
+        description="The thurston command of an install with the 'farm' extra, such as .venv/bin/thurston "
+        "(empty: thurston on the PATH); Ray runs there, not in Blender",
+    )
     # Sampling, under Cycles' names (scene.cycles): the render's (F12, animations, render-blend, the
     # operators' renders) and the viewport's (preview_*). Defaults that differ from Cycles' keep files
     # saved before these settings existed rendering as they did: adaptive sampling off, and sample

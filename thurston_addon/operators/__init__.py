@@ -1,6 +1,6 @@
 """The add-on's operators: renders into images (view, preview, panorama), the domain guide and the
-camera, and the settings presets."""
+camera, the settings presets, and Render on Cluster."""
 
-from . import guide, presets, views
+from . import guide, presets, send_to_farm, views
 
-CLASSES = (*views.CLASSES, *guide.CLASSES, *presets.CLASSES)
+CLASSES = (*views.CLASSES, *guide.CLASSES, *presets.CLASSES, *send_to_farm.CLASSES)

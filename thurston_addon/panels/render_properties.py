@@ -87,6 +87,12 @@ class THURSTON_PT_render(_UnderThurston, bpy.types.Panel):
         col.prop(s, "panorama_width")
         col.prop(s, "panorama_stereo")
         draw_renders(layout)
+        col = layout.column(heading="Cluster")
+        col.prop(s, "farm_address")
+        col.prop(s, "farm_command")
+        row = col.row(align=True)
+        row.operator("thurston.farm_render", icon="NETWORK_DRIVE").animation = False
+        row.operator("thurston.farm_render", text="Animation on Cluster", icon="RENDER_ANIMATION").animation = True
         draw_last_render(layout, s.stats)
 
 

@@ -165,6 +165,10 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         jobs.insert(0, (CENTRE, False, False))
     pixels = w * h
     total = len(jobs) * pixels
+    # a window's rays draw the random numbers of their pixels in the whole image: a window (a
+    # render region, a farm's tile) is pixel for pixel the same part of the whole image's render
+    x0, y0 = settings.window[:2]
+    window_ids = None if settings.region is None else ((y0 + np.arange(h))[:, None] * W + x0 + np.arange(w)).ravel()
     color_sum = None
     # the denoiser's guides, summed over the colour samples as the colour is
     albedo_sum = np.zeros((w * h, 3))
@@ -204,7 +208,8 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
             seed=settings.seed + k,
             bounces=settings.bounces,
             light_budget=settings.light_budget,
-            ray_ids=rays,  # a subset's random numbers are those the same pixels draw in a whole pass
+            # a subset's random numbers are those the same pixels draw in a whole pass
+            ray_ids=rays if window_ids is None else window_ids if rays is None else window_ids[rays],
         )
         if np.any(out["stop"] == 3):
             raise Cancelled("render cancelled")
