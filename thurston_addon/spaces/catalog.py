@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ..files import check_keys, read_text
 from ..geometries import faces
+from . import snappy_census
 from .coordinate import CoordinateSpace
 from .dirichlet import DirichletSpace
 from .shells import FoldedShellSpace, ShellSpace
@@ -78,9 +79,12 @@ def preset_path(space_id: str) -> Path | None:
 
 
 def load(path_or_id: str | Path) -> Space:
-    """A preset by id, or a space file by path."""
+    """A preset by id, a manifold SnapPy names (snappy:NAME, its file written to the cache folder
+    first), or a space file by path."""
     path = Path(path_or_id)
-    if not path.suffix and not path.exists():
+    if snappy_census.is_snappy_name(path_or_id):
+        path = snappy_census.census_file(path_or_id[len(snappy_census.PREFIX) :])
+    elif not path.suffix and not path.exists():
         path = preset_path(str(path_or_id))
         if path is None:
             raise SpaceError(

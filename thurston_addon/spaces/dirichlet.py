@@ -15,10 +15,11 @@ import numpy as np
 from .. import geometries
 from .domains import Domain, halfspace_domain
 from .space import Space, is_identity
-from .values import SpaceError
+from .values import SpaceError, evaluate
 
 _SHORTENING_ROUNDS = 64  # passes over the generator pairs that shorten a generating set (each pass
 # shortens every generator as far as single products go; a discrete group's set settles in a few)
+COVOLUME_TOLERANCE = 1e-8  # relative: a file's covolume and the domain's volume agree this well
 CENTRE_RESOLUTION = 1e-6  # elements moving the domain centre by less are not told apart from the identity
 
 
@@ -35,6 +36,13 @@ class DirichletSpace(Space):
         self._elements: list[np.ndarray] = [np.eye(4)]
         self._radius = 0.0
         self._dirichlet_domain()
+        if "covolume" in data:  # (the volume by quadrature is good to about 1e-12 here)
+            covolume = evaluate(data["covolume"], f"{self.source}: covolume")
+            if abs(self.volume - covolume) > COVOLUME_TOLERANCE * max(1.0, covolume):
+                raise SpaceError(
+                    f"{self.source}: the domain's volume {self.volume:.12g} is not the covolume "
+                    f"{covolume:.12g} the file states (to {COVOLUME_TOLERANCE:g})"
+                )
 
     def elements_within(self, radius: float) -> list[np.ndarray]:
         """All group elements g with d(O, gO) <= radius (identity first, then by distance)."""
