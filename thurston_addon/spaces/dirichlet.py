@@ -103,9 +103,15 @@ class DirichletSpace(Space):
             self._check_moves_centre(M, f"generator {name!r}", generator=True)
         given = self._distinct(given)
         self._steps = [M for _, M in given]
-        shortened, moved = self._shortened(self._steps)
-        # (the shortened ones too where shortening changed them: else theirs is the polyhedron just tried)
-        for generators in (self._steps, shortened) if moved else (self._steps,):
+        # the generators as given first, then shortened ones where shortening changes them (else
+        # theirs is the polyhedron just tried); shortened only when needed: its products of large
+        # hyperbolic matrices can leave words that are the identity only to about 1e-12
+        for attempt in range(2):
+            if attempt:
+                shortened, moved = self._shortened(self._steps)
+                if not moved:
+                    break
+            generators = shortened if attempt else self._steps
             distinct = {
                 g.element_key(N): N
                 for M in generators + [np.linalg.inv(M) for M in generators]

@@ -145,7 +145,8 @@ def census_file(name: str) -> Path:
             continue
         comment = (
             f"Written by Thurston from SnapPy {snappy.__version__}'s Dirichlet domain of {M} ({precision} precision).\n"
-            f"Checked: {_CHECKS} against SnapPy. Edit freely; loading validates it again."
+            + "".join(f"Double precision was not enough: {r}\n" for r in reasons)
+            + f"Checked: {_CHECKS} against SnapPy. Edit freely; loading validates it again."
         )
         return write_space(path, data, comment)
     raise SpaceError(f"snappy:{name}: neither precision gives a valid space: " + "; ".join(reasons))
