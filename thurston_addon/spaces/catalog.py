@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..files import check_keys, read_text
 from ..geometries import faces
-from . import snappy_census
+from . import families, snappy_census
 from .coordinate import CoordinateSpace
 from .dirichlet import DirichletSpace
 from .shells import FoldedShellSpace, ShellSpace
@@ -79,11 +79,13 @@ def preset_path(space_id: str) -> Path | None:
 
 
 def load(path_or_id: str | Path) -> Space:
-    """A preset by id, a manifold SnapPy names (snappy:NAME, its file written to the cache folder
-    first), or a space file by path."""
+    """A preset by id, a manifold SnapPy names (snappy:NAME) or a family's member (lens(7,2)), their
+    files written to the cache folder first, or a space file by path."""
     path = Path(path_or_id)
     if snappy_census.is_snappy_name(path_or_id):
         path = snappy_census.census_file(path_or_id[len(snappy_census.PREFIX) :])
+    elif not path.exists() and families.family_of(path_or_id):
+        path = families.family_file(str(path_or_id))
     elif not path.suffix and not path.exists():
         path = preset_path(str(path_or_id))
         if path is None:

@@ -133,8 +133,14 @@ class DirichletSpace(Space):
             # the enumeration steps by the generators, not by the faces of a polyhedron that failed
             self.__dict__.pop("domain", None)
             radius = min(radius, full)
-            # (each element passed _check_moves_centre as the enumeration found it)
-            self._bisector_domain(self.elements_within(radius)[1:])
+            try:  # (each element passed _check_moves_centre as the enumeration found it)
+                self._bisector_domain(self.elements_within(radius)[1:])
+            except SpaceError:
+                # S3's groups are finite: a ball too small to close the domain grows up to pi
+                if not math.isfinite(full) or radius >= full:
+                    raise
+                radius *= 1.5
+                continue
             try:
                 self._check_pairings()
             except SpaceError:

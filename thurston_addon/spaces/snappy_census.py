@@ -20,6 +20,7 @@ from .writing import cache_dir, file_name, write_space
 PREFIX = "snappy:"
 CLOSED_PREFIX = "closed:"  # snappy:closed:N, the N-th manifold of SnapPy's OrientableClosedCensus
 NAMED = {"weeks": "m003(-3,1)", "meyerhoff": "m004(5,1)"}
+SUMMARY = "a closed hyperbolic manifold SnapPy names (census name, Dehn filling, closed:N, weeks), e.g. snappy:m003(-3,1); needs the census extra"
 RELATION_TOLERANCE = 1e-10  # the largest entry of an edge cycle's product minus the identity
 # SnapPy's coordinates are (t, x, y, z) with the form diag(-1, 1, 1, 1); H3's are (x, y, z, t)
 _TIME_LAST = [1, 2, 3, 0]
