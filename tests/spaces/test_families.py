@@ -94,6 +94,52 @@ def test_nil_quotients(n):
     assert homology.homology_text(homology.invariant_factors(rows, 3)) == ("Z + Z" + (f" + Z/{n}" if n > 1 else ""))
 
 
+@pytest.mark.parametrize("a, b, c, d", [(2, 1, 1, 1), (3, 1, 2, 1), (5, 2, 2, 1), (-3, -1, -2, -1), (0, -1, 1, 3)])
+def test_sol_torus_bundles(a, b, c, d):
+    A = np.array([[a, b], [c, d]])
+    space = spaces.load(f"sol({a},{b},{c},{d})")
+    # the volume: log λ times the covolume of Z^2 in unit eigenvector coordinates, 1 / |sin| of
+    # the angle between A's eigenvectors (closed forms: λ + 1/λ = |tr A|)
+    lam = (abs(a + d) + math.sqrt((a + d) ** 2 - 4)) / 2
+    v = [np.array([b, lam * np.sign(a + d) - a]), np.array([b, np.sign(a + d) / lam - a])]
+    if b == 0:
+        v = [np.array([lam * np.sign(a + d) - d, c]), np.array([np.sign(a + d) / lam - d, c])]
+    sine = abs(np.cross(v[0], v[1])) / (np.linalg.norm(v[0]) * np.linalg.norm(v[1]))
+    assert space.volume == pytest.approx(math.log(lam) / sine, rel=1e-6)
+    # the monodromy acts on the lattice as A: t u_j t^-1 = u1^A[0, j] u2^A[1, j]
+    u1, u2, t = space.generators
+    for j, u in enumerate((u1, u2)):
+        image = np.linalg.matrix_power(u1, A[0, j]) @ np.linalg.matrix_power(u2, A[1, j])
+        assert np.allclose(t @ u @ np.linalg.inv(t), image, atol=1e-9)
+    # <u1, u2, t | [u1, u2], t u_j t^-1 = A u_j>: H1 = Z + coker(A - I), of order |det(A - I)| = |2 - tr A|
+    relators = [[(0, 1), (1, 1), (0, -1), (1, -1)]]
+    for j in range(2):
+        relators.append(
+            [
+                (2, 1),
+                (j, 1),
+                (2, -1),
+                *[(0, -1)] * A[0, j],
+                *[(0, 1)] * -A[0, j],
+                *[(1, -1)] * A[1, j],
+                *[(1, 1)] * -A[1, j],
+            ]
+        )
+    factors = homology.invariant_factors(homology.abelianised(homology.Presentation([0, 1, 2], relators)), 3)
+    assert factors.count(0) == 1 and math.prod(f for f in factors if f) == abs(2 - (a + d))
+
+
+@pytest.mark.parametrize("name, preset", [("surface_x_circle(2)", "genus2xs1"), ("unit_tangent(2)", "sl2")])
+def test_genus_two_bundles(name, preset):
+    space, reference = spaces.load(name), spaces.load(preset)
+    # (genus-2 surface) x S¹: 4π (the octagon's area) times 2 r_in, cosh r_in = cot(π/8); T¹Σ₂: 4π · 2π
+    r = math.acosh(1 / math.tan(math.pi / 8))
+    assert space.volume == pytest.approx(4 * math.pi * (2 * r if preset == "genus2xs1" else 2 * math.pi), rel=1e-6)
+    assert np.allclose(space.generators, reference.generators, atol=1e-12)  # the presets, written by hand
+    with pytest.raises(spaces.SpaceError, match="only genus 2"):
+        spaces.load(name.replace("2", "3"))
+
+
 def test_a_member_is_a_file_the_user_keeps(cache):
     spaces.load("lens(7,2)")
     (path,) = (cache / "family").iterdir()

@@ -253,6 +253,114 @@ def nil(member, n: int) -> dict:
     }
 
 
+# --- Sol: torus bundles with hyperbolic monodromy --------------------------------------------------
+def sol(member, a: int, b: int, c: int, d: int) -> dict:
+    """The torus bundle of monodromy A = [[a, b], [c, d]] in SL(2, Z), |tr A| > 2: Z^2 in the
+    coordinates of A's unit eigenvectors (x along the contracting one, y the expanding one, where
+    A acts as diag(1/λ, λ), with a half turn where tr A < -2), the lattice translations and the
+    monodromy (x, y, z) -> ±(x/λ, λ y) , z + log λ; domain {s u1 + t u2: |s|, |t| <= 1/2} x [-log λ / 2, log λ / 2]."""
+    A = np.array([[a, b], [c, d]], float)
+    if a * d - b * c != 1 or abs(a + d) <= 2:
+        raise SpaceError(
+            f"{member}: a Sol torus bundle needs a monodromy in SL(2, Z) (det 1) with |trace| > 2, "
+            f"got det {a * d - b * c} and trace {a + d}"
+        )
+    sign = 1.0 if a + d > 0 else -1.0
+    values, vectors = np.linalg.eig(sign * A)
+    order = np.argsort(values)  # 1/λ, then λ
+    lam = float(values[order[1]])
+    P = vectors[:, order] / np.linalg.norm(vectors[:, order], axis=0)
+    U = np.linalg.inv(P)  # the lattice Z^2 in the eigen-coordinates: columns u1, u2
+    W = np.linalg.inv(U)  # rows: the dual basis (the faces' normals)
+    height = math.log(lam)
+    generators = []
+    for i in range(2):
+        M = np.eye(4)
+        M[:2, 3] = U[:, i]
+        generators.append({"name": f"u{i + 1}", "matrix": M.tolist(), "face": [W[i, 0], W[i, 1], 0.0, -0.5]})
+    M = np.diag([sign / lam, sign * lam, 1.0, 1.0])
+    M[2, 3] = height
+    generators.append({"name": "monodromy", "matrix": M.tolist(), "face": [0.0, 0.0, 1.0, -height / 2]})
+    volume = abs(np.linalg.det(U)) * height
+    return {
+        "id": member,
+        "name": f"Sol torus bundle, monodromy [[{a}, {b}], [{c}, {d}]]",
+        "geometry": "Sol",
+        "description": f"Sol: the torus bundle of monodromy [[{a}, {b}], [{c}, {d}]] (λ = {lam:.6g}), volume {volume:.6g}",
+        "covolume": volume,
+        "max_distance": 10.0,
+        "max_crossings": 64,
+        "camera": {"position": [0.0, 0.0, 0.0], "forward": [*U[:, 0], 0.0], "up": [0, 0, 1], "fov": 90},
+        "generator": generators,
+    }
+
+
+# --- H2xR and SL2~: the genus-g surface times a circle, and its unit tangent bundle ----------------
+def _polygon(member: str, g: int) -> tuple[float, list[float]]:
+    """The regular 4g-gon of angles 2π/4g (a genus-g surface, its sides paired opposite): the
+    inradius r (cosh r = cot(π/4g)) and the directions of the sides paired by translations by 2r."""
+    if g != 2:
+        raise SpaceError(
+            f"{member}: only genus 2 is supported (a hyperbolic surface has genus >= 2; from genus 3 "
+            "the 4g-gon's vertices lie so near the disk's rim that the coordinate domain's checks in "
+            "double precision, its volume quadrature and its reductions, miss their tolerances)"
+        )
+    n = 4 * g
+    return math.acosh(1 / math.tan(math.pi / n)), [2 * math.pi * k / n for k in range(2 * g)]
+
+
+def surface_x_circle(member, g: int) -> dict:
+    """(genus-g surface) x S^1 (H2xR): the 4g-gon's side translations (an SO+(2,1) block on the
+    model slots (0, 1, 3)), times the circle z -> z + 2r (slot 2 scaled by e^2r)."""
+    r, angles = _polygon(member, g)
+    generators = []
+    for k, t in enumerate(angles):
+        n = np.array([math.cos(t), math.sin(t)])
+        M = np.eye(4)
+        M[np.ix_([0, 1], [0, 1])] += (math.cosh(2 * r) - 1) * np.outer(n, n)
+        M[[0, 1], 3] = M[3, [0, 1]] = math.sinh(2 * r) * n
+        M[3, 3] = math.cosh(2 * r)
+        generators.append({"name": f"A{k}", "matrix": M.tolist(), "face": [n[0], n[1], 0.0, -math.tanh(r)]})
+    generators.append(
+        {"name": "circle", "matrix": np.diag([1, 1, math.exp(2 * r), 1]).tolist(), "face": [0.0, 0.0, 1.0, -r]}
+    )
+    volume = 4 * math.pi * (g - 1) * 2 * r
+    return _bundle(
+        member, g, "H2xR", f"(genus-{g} surface) x S¹", f"the circle of length 2 r_in = {2 * r:.6g}", volume, generators
+    )
+
+
+def unit_tangent(member, g: int) -> dict:
+    """T¹Σ_g (SL2~): the 4g-gon's side translations lifted to SU(1,1) (left multiplication by
+    [[cosh r, sinh r e^(iθ)], ...] on a point's first row (Re α, Im α, Re β, Im β)), and the fibre
+    translation by 2π (-1); the lifted relator is the fibre translation by 4π(g - 1)."""
+    r, angles = _polygon(member, g)
+    generators = []
+    for k, t in enumerate(angles):
+        a, b1, b2 = math.cosh(r), math.sinh(r) * math.cos(t), math.sinh(r) * math.sin(t)
+        M = [[a, 0, b1, b2], [0, a, b2, -b1], [b1, b2, a, 0], [b2, -b1, 0, a]]
+        generators.append({"name": f"A{k}", "matrix": M, "face": [math.cos(t), math.sin(t), 0.0, -math.tanh(r)]})
+    generators.append({"name": "fibre", "matrix": (-np.eye(4)).tolist(), "face": [0.0, 0.0, 1.0, -math.pi]})
+    volume = 4 * math.pi * (g - 1) * 2 * math.pi
+    return _bundle(
+        member, g, "SL2", f"unit tangent bundle of the genus-{g} surface", "the fibre of length 2π", volume, generators
+    )
+
+
+def _bundle(member, g, geometry, name, fibre, volume, generators):
+    return {
+        "id": member,
+        "name": name.capitalize(),
+        "geometry": geometry,
+        "description": f"{geometry}: the {name}: the regular {4 * g}-gon of angles 2π/{4 * g} times {fibre}",
+        "covolume": volume,
+        "max_distance": 12.0,
+        "max_crossings": 64,
+        "camera": {"position": [0.0, -0.3, 0.0], "forward": [0, 1, 0], "up": [0, 0, 1], "fov": 90},
+        "generator": generators,
+    }
+
+
 FAMILIES = (
     Family("lens", "S3", "p, q (q prime to p, q ≠ ±1 mod p)", "lens space L(p, q) = S3 / Z/p", "lens(7,2)", lens),
     Family("prism", "S3", "n >= 2", "prism manifold S3 / D*4n (binary dihedral)", "prism(3)", prism),
@@ -268,6 +376,18 @@ FAMILIES = (
         "flat", "E3", ", ".join(FLAT), "the ten closed flat manifolds, four non-orientable", "flat(amphicosm1)", flat
     ),
     Family("nil", "Nil", "Euler number n >= 1", "Heisenberg manifold, circle bundle of Euler number n", "nil(3)", nil),
+    Family("sol", "Sol", "a, b, c, d: [[a, b], [c, d]] in SL(2, Z), |a + d| > 2", "torus bundle", "sol(3,1,2,1)", sol),
+    Family(
+        "surface_x_circle", "H2xR", "genus g >= 2", "(genus-g surface) x S¹", "surface_x_circle(2)", surface_x_circle
+    ),
+    Family(
+        "unit_tangent",
+        "SL2",
+        "genus g >= 2",
+        "unit tangent bundle of the genus-g surface",
+        "unit_tangent(3)",
+        unit_tangent,
+    ),
 )
 _NAME = re.compile(r"^([a-z_]+)\(([^()]*)\)$")
 
