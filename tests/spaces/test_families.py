@@ -150,6 +150,14 @@ def test_a_member_is_a_file_the_user_keeps(cache):
     assert spaces.load(path).group_order == 7
 
 
+def test_a_wrong_covolume_in_a_dirichlet_file_is_refused(cache, tmp_path):
+    text = spaces.named_file("lens(7,2)").read_text()
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text("\n".join("covolume = 2.8" if line.startswith("covolume") else line for line in text.splitlines()))
+    with pytest.raises(spaces.SpaceError, match="is not the covolume 2.8"):
+        spaces.load(wrong)
+
+
 @pytest.mark.parametrize(
     "name, message",
     [

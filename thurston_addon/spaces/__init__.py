@@ -19,7 +19,17 @@ values.py reads a file's values, domains.py holds the domain and its faces, spac
 class, catalog.py the loading and the presets.
 """
 
-from .catalog import PRESET_DIR, SPACE_KEYS, SPACE_PATH_VARIABLE, from_data, load, preset_dirs, preset_ids, preset_path
+from .catalog import (
+    PRESET_DIR,
+    SPACE_KEYS,
+    SPACE_PATH_VARIABLE,
+    from_data,
+    load,
+    named_file,
+    preset_dirs,
+    preset_ids,
+    preset_path,
+)
 from .coordinate import CoordinateSpace
 from .dirichlet import DirichletSpace
 from .families import FAMILIES
@@ -42,6 +52,7 @@ __all__ = [
     "SpaceError",
     "from_data",
     "load",
+    "named_file",
     "preset_dirs",
     "preset_ids",
     "preset_path",
