@@ -60,6 +60,7 @@ def test_census_manifolds_against_snappy(name):
     [
         ("m004", "cusped manifolds are not supported"),
         ("m004(0,0)", "cusped manifolds are not supported"),
+        ("m004(2,4)", "not of two coprime integers"),
         ("nonsense", "SnapPy does not know this manifold"),
         ("closed:99999", "indexed 0 to 11030"),
     ],

@@ -8,6 +8,7 @@ extra) is imported only here, and only when such a name is asked for."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +71,13 @@ def _refuse_unless_closed_hyperbolic(M, name: str):
             f"snappy:{name} has cusps ({len(unfilled)} left unfilled): cusped manifolds are not "
             f"supported, a ray would run into the cusp forever; fill every cusp, e.g. snappy:{M.name()}(5,1)"
         )
+    for c in M.cusp_info():
+        p, q = c["filling"]
+        if p != int(p) or q != int(q) or math.gcd(int(p), int(q)) != 1:
+            raise SpaceError(
+                f"snappy:{name}: the Dehn filling ({p:g}, {q:g}) is not of two coprime integers: the filled "
+                "space is an orbifold or a cone manifold, not a manifold"
+            )
     kind = M.solution_type()
     if kind not in ("all tetrahedra positively oriented", "contains negatively oriented tetrahedra"):
         raise SpaceError(
