@@ -47,7 +47,7 @@ def main():
                 head = [f.readline(), f.readline()]
             if "quad-double" in head[0]:
                 precisions["quad-double"] += 1
-                why = head[1].split("precision): ", 1)[-1].strip()
+                why = re.sub(r"^.*?snappy:closed:\d+( \(double precision\))?: ", "", head[1]).strip()
                 fallbacks[re.sub(r"'g\d+'|\d[\d.e+-]*", "#", why)[:120]] += 1  # grouped: numbers and names as #
             else:
                 precisions["double"] += 1
