@@ -55,6 +55,22 @@ def test_census_manifolds_against_snappy(name):
     assert (len(space.domain.faces), len(space.domain.vertices)) == (D.num_faces(), D.num_vertices())
 
 
+def test_quad_double_where_double_is_not_enough(cache):
+    # closed:600: SnapPy's double-precision pairings satisfy the edge relations only to about 2e-9
+    space = spaces.load("snappy:closed:600")
+    head = open(space.source).read().split("\n[")[0]
+    assert "(quad-double precision)" in head and "the edge cycles' relations hold only to" in head
+    assert homology.relation_residual(space) < 1e-10
+    M = snappy.ManifoldHP(str(snappy.OrientableClosedCensus[600]))
+    assert abs(space.volume - float(M.volume())) < 1e-8
+
+
+def test_neither_precision_is_refused_with_both_reasons():
+    # m004(1,0) is the 3-sphere: SnapPy's "solution" is no hyperbolic structure, no domain fits it
+    with pytest.raises(spaces.SpaceError, match="neither precision.*double precision.*SnapPy cannot compute"):
+        spaces.load("snappy:m004(1,0)")
+
+
 @pytest.mark.parametrize(
     "name, message",
     [
