@@ -187,11 +187,12 @@ def flat(member, which: str) -> dict:
     orientable, lattice, others, holonomy = FLAT[which]
     generators = [(f"t{i}", _affine(_I, t)) for i, t in enumerate(lattice)]
     generators += [(f"s{i}", _affine(R, t)) for i, (R, t) in enumerate(others)]
-    # the translations of the group: the lattice given, with the squares or powers of the others
+    # the translations of the group: the lattice given, and each other generator's first power
+    # that is a translation (its linear part's order divides the holonomy's)
     full = [np.asarray(t, float) for t in lattice]
     for R, t in others:
         A = np.eye(4)
-        for _ in range(holonomy if which not in ("didicosm",) else 2):
+        while True:
             A = np.array(_affine(R, t)) @ A
             if np.allclose(A[:3, :3], _I):
                 full.append(A[:3, 3])
