@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 import trimesh
+from support.textured_quad import texel_centres, textured_quad
 
 from thurston_addon import cli, render, spaces
 from thurston_addon.scenes import Scene, SceneObject
@@ -256,3 +257,30 @@ def test_orientation_reversing_pairings_show_the_mirror_image(which):
         assert normals[i] @ (near[k][:3, :3] @ n_own) > 0.99
         mirrored += np.linalg.det(M[:3, :3]) < 0
     assert compared > 100 and (mirrored > 30) == which.startswith("amphi")
+
+
+def test_text_seen_through_a_glide_reflection_is_mirrored():
+    """flat(amphicosm1)'s glide reflection (x, y, z) -> (x + 1/2, y, -z) pairs the faces x = -1/4
+    and x = 1/4: a textured quad at x = -0.2 is seen beyond x = 1/4 at x = 0.3, upside down. The
+    albedo at the copy's point (0.3, y, -z) is the texel of the quad's point (-0.2, y, z)."""
+    space = spaces.load("flat(amphicosm1)")
+    quad, texels, plain = textured_quad()  # at x = 0.2; moved to x = -0.2
+    quad = SceneObject(
+        "quad",
+        quad.vertices - [0.4, 0, 0],
+        quad.triangles,
+        corner_uvs=quad.corner_uvs,
+        triangle_material=quad.triangle_material,
+        materials=quad.materials,
+    )
+    targets, rows, cols, textured = texel_centres()  # (0.2, y, z) on the quad
+    seen = targets * [1.5, 1, -1]  # (0.3, y, -z): the glide's image of (-0.2, y, z)
+    g = space.geometry
+    X = g.to_model(np.zeros((len(seen), 3)))
+    D = g.normalize_tangent(X, g.tangent_to_model(np.zeros((len(seen), 3)), seen))
+    out = render.make_tracer(space, Scene(objects=[quad], lights=[])).trace(X, D, 1.0, 20, shade=True)
+    assert np.all(out["stop"] == 0) and np.allclose(out["depth"], np.linalg.norm(seen, axis=1), atol=1e-9)
+    expected = np.where(textured[:, None], texels[rows, cols], plain.color)
+    np.testing.assert_allclose(out["albedo"], expected, rtol=1e-5)
+    unmirrored = np.where(textured[:, None], texels[3 - rows, cols], plain.color)  # what no mirror would show
+    assert not np.allclose(out["albedo"], unmirrored, rtol=1e-2)
