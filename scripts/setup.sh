@@ -21,7 +21,7 @@ command -v "$python" >/dev/null || python=python3
 # The core is compiled by CMake through scikit-build-core; the editable install keeps the Python
 # sources live and rebuilds the extension incrementally in build/.
 # (CI set: scikit-build-core then waits 40 s, not 10, for `cmake --version` on a loaded machine.)
-# The 'denoise' extra (pyoidn: Open Image Denoise for --denoise) and the 'farm' extra (ray: --cluster)
-# are installed for the tests.
-CI="${CI:-1}" .venv/bin/pip install -q --disable-pip-version-check --no-build-isolation -e '.[denoise,farm]'
+# The 'denoise' extra (pyoidn: Open Image Denoise for --denoise), the 'farm' extra (ray: --cluster)
+# and the 'census' extra (SnapPy: --space snappy:NAME) are installed for the tests.
+CI="${CI:-1}" .venv/bin/pip install -q --disable-pip-version-check --no-build-isolation -e '.[denoise,farm,census]'
 echo "setup: ready ($(.venv/bin/python -c 'import thurston_core; print(thurston_core.__name__, thurston_core.EMBREE_VERSION)'))"

@@ -95,6 +95,10 @@ def cmd_spaces(args):
     else:
         for r in rows:
             print(f"{r['id']:<16} {r['geometry']:<3}  {r['description']}")
+        print("\nfamilies (a member's space file is written to the cache folder; see docs/catalogue.md):")
+        for f in spaces.FAMILIES:
+            print(f"{f.key + '(...)':<16} {f.geometry:<3}  {f.summary}; parameters: {f.parameters}; e.g. {f.example}")
+        print(f"{'snappy:NAME':<16} H3   {spaces.SNAPPY_SUMMARY}")
 
 
 def _load_world(args):
@@ -365,12 +369,16 @@ def build_parser():
         prog="thurston", description="Inside views of 3-manifolds modeled on Thurston's geometries."
     )
     sub = p.add_subparsers(dest="command", required=True)
-    s = sub.add_parser("spaces", help="list the preset spaces")
+    s = sub.add_parser("spaces", help="list the preset spaces and the families of spaces")
     s.add_argument("--json", action="store_true")
     s.set_defaults(run=cmd_spaces)
 
     def world(q):
-        q.add_argument("--space", required=True, help="preset id (see `thurston spaces`) or a space file (.toml)")
+        q.add_argument(
+            "--space",
+            required=True,
+            help="preset id, family member such as lens(7,2), snappy:NAME (see `thurston spaces`) or a space file (.toml)",
+        )
         q.add_argument(
             "--scene",
             action="append",

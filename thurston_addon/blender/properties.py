@@ -5,7 +5,7 @@ import bpy
 from .. import render, spaces
 from ..passes import BLENDER_PASSES
 from . import domain_guide
-from .export import FILE
+from .export import FILE, NAMED
 
 DEFAULT_SPACE = "poincare"
 PRESET_SUBDIR = "thurston"
@@ -31,21 +31,36 @@ _ITEMS: dict[tuple, list] = {}
 
 
 def space_missing(settings) -> bool:
-    """The stored id is neither a preset (one in preset_dirs()) nor FILE."""
-    return settings.space_id != FILE and spaces.preset_path(settings.space_id) is None
+    """The stored id is neither a preset (one in preset_dirs()) nor FILE nor NAMED."""
+    return settings.space_id not in (FILE, NAMED) and spaces.preset_path(settings.space_id) is None
 
 
 def _space_items(self, context):
     ids = spaces.preset_ids()
     missing = space_missing(self)
-    key = (*ids, FILE, *([self.space_id] if missing else []))
+    key = (*ids, FILE, NAMED, *([self.space_id] if missing else []))
     if key not in _ITEMS:
         items = [(sid, sid.replace("_", " ").title(), f"Preset space {sid}", "NONE", i) for i, sid in enumerate(ids)]
         items.append((FILE, "Space File", "A space file (.toml) of your own", "NONE", len(ids)))
+        items.append(
+            (
+                NAMED,
+                "Named Space",
+                "A family's member (lens(7,2)) or SnapPy's (snappy:m003(-3,1))",
+                "NONE",
+                len(ids) + 1,
+            )
+        )
         if missing:  # shown as chosen, so the dropdown does not go blank; load_space reports it
             items.append((key[-1], f"{key[-1]} (missing)", "No preset has this id", "ERROR", len(items)))
         _ITEMS[key] = items
     return _ITEMS[key]
+
+
+def _name_suggestions(self, context, edit_text):
+    """The space name field's search (free text is kept): each family's example, SnapPy's forms."""
+    names = [f.example for f in spaces.FAMILIES] + ["snappy:m003(-3,1)", "snappy:weeks", "snappy:closed:0"]
+    return [n for n in names if edit_text.lower() in n.lower()]
 
 
 def _get_space(self):
@@ -124,7 +139,7 @@ class ThurstonSettings(bpy.types.PropertyGroup):
         name="Space ID",
         default=DEFAULT_SPACE,
         update=_space_changed,
-        description=f"Preset id of the space, or {FILE} for the space file",
+        description=f"Preset id of the space, {FILE} for the space file, or {NAMED} for the space name",
     )
     space: bpy.props.EnumProperty(
         name="Space",
@@ -132,6 +147,13 @@ class ThurstonSettings(bpy.types.PropertyGroup):
         get=_get_space,
         set=_set_space,
         description="The 3-manifold the scene lives in",
+    )
+    space_name: bpy.props.StringProperty(
+        name="Name",
+        default="lens(7,2)",
+        update=_space_changed,
+        search=_name_suggestions,
+        description="A family's member, e.g. lens(7,2), flat(amphicosm1), nil(3), or snappy:NAME (see `thurston spaces`)",
     )
     space_file: bpy.props.StringProperty(
         name="Space File",

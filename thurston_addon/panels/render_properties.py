@@ -28,6 +28,8 @@ def draw_space(layout, context):
     col.prop(s, "space")
     if s.space_id == export.FILE:
         col.prop(s, "space_file")
+    elif s.space_id == export.NAMED:
+        col.prop(s, "space_name")
     elif properties.space_missing(s):
         col.label(text=f"No preset {s.space_id!r}: its file is gone; choose another space", icon="ERROR")
     row = col.row(align=True)

@@ -12,14 +12,29 @@ A space file is TOML (see presets/*.toml). The fundamental domain is either
   spheres).
 Leaving the domain through the face of g means entering the copy gD, so the ray is carried back by
 g^-1. A space that fails validation raises SpaceError naming the file and the problem.
+families.py writes the members of the families of spaces (lens(7,2), flat(amphicosm1), ...) and
+snappy_census.py SnapPy's manifolds (snappy:NAME) as space files (writing.py: the text, the cache
+folder); homology.py gives a Dirichlet space's presentation and first homology.
 values.py reads a file's values, domains.py holds the domain and its faces, space.py the Space base
 class, catalog.py the loading and the presets.
 """
 
-from .catalog import PRESET_DIR, SPACE_KEYS, SPACE_PATH_VARIABLE, from_data, load, preset_dirs, preset_ids, preset_path
+from .catalog import (
+    PRESET_DIR,
+    SPACE_KEYS,
+    SPACE_PATH_VARIABLE,
+    from_data,
+    load,
+    named_file,
+    preset_dirs,
+    preset_ids,
+    preset_path,
+)
 from .coordinate import CoordinateSpace
 from .dirichlet import DirichletSpace
+from .families import FAMILIES
 from .shells import FoldedShellSpace, ShellSpace
+from .snappy_census import SUMMARY as SNAPPY_SUMMARY
 from .space import Space
 from .values import SpaceError
 
@@ -27,6 +42,8 @@ __all__ = [
     "PRESET_DIR",
     "SPACE_KEYS",
     "SPACE_PATH_VARIABLE",
+    "FAMILIES",
+    "SNAPPY_SUMMARY",
     "CoordinateSpace",
     "DirichletSpace",
     "FoldedShellSpace",
@@ -35,6 +52,7 @@ __all__ = [
     "SpaceError",
     "from_data",
     "load",
+    "named_file",
     "preset_dirs",
     "preset_ids",
     "preset_path",

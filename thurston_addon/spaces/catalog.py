@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ..files import check_keys, read_text
 from ..geometries import faces
+from . import families, snappy_census
 from .coordinate import CoordinateSpace
 from .dirichlet import DirichletSpace
 from .shells import FoldedShellSpace, ShellSpace
@@ -85,9 +86,13 @@ def preset_path(space_id: str) -> Path | None:
 
 
 def load(path_or_id: str | Path) -> Space:
-    """A preset by id, or a space file by path."""
+    """A preset by id, a manifold SnapPy names (snappy:NAME) or a family's member (lens(7,2)), their
+    files written to the cache folder first, or a space file by path."""
     path = Path(path_or_id)
-    if not path.suffix and not path.exists():
+    named = None if path.exists() else named_file(str(path_or_id))
+    if named is not None:
+        path = named
+    elif not path.suffix and not path.exists():
         path = preset_path(str(path_or_id))
         if path is None:
             raise SpaceError(
@@ -103,6 +108,15 @@ def load(path_or_id: str | Path) -> Space:
             f"space file {str(path)!r}: its tables or arrays nest too deeply; a space needs a few levels"
         ) from None
     return from_data(data, str(path))
+
+
+def named_file(name: str) -> Path | None:
+    """The space file of a name mathematicians use, a family's member (lens(7,2)) or SnapPy's
+    manifold (snappy:NAME), written to the cache folder first if it is not there; None for any
+    other name."""
+    if snappy_census.is_snappy_name(name):
+        return snappy_census.census_file(name[len(snappy_census.PREFIX) :])
+    return families.family_file(name)
 
 
 def preset_ids() -> list[str]:

@@ -15,11 +15,12 @@ import numpy as np
 from .. import geometries
 from .domains import Domain, halfspace_domain
 from .space import Space, is_identity
-from .values import SpaceError
+from .values import SpaceError, evaluate
 
 _SHORTENING_ROUNDS = 64  # passes over the generator pairs that shorten a generating set (each pass
 # shortens every generator as far as single products go; a discrete group's set settles in a few)
 MAX_FINITE_ORDER = 10000  # the largest order a generator is looked for up to, where the group must be finite
+COVOLUME_TOLERANCE = 1e-8  # relative: a file's covolume and the domain's volume agree this well
 CENTRE_RESOLUTION = 1e-6  # elements moving the domain centre by less are not told apart from the identity
 
 
@@ -36,6 +37,13 @@ class DirichletSpace(Space):
         self._elements: list[np.ndarray] = [np.eye(4)]
         self._radius = 0.0
         self._dirichlet_domain()
+        if "covolume" in data:  # (the volume by quadrature is good to about 1e-12 here)
+            covolume = evaluate(data["covolume"], f"{self.source}: covolume")
+            if abs(self.volume - covolume) > COVOLUME_TOLERANCE * max(1.0, covolume):
+                raise SpaceError(
+                    f"{self.source}: the domain's volume {self.volume:.12g} is not the covolume "
+                    f"{covolume:.12g} the file states (to {COVOLUME_TOLERANCE:g})"
+                )
 
     def elements_within(self, radius: float) -> list[np.ndarray]:
         """All group elements g with d(O, gO) <= radius (identity first, then by distance)."""
@@ -99,9 +107,15 @@ class DirichletSpace(Space):
             for name, M in given:
                 self._check_finite_order(name, M)
         self._steps = [M for _, M in given]
-        shortened, moved = self._shortened(self._steps)
-        # (the shortened ones too where shortening changed them: else theirs is the polyhedron just tried)
-        for generators in (self._steps, shortened) if moved else (self._steps,):
+        # the generators as given first, then shortened ones where shortening changes them (else
+        # theirs is the polyhedron just tried); shortened only when needed: its products of large
+        # hyperbolic matrices can leave words that are the identity only to about 1e-12
+        for attempt in range(2):
+            if attempt:
+                shortened, moved = self._shortened(self._steps)
+                if not moved:
+                    break
+            generators = shortened if attempt else self._steps
             distinct = {
                 g.element_key(N): N
                 for M in generators + [np.linalg.inv(M) for M in generators]
@@ -123,8 +137,14 @@ class DirichletSpace(Space):
             # the enumeration steps by the generators, not by the faces of a polyhedron that failed
             self.__dict__.pop("domain", None)
             radius = min(radius, full)
-            # (each element passed _check_moves_centre as the enumeration found it)
-            self._bisector_domain(self.elements_within(radius)[1:])
+            try:  # (each element passed _check_moves_centre as the enumeration found it)
+                self._bisector_domain(self.elements_within(radius)[1:])
+            except SpaceError:
+                # S3's groups are finite: a ball too small to close the domain grows up to pi
+                if not math.isfinite(full) or radius >= full:
+                    raise
+                radius *= 1.5
+                continue
             try:
                 self._check_pairings()
             except SpaceError:

@@ -17,6 +17,7 @@ from . import ignored, lamps, surfaces
 
 GUIDE_TAG = "thurston_guide"
 FILE = "FILE"  # space_id of a user's space file (space_file)
+NAMED = "NAMED"  # space_id of a space by its name (space_name): a family's member or snappy:NAME
 _space_cache: dict = {}
 
 
@@ -30,6 +31,19 @@ def load_space(settings) -> spaces.Space:
         if not settings.space_file:
             raise ExportError("Space is set to a space file, but no file is chosen")
         path = bpy.path.abspath(settings.space_file)
+    elif settings.space_id == NAMED:
+        name = settings.space_name.strip()
+        if not name:
+            raise ExportError("Space is set to a named space, but no name is given (e.g. lens(7,2), snappy:m003(-3,1))")
+        try:
+            path = spaces.named_file(name)
+        except spaces.SpaceError as exc:
+            raise ExportError(str(exc)) from None
+        if path is None:
+            raise ExportError(
+                f"{name!r} names no space: give a family's member such as lens(7,2) (`thurston spaces` "
+                "lists the families) or snappy:NAME"
+            )
     else:
         path = spaces.preset_path(settings.space_id)
         if path is None:
