@@ -8,6 +8,7 @@ import io
 import json
 import os
 import signal
+import subprocess
 import sys
 import time
 import warnings
@@ -546,11 +547,44 @@ def build_parser():
     return p
 
 
+def is_local_cluster(args) -> bool:
+    from .farm.cluster import is_local  # (no Ray: that is imported only when a farm runs)
+
+    return is_local(getattr(args, "cluster", None))
+
+
+def _private_network(argv) -> int | None:
+    """This command again in a network namespace of its own, for a local cluster (Ray's servers listen
+    on every interface they see: there only loopback); its exit status, or None where the system
+    allows no such namespace (the cluster then runs here, with a warning)."""
+    from .farm import cluster
+
+    try:
+        cluster.import_ray()  # its absence said here, not by the command run again
+    except cluster.FarmError as exc:
+        raise CommandError(str(exc)) from None
+    command = cluster.private_network_command([sys.executable, "-m", "thurston_addon.cli", *(argv or sys.argv[1:])])
+    if command is None:
+        return None
+    with subprocess.Popen(command, env={**os.environ, cluster.PRIVATE_NETWORK: "1"}) as child:
+        while True:
+            try:
+                return child.wait()
+            except KeyboardInterrupt:
+                continue  # the child has it too (one process group): it cancels its tasks and ends
+            except Terminated as exc:
+                child.send_signal(exc.signum)
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     warnings.showwarning = lambda msg, *a, **k: print(f"thurston: warning: {msg}", file=sys.stderr)
     previous = {signum: signal.signal(signum, _terminate) for signum in (signal.SIGTERM, signal.SIGHUP)}
     try:
+        if is_local_cluster(args):
+            private = _private_network(argv)
+            if private is not None:
+                return private
         args.run(args)
     except (CommandError, spaces.SpaceError, scenes.SceneError, render.RenderError, files.OutputError) as exc:
         print(f"thurston: error: {exc}", file=sys.stderr)

@@ -172,6 +172,18 @@ def test_command_line_render_on_the_cluster(cluster, tmp_path):
     np.testing.assert_array_equal(one, farmed)
 
 
+def test_both_eyes_of_an_omni_directional_stereo_panorama_on_the_cluster(world, cluster, tmp_path):
+    """Each eye a job of tiles (the eyes' per-pixel geodesics computed per tile): the same passes as
+    the single process's eyes."""
+    space, scene, camera = world
+    stereo = render.Stereo(interocular=0.1)
+    settings = dataclasses.replace(SETTINGS, projection="equirect", width=32, height=16, stereo=stereo)
+    eyes = render.render_eyes(space, scene, settings, camera)
+    for eye, alone in zip(render.EYES, eyes):
+        farmed = on_farm(world, cluster, dataclasses.replace(settings, eye=eye), tmp_path / f"{eye}.exr", tiles=3)
+        assert_same_passes(farmed, alone)
+
+
 def test_plain_render_does_not_import_ray(tmp_path):
     code = (
         "import sys; from thurston_addon import cli; "
