@@ -211,6 +211,18 @@ def test_cli_writes_a_top_bottom_panorama_marked_as_stereo(tmp_path):
     assert spec.getattribute("GPano:ProjectionType") == "equirectangular"
     assert spec.getattribute("GSpherical:StereoMode") == "top-bottom"
     assert int(spec.getattribute("GPano:FullPanoWidthPixels")) == 64
+    exr = tmp_path / "ods.exr"  # the same packet, as a string attribute of the EXR
+    assert (
+        cli.main(
+            ["render", "--space", "torus", "--size", "16x8", "--projection", "equirect", "--quality", "draft"]
+            + ["--shading", "normal", "--stereo", "--out", str(exr)]
+        )
+        == 0
+    )
+    image = oiio.ImageInput.open(str(exr))
+    packet = image.spec().getattribute("XML:com.adobe.xmp")
+    image.close()
+    assert 'GSpherical:StereoMode="top-bottom"' in packet and 'GPano:ProjectionType="equirectangular"' in packet
 
 
 def test_cli_writes_two_files_and_refuses_stereo_options_alone(tmp_path, capsys):
