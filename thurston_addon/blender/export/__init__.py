@@ -13,7 +13,7 @@ import numpy as np
 
 from ... import checks, render, scenes, spaces
 from ...passes import BLENDER_PASSES, LENGTHS, BlenderPass
-from . import ignored, lamps, surfaces
+from . import bake, ignored, lamps, surfaces
 
 GUIDE_TAG = "thurston_guide"
 FILE = "FILE"  # space_id of a user's space file (space_file)
@@ -217,6 +217,7 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
     skipped: dict[str, list[str]] = {}
     flat: list[str] = []  # objects and area lights scaled to 0 (on some axis)
     hidden_collections = _hidden_collections(depsgraph.view_layer)
+    bake_size = bake.bake_size(depsgraph.scene)
     # Instances of one mesh share one scene object (surfaces.mesh_key): the mesh, read at the first
     # of them, and the chart maps of all.
     placements: dict[tuple, tuple[scenes.SceneObject | None, list[np.ndarray]]] = {}
@@ -234,7 +235,7 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
                     mesh = meshes[key]
                 else:
                     try:
-                        mesh = surfaces.mesh_object(inst, obj, scale)
+                        mesh = surfaces.mesh_object(inst, obj, scale, bake_size)
                     except scenes.SceneError as exc:
                         raise ExportError(str(exc)) from None
                 placements[key] = (mesh, [])

@@ -1,0 +1,110 @@
+"""Procedural colours baked by Cycles, in real bpy against Cycles: in the torus, seen from inside, a
+plane whose Base Color is a Noise Texture through a ColorRamp and one whose Base Color is a
+Checker Texture on Object coordinates, lit by a point light within a light reach that holds only
+its copy in the point's own cell. The reference is Cycles rendering the 3x3x3 tiled scene (direct
+light only), each light copy linked to its own cell's objects."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+pytestmark = pytest.mark.usefixtures("registered_addon")
+
+
+from support import blender_helpers as bh  # noqa: E402
+
+SIZE = (64, 36)
+LIGHT_REACH = 0.5  # the objects lie within 0.45 of the light, its other copies a cell away
+
+
+def procedural(name, kind):
+    """A diffuse material whose Base Color comes from nodes: "noise" (Noise Texture -> ColorRamp,
+    red to blue) or "checker" (Checker Texture, yellow and red, on Object coordinates)."""
+    mat = bh.lambert(bh.material(name))
+    tree, nodes = mat.node_tree, mat.node_tree.nodes
+    if kind == "noise":
+        noise = nodes.new("ShaderNodeTexNoise")
+        noise.inputs["Scale"].default_value = 4.0
+        ramp = nodes.new("ShaderNodeValToRGB")
+        ramp.color_ramp.elements[0].color = (0.8, 0.05, 0.05, 1)
+        ramp.color_ramp.elements[1].color = (0.05, 0.1, 0.8, 1)
+        ramp.color_ramp.elements[0].position, ramp.color_ramp.elements[1].position = 0.35, 0.65
+        tree.links.new(noise.outputs["Fac"], ramp.inputs["Fac"])
+        colour = ramp.outputs["Color"]
+    else:
+        checker = nodes.new("ShaderNodeTexChecker")
+        checker.inputs["Color1"].default_value = (0.8, 0.7, 0.1, 1)
+        checker.inputs["Color2"].default_value = (0.8, 0.1, 0.1, 1)
+        checker.inputs["Scale"].default_value = 12.0
+        coordinates = nodes.new("ShaderNodeTexCoord")
+        tree.links.new(coordinates.outputs["Object"], checker.inputs["Vector"])
+        colour = checker.outputs["Color"]
+    tree.links.new(colour, nodes["Principled BSDF"].inputs["Base Color"])
+    return mat
+
+
+def build():
+    sc = bh.fresh_scene("torus", size=SIZE)
+    sc.thurston.quality = "standard"
+    sc.thurston.light_reach = LIGHT_REACH
+    sc.view_settings.view_transform = "Standard"
+    for k, (name, x) in enumerate((("noise", -0.15), ("checker", 0.15)), start=1):
+        bpy.ops.mesh.primitive_plane_add(size=0.26, location=(x, 0.3, 0.0), rotation=(math.pi / 2, 0, 0))
+        plane = bpy.context.object
+        plane.name, plane.pass_index = name, k
+        plane.data.materials.append(procedural(name, name))
+    light = bh.point_light((0.0, 0.08, 0.15), energy=2.0)
+    light.data.shadow_soft_size = 0.0
+    bh.camera((0, -0.05, 0))
+    return sc
+
+
+def test_procedural_base_colours_are_baked_and_match_cycles_tiled(tmp_path):
+    sc = build()
+    from thurston_addon.blender import export
+
+    notes = export.RenderJob(sc, bpy.context.evaluated_depsgraph_get()).messages()
+    for name, node in (("noise", "Color Ramp"), ("checker", "Checker Texture")):
+        said = [m for m in notes if f"material {name!r}" in m]
+        assert len(said) == 1 and node in said[0] and "baked by Cycles to a 64x64 image" in said[0], notes
+    sc.view_layers[0].use_pass_z = sc.view_layers[0].use_pass_object_index = True
+    L = "ViewLayer."
+    ch = bh.f12(sc, tmp_path / "thurston.exr")
+    thurston = bh.rgb(ch, L + "Combined.")
+    index, depth = ch[L + "IndexOB.X"], ch[L + "Depth.Z"]
+    bh.tile_torus_for_cycles(sc, 3, own_cell_light=True)
+    cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=32), L + "Combined.")
+    masks = {
+        name: bh.interior((depth < 1.0) & (np.abs(index - k) < 0.01)) for k, name in ((1, "noise"), (2, "checker"))
+    }
+    report = {}
+    for name, mask in masks.items():
+        assert mask.sum() > 40, name
+        mean = cycles[mask].mean(axis=0)
+        assert mean.max() > 1.5 * mean.min(), (name, mean)  # coloured: the unbaked grey would fail
+        report[name] = float(np.abs(thurston[mask] - cycles[mask]).sum() / cycles[mask].sum())
+        np.testing.assert_allclose(thurston[mask].mean(axis=0), mean, rtol=0.05, atol=0.003, err_msg=name)
+    print("mean relative per-pixel difference from Cycles:", report)
+    assert max(report.values()) < 0.03, report
+
+
+def test_a_procedural_colour_without_uvs_is_noted_with_its_own_colour():
+    """No UV map to bake on: the note says so, and the input's own colour is shown."""
+    sc = bh.fresh_scene("torus")
+    bpy.ops.mesh.primitive_cube_add(size=0.2, location=(0, 0.4, 0))
+    cube = bpy.context.object
+    cube.data.uv_layers.remove(cube.data.uv_layers[0])
+    cube.data.materials.append(procedural("noise", "noise"))
+    bh.point_light((0.05, 0.1, 0.15), energy=2.0)
+    bh.camera()
+    from thurston_addon.blender import export
+
+    job = export.RenderJob(sc, bpy.context.evaluated_depsgraph_get())
+    said = [m for m in job.messages() if "material 'noise'" in m]
+    assert len(said) == 1 and "no UV map to bake it on" in said[0] and "own colour" in said[0], said
+    (obj,) = [o for o in job.scene.objects if o.name == cube.name]
+    assert obj.materials[0].color_texture is None

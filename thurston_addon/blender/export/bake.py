@@ -1,0 +1,138 @@
+"""Colours that procedural nodes give (a Noise Texture, a ColorRamp, a checker made of nodes, ... into
+a Base Color or an Emission Color), baked by Cycles: what reaches the input is wired into a
+temporary Emission shader and Cycles' Emit bake writes it to a float image on the object's active
+render UV map, which the material then reads as its texture. The bake runs on a temporary copy
+of the evaluated mesh (only the faces of that material) in a temporary scene, all removed after.
+Blender bakes only on its main thread: a render on another (an interactive F12) keeps the note
+that the input's own colour is shown."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+# The baked image's side: the render's longer side rounded up to a power of two, within these
+BAKE_LEAST, BAKE_MOST = 64, 2048
+BAKE_SAMPLES = 4  # per texel: enough to smooth a texel's edges, the colour itself is not noisy
+BAKE_MARGIN = 2  # texels: bilinear lookups at a UV island's edge stay within the island's colours
+_NAME = "Thurston Bake"  # the temporary datablocks'
+
+
+class Unavailable(Exception):
+    """Why a colour could not be baked (said in the material's note)."""
+
+
+def bake_size(bscene) -> int:
+    """The side of a baked image for a render of this scene (see BAKE_LEAST, BAKE_MOST)."""
+    r = bscene.render
+    side = max(r.resolution_x, r.resolution_y) * r.resolution_percentage / 100
+    return int(min(max(2 ** int(np.ceil(np.log2(max(side, 1)))), BAKE_LEAST), BAKE_MOST))
+
+
+class Baker:
+    """Bakes colour inputs of one evaluated mesh object's materials: call it with the material, its
+    slot and the input socket (in the material's own tree, not a node group's); it returns the
+    baked (size, size, 3) linear pixels, rows top-down, and the UV map's name, or raises
+    Unavailable."""
+
+    def __init__(self, obj, matrix_world, size: int):
+        self.obj, self.matrix_world, self.size = obj, matrix_world, size
+        self._done: dict[tuple, tuple[np.ndarray, str]] = {}
+
+    def __call__(self, mat, slot: int, socket) -> tuple[np.ndarray, str]:
+        key = (mat.name, slot, socket.node.name, socket.identifier)
+        if key not in self._done:
+            self._done[key] = self._bake(mat, slot, socket)
+        return self._done[key]
+
+    def _bake(self, mat, slot: int, socket) -> tuple[np.ndarray, str]:
+        import bpy
+
+        if threading.current_thread() is not threading.main_thread():
+            raise Unavailable(
+                "Blender bakes only on its main thread, not in an interactive F12 render "
+                "(the viewport's rendered view and `thurston render-blend` bake it)"
+            )
+        uv = next((layer.name for layer in self.obj.data.uv_layers if layer.active_render), None)
+        if uv is None:
+            raise Unavailable("the object has no UV map to bake it on (add one: UV > Unwrap)")
+        made = []  # the temporary datablocks, removed whatever happens
+        try:
+            mesh = bpy.data.meshes.new_from_object(self.obj)
+            made.append((bpy.data.meshes, mesh))
+            _keep_slot(mesh, slot)
+            copy = mat.copy()
+            made.append((bpy.data.materials, copy))
+            mesh.materials.clear()
+            mesh.materials.append(copy)
+            mesh.uv_layers.active = mesh.uv_layers[uv]
+            image = bpy.data.images.new(_NAME, self.size, self.size, float_buffer=True)
+            made.append((bpy.data.images, image))
+            _emit_input(copy.node_tree, socket, image)
+            scene = bpy.data.scenes.new(_NAME)
+            made.append((bpy.data.scenes, scene))
+            scene.render.engine = "CYCLES"
+            scene.cycles.device = "CPU"
+            scene.cycles.samples = BAKE_SAMPLES
+            obj = bpy.data.objects.new(_NAME, mesh)
+            made.insert(0, (bpy.data.objects, obj))
+            obj.matrix_world = self.matrix_world  # (Position and World coordinates as the object's)
+            scene.collection.objects.link(obj)
+            override = dict(scene=scene, view_layer=scene.view_layers[0], active_object=obj, object=obj)
+            with bpy.context.temp_override(**override, selected_objects=[obj], selected_editable_objects=[obj]):
+                result = bpy.ops.object.bake(
+                    type="EMIT",
+                    width=self.size,
+                    height=self.size,
+                    margin=BAKE_MARGIN,
+                    target="IMAGE_TEXTURES",
+                    use_clear=True,
+                )
+            if result != {"FINISHED"}:
+                raise Unavailable(f"Cycles' bake did not finish ({', '.join(sorted(result))})")
+            pixels = np.empty(self.size * self.size * 4, np.float32)
+            image.pixels.foreach_get(pixels)
+        except RuntimeError as exc:  # the bake operator's own error
+            raise Unavailable(f"Cycles' bake failed: {str(exc).strip()}") from None
+        finally:
+            for collection, datablock in made:
+                collection.remove(datablock)
+        rgb = pixels.reshape(self.size, self.size, 4)[::-1, :, :3]  # Blender's rows are bottom-up
+        return np.ascontiguousarray(rgb), uv
+
+
+def _keep_slot(mesh, slot: int):
+    """Leave only the faces of material slot `slot` (the others' UVs may overlap them)."""
+    index = np.empty(len(mesh.polygons), np.int32)
+    mesh.polygons.foreach_get("material_index", index)
+    if len(mesh.materials) <= 1 or (np.clip(index, 0, len(mesh.materials) - 1) == slot).all():
+        return
+    import bmesh
+
+    bm = bmesh.new()
+    bm.from_mesh(mesh)
+    last = len(mesh.materials) - 1
+    bmesh.ops.delete(bm, geom=[f for f in bm.faces if min(f.material_index, last) != slot], context="FACES")
+    bm.to_mesh(mesh)
+    bm.free()
+
+
+def _emit_input(tree, socket, image):
+    """In a copy of the material's tree: what reaches `socket` (the original's input) into an
+    Emission shader of strength 1 on the only active Material Output, and `image` the active
+    Image Texture node (where the bake writes)."""
+    node = tree.nodes[socket.node.name]
+    source = next(s for s in node.inputs if s.identifier == socket.identifier).links[0].from_socket
+    emission = tree.nodes.new("ShaderNodeEmission")
+    emission.inputs["Strength"].default_value = 1.0
+    tree.links.new(source, emission.inputs["Color"])
+    output = tree.nodes.new("ShaderNodeOutputMaterial")
+    output.target = "ALL"
+    tree.links.new(emission.outputs["Emission"], output.inputs["Surface"])
+    for other in tree.nodes:
+        if other.type == "OUTPUT_MATERIAL":
+            other.is_active_output = other == output
+    target = tree.nodes.new("ShaderNodeTexImage")
+    target.image = image
+    tree.nodes.active = target
