@@ -101,9 +101,10 @@ def test_temperature_and_constant_node_trees_tint_the_light(registered_addon):
     assert all(name not in note.message for name in ("Warm", "Tinted", "Hot", "Dark"))
 
 
-def test_point_radius_is_a_sphere_spot_radius_is_noted(registered_addon):
+def test_point_radius_is_a_sphere_spot_radius_is_point_spots_noted(registered_addon):
     """A point light of radius r: a one-sided black sphere of that radius (chart units) emitting its
-    power, radiance power / (pi area); a spot with a radius: a point, with a note naming it."""
+    power, radiance power / (pi area); a spot with a radius: point spots sharing its power, spread
+    through its sphere, with a note naming it (against Cycles: test_blender_soft_spot.py)."""
     from support import blender_helpers as bh
 
     bh.fresh_scene("torus", scale=2.0)
@@ -116,8 +117,13 @@ def test_point_radius_is_a_sphere_spot_radius_is_noted(registered_addon):
 
     notes = []
     scene = ex.export_scene(bpy.context.evaluated_depsgraph_get(), 2.0, notes)
-    (spot,) = scene.lights
-    assert spot.spot_direction is not None
+    from thurston_addon.blender.export import lamps
+
+    spots = scene.lights
+    assert len(spots) == lamps.SPOT_POINTS and all(s.spot_direction is not None for s in spots)
+    assert math.isclose(sum(s.power for s in spots), 30.0 / (4 * math.pi**2) / 4)  # (scale 2)
+    offsets = np.array([s.position for s in spots]) - [0, 0.2, 0]
+    assert np.linalg.norm(offsets, axis=1).max() <= 0.05 + 1e-9 and np.abs(offsets.mean(axis=0)).max() < 0.01
     bulb = next(o for o in scene.objects if o.name == "Bulb")
     assert bulb.materials[0].one_sided and np.all(bulb.color == 0)
     np.testing.assert_allclose(np.linalg.norm(bulb.vertices - [0.2, 0, 0], axis=1), 0.05, rtol=1e-6)
@@ -126,7 +132,7 @@ def test_point_radius_is_a_sphere_spot_radius_is_noted(registered_addon):
     assert 0.95 < area / (4 * math.pi * 0.05**2) < 1.0  # the inscribed polyhedron
     np.testing.assert_allclose(bulb.emission, np.array([1.0, 0.5, 0.25]) * 30.0 / 4 / (math.pi * area), rtol=1e-6)
     (note,) = [n for n in notes if "spot lights with a radius" in n.message]
-    assert "hard shadows" in note.message and "Soft Spot" in note.message
+    assert "point spots" in note.message and "soft" in note.message and "Soft Spot" in note.message
 
 
 def test_ignored_features_are_noted(registered_addon):

@@ -260,13 +260,14 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
             if light.type == "SPOT" and light.shadow_soft_size > 0:
                 skipped.setdefault(SPOT_RADIUS_NOTE, []).append(original.name)
             try:
-                light_object = export_light(light, np.array(inst.matrix_world, float), scale, tint)
+                light_objects = export_light(light, np.array(inst.matrix_world, float), scale, tint)
             except scenes.SceneError as exc:
                 raise ExportError(f"light {original.name!r}: {exc}") from None
-            if isinstance(light_object, scenes.SceneObject):
-                scene.objects.append(light_object)
-            else:
-                scene.lights.append(light_object)
+            for light_object in light_objects:
+                if isinstance(light_object, scenes.SceneObject):
+                    scene.objects.append(light_object)
+                else:
+                    scene.lights.append(light_object)
         if obj.type == "MESH" and not inst.is_instance and ignored.hair(obj):
             skipped.setdefault(ignored.HAIR_NOTE, []).append(original.name)
         if obj.type not in ("MESH", "LIGHT", "CAMERA", "EMPTY"):
@@ -336,15 +337,19 @@ NODES_NOTE = (
     "light node trees that are not constant (textures, Light Falloff, ...) are ignored, those lights "
     "shine with the power and colour set on them"
 )
-SPOT_RADIUS_NOTE = "spot lights with a radius cast hard shadows here (a point of their power, within the cone)"
+SPOT_RADIUS_NOTE = (
+    f"spot lights with a radius are {lamps.SPOT_POINTS} point spots spread through their sphere here: "
+    f"their shadows soft in {lamps.SPOT_POINTS} steps"
+)
 _NOT_SKIPPED = (NODES_NOTE, SPOT_RADIUS_NOTE)
 
 
-def export_light(light, world: np.ndarray, scale: float, tint=None):
-    """A point or spot light (scenes.PointLight) or an area light (an emissive mesh, scenes.flat_light)
-    as Cycles lights them, in chart units (world / scale). Point and spot: Blender's power (W)
-    radiates over 4 pi sr, and a Lambert surface of albedo rho sends rho / pi of its irradiance back;
-    a spot is that point light within Cycles' cone (spot size and blend; its axis the light's -Z).
+def export_light(light, world: np.ndarray, scale: float, tint=None) -> list:
+    """A point or spot light (scenes.PointLight; with a radius: an emitting sphere, or point spots
+    spread through it) or an area light (an emissive mesh, scenes.flat_light) as Cycles lights
+    them, in chart units (world / scale), as a list. Point and spot: Blender's power (W) radiates
+    over 4 pi sr, and a Lambert surface of albedo rho sends rho / pi of its irradiance back; a spot
+    is that point light within Cycles' cone (spot size and blend; its axis the light's -Z).
     Area: a Lambertian emitter of power `strength` from one side, radiance strength / (pi area) as
     Cycles renders it (tests/blender/test_blender_lights.py; strength / pi where not normalized), area =
     size x size_y (times pi / 4 for a disk or ellipse) scaled by the object, emitted towards -Z."""
@@ -352,16 +357,20 @@ def export_light(light, world: np.ndarray, scale: float, tint=None):
     color = np.array(light.color[:3], float) * lamps.temperature_tint(light) * tint
     strength = light.energy * 2.0 ** getattr(light, "exposure", 0.0)
     position = world[:3, 3] / scale
-    if light.type == "POINT" and light.shadow_soft_size > 0:
-        # (Cycles takes the radius as it is, whatever the object's scale)
-        return lamps.sphere_light(light.name, position, light.shadow_soft_size / scale, color, strength / scale**2)
+    # (Cycles takes the radius as it is, whatever the object's scale)
+    radius = light.shadow_soft_size / scale if light.type in ("POINT", "SPOT") else 0.0
+    if light.type == "POINT" and radius > 0:
+        return [lamps.sphere_light(light.name, position, radius, color, strength / scale**2)]
     if light.type in ("POINT", "SPOT"):
         spot = (
             {}
             if light.type == "POINT"
             else dict(spot_direction=-world[:3, 2], spot_size=light.spot_size, spot_blend=light.spot_blend)
         )
-        return scenes.PointLight(position, color, strength / (4 * math.pi**2) / scale**2, **spot)
+        power = strength / (4 * math.pi**2) / scale**2
+        if radius > 0:
+            return lamps.spot_points(position, radius, color, power, **spot)
+        return [scenes.PointLight(position, color, power, **spot)]
     width = light.size
     height = light.size_y if light.shape in ("RECTANGLE", "ELLIPSE") else light.size
     disc = light.shape in ("DISK", "ELLIPSE")
@@ -369,7 +378,7 @@ def export_light(light, world: np.ndarray, scale: float, tint=None):
     area = 4 * np.linalg.norm(np.cross(u, v)) * (math.pi / 4 if disc else 1.0)
     normalized = getattr(light, "normalize", True)
     radiance = color * strength / math.pi / (area if normalized else 1.0)
-    return scenes.flat_light(light.name, position, u / scale, v / scale, radiance, disc=disc)
+    return [scenes.flat_light(light.name, position, u / scale, v / scale, radiance, disc=disc)]
 
 
 def export_camera(bscene, depsgraph, scale: float, width: int, height: int, camera_object=None) -> scenes.Camera:
