@@ -13,7 +13,7 @@ import numpy as np
 
 from ... import checks, render, scenes, spaces
 from ...passes import BLENDER_PASSES, LENGTHS, BlenderPass
-from . import bake, ignored, lamps, surfaces
+from . import bake, hair, ignored, lamps, surfaces
 
 GUIDE_TAG = "thurston_guide"
 FILE = "FILE"  # space_id of a user's space file (space_file)
@@ -228,7 +228,7 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
             continue
         if inst.is_instance and inst.parent.original.type not in ("MESH", "EMPTY"):
             continue  # geometry of a curve, text, ... object: skipped (and noted) as that object
-        if obj.type == "MESH":
+        if obj.type == "MESH" and inst.show_self:  # (a hair emitter may show its hair alone)
             key = surfaces.mesh_key(inst, obj)
             if key not in placements:
                 if meshes is not None and key in meshes:
@@ -268,8 +268,13 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
                     scene.objects.append(light_object)
                 else:
                     scene.lights.append(light_object)
-        if obj.type == "MESH" and not inst.is_instance and ignored.hair(obj):
-            skipped.setdefault(ignored.HAIR_NOTE, []).append(original.name)
+        if obj.type == "MESH" and not inst.is_instance and inst.show_particles:
+            strands, thinned = hair.hair_objects(
+                obj, scale, depsgraph.mode == "RENDER", lambda mat: surfaces.material(mat, original.name)
+            )
+            scene.objects.extend(strands)
+            if thinned:
+                skipped.setdefault(HAIR_THINNED_NOTE, []).extend(thinned)
         if obj.type not in ("MESH", "LIGHT", "CAMERA", "EMPTY"):
             skipped.setdefault(f"{obj.type.lower()} objects (only meshes)", []).append(original.name)
     if meshes is not None:
@@ -341,7 +346,11 @@ SPOT_RADIUS_NOTE = (
     f"spot lights with a radius are {lamps.SPOT_POINTS} point spots spread through their sphere here: "
     f"their shadows soft in {lamps.SPOT_POINTS} steps"
 )
-_NOT_SKIPPED = (NODES_NOTE, SPOT_RADIUS_NOTE)
+HAIR_THINNED_NOTE = (
+    f"hair systems of more than {hair.HAIR_STRANDS_MOST} strands show every k-th of them (as tubes, their "
+    "radius unchanged)"
+)
+_NOT_SKIPPED = (NODES_NOTE, SPOT_RADIUS_NOTE, HAIR_THINNED_NOTE)
 
 
 def export_light(light, world: np.ndarray, scale: float, tint=None) -> list:
