@@ -1,7 +1,8 @@
 """Procedural colours baked by Cycles, in real bpy against Cycles: in the torus, seen from inside, a
-plane whose Base Color is a Noise Texture through a ColorRamp and one whose Base Color is a
-Checker Texture on Object coordinates, lit by a point light within a light reach that holds only
-its copy in the point's own cell. The reference is Cycles rendering the 3x3x3 tiled scene (direct
+plane whose Base Color is a Noise Texture through a ColorRamp, one whose Base Color and Emission
+Color are a Checker Texture on Object coordinates, and a cube whose Base Color is an Image Texture
+in Box projection, lit by a point light within a light reach that holds only its copy in the
+point's own cell. The reference is Cycles rendering the 3x3x3 tiled scene (direct
 light only), each light copy linked to its own cell's objects."""
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ LIGHT_REACH = 0.5  # the objects lie within 0.45 of the light, its other copies 
 
 def procedural(name, kind):
     """A diffuse material whose Base Color comes from nodes: "noise" (Noise Texture -> ColorRamp,
-    red to blue) or "checker" (Checker Texture, yellow and red, on Object coordinates)."""
+    red to blue), "checker" (Checker Texture, yellow and red, on Object coordinates, also into the
+    Emission Color) or "box" (the 2x2 checker image in Box projection)."""
     mat = bh.lambert(bh.material(name))
     tree, nodes = mat.node_tree, mat.node_tree.nodes
     if kind == "noise":
@@ -35,6 +37,12 @@ def procedural(name, kind):
         ramp.color_ramp.elements[0].position, ramp.color_ramp.elements[1].position = 0.35, 0.65
         tree.links.new(noise.outputs["Fac"], ramp.inputs["Fac"])
         colour = ramp.outputs["Color"]
+    elif kind == "box":
+        image = bpy.data.images.new("Checker", 2, 2, float_buffer=True)
+        image.pixels.foreach_set(np.ascontiguousarray(bh.CHECKER[::-1]).ravel())
+        texture = nodes.new("ShaderNodeTexImage")
+        texture.image, texture.projection, texture.interpolation = image, "BOX", "Closest"
+        colour = texture.outputs["Color"]
     else:
         checker = nodes.new("ShaderNodeTexChecker")
         checker.inputs["Color1"].default_value = (0.8, 0.7, 0.1, 1)
@@ -43,6 +51,9 @@ def procedural(name, kind):
         coordinates = nodes.new("ShaderNodeTexCoord")
         tree.links.new(coordinates.outputs["Object"], checker.inputs["Vector"])
         colour = checker.outputs["Color"]
+        principled = nodes["Principled BSDF"]
+        tree.links.new(colour, principled.inputs["Emission Color"])
+        principled.inputs["Emission Strength"].default_value = 0.05
     tree.links.new(colour, nodes["Principled BSDF"].inputs["Base Color"])
     return mat
 
@@ -57,6 +68,10 @@ def build():
         plane = bpy.context.object
         plane.name, plane.pass_index = name, k
         plane.data.materials.append(procedural(name, name))
+    bpy.ops.mesh.primitive_cube_add(size=0.07, location=(0.0, 0.2, -0.02), rotation=(0.3, 0.2, 0.5))
+    cube = bpy.context.object
+    cube.name, cube.pass_index = "box", 3
+    cube.data.materials.append(procedural("box", "box"))
     light = bh.point_light((0.0, 0.08, 0.15), energy=2.0)
     light.data.shadow_soft_size = 0.0
     bh.camera((0, -0.05, 0))
@@ -68,9 +83,10 @@ def test_procedural_base_colours_are_baked_and_match_cycles_tiled(tmp_path):
     from thurston_addon.blender import export
 
     notes = export.RenderJob(sc, bpy.context.evaluated_depsgraph_get()).messages()
-    for name, node in (("noise", "Color Ramp"), ("checker", "Checker Texture")):
+    for name, node in (("noise", "Color Ramp"), ("checker", "Checker Texture"), ("box", "Image Texture")):
         said = [m for m in notes if f"material {name!r}" in m]
         assert len(said) == 1 and node in said[0] and "baked by Cycles to a 64x64 image" in said[0], notes
+    assert "Emission Color" in next(m for m in notes if "material 'checker'" in m)
     sc.view_layers[0].use_pass_z = sc.view_layers[0].use_pass_object_index = True
     L = "ViewLayer."
     ch = bh.f12(sc, tmp_path / "thurston.exr")
@@ -79,7 +95,8 @@ def test_procedural_base_colours_are_baked_and_match_cycles_tiled(tmp_path):
     bh.tile_torus_for_cycles(sc, 3, own_cell_light=True)
     cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=32), L + "Combined.")
     masks = {
-        name: bh.interior((depth < 1.0) & (np.abs(index - k) < 0.01)) for k, name in ((1, "noise"), (2, "checker"))
+        name: bh.interior((depth < 1.0) & (np.abs(index - k) < 0.01))
+        for k, name in ((1, "noise"), (2, "checker"), (3, "box"))
     }
     report = {}
     for name, mask in masks.items():
@@ -89,7 +106,8 @@ def test_procedural_base_colours_are_baked_and_match_cycles_tiled(tmp_path):
         report[name] = float(np.abs(thurston[mask] - cycles[mask]).sum() / cycles[mask].sum())
         np.testing.assert_allclose(thurston[mask].mean(axis=0), mean, rtol=0.05, atol=0.003, err_msg=name)
     print("mean relative per-pixel difference from Cycles:", report)
-    assert max(report.values()) < 0.03, report
+    # (the box's faces get a 64x64 image's share: its checker's edges blur over a texel)
+    assert report["noise"] < 0.03 and report["checker"] < 0.03 and report["box"] < 0.06, report
 
 
 def test_a_procedural_colour_without_uvs_is_noted_with_its_own_colour():
@@ -108,3 +126,20 @@ def test_a_procedural_colour_without_uvs_is_noted_with_its_own_colour():
     assert len(said) == 1 and "no UV map to bake it on" in said[0] and "own colour" in said[0], said
     (obj,) = [o for o in job.scene.objects if o.name == cube.name]
     assert obj.materials[0].color_texture is None
+
+
+def test_off_blenders_main_thread_the_note_says_why_it_is_not_baked():
+    """An interactive F12 renders on a thread of its own, where Blender cannot bake: the note says
+    so, and the input's own colour is shown."""
+    import threading
+
+    sc = build()
+    from thurston_addon.blender import export
+
+    depsgraph, said = bpy.context.evaluated_depsgraph_get(), []
+    thread = threading.Thread(target=lambda: said.extend(export.RenderJob(sc, depsgraph).messages()))
+    thread.start()
+    thread.join()
+    for name in ("noise", "checker", "box"):
+        (note,) = [m for m in said if f"material {name!r}" in m]
+        assert "not baked: Blender bakes only on its main thread" in note, note

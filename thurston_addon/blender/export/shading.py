@@ -184,11 +184,11 @@ class Walk:
                 unread.append(f"{_named(node)} has {node.extension.title()} extension: repeated")
             if not unread:
                 return np.ones(3), texture
-            baked, _ = self.baked(socket, groups, what, _named(node))
+            baked, why = self.baked(socket, groups, what, _named(node))
             if baked is not None:
                 return np.ones(3), baked
             for text in unread:
-                self.note(text)
+                self.note(text + (f" ({why.lstrip('; :')})" if why else ""))
             return np.ones(3), texture
         baked, why = self.baked(socket, groups, what, f"a {_kind(node)}")
         if baked is not None:
