@@ -78,6 +78,7 @@ def build():
     return sc
 
 
+@pytest.mark.slow
 def test_procedural_base_colours_are_baked_and_match_cycles_tiled(tmp_path):
     sc = build()
     from thurston_addon.blender import export
@@ -85,7 +86,7 @@ def test_procedural_base_colours_are_baked_and_match_cycles_tiled(tmp_path):
     notes = export.RenderJob(sc, bpy.context.evaluated_depsgraph_get()).messages()
     for name, node in (("noise", "Color Ramp"), ("checker", "Checker Texture"), ("box", "Image Texture")):
         said = [m for m in notes if f"material {name!r}" in m]
-        assert len(said) == 1 and node in said[0] and "baked by Cycles to a 64x64 image" in said[0], notes
+        assert len(said) == 1 and node in said[0] and "baked by Cycles to a 128x128 image" in said[0], notes
     assert "Emission Color" in next(m for m in notes if "material 'checker'" in m)
     sc.view_layers[0].use_pass_z = sc.view_layers[0].use_pass_object_index = True
     L = "ViewLayer."
@@ -106,26 +107,42 @@ def test_procedural_base_colours_are_baked_and_match_cycles_tiled(tmp_path):
         report[name] = float(np.abs(thurston[mask] - cycles[mask]).sum() / cycles[mask].sum())
         np.testing.assert_allclose(thurston[mask].mean(axis=0), mean, rtol=0.05, atol=0.003, err_msg=name)
     print("mean relative per-pixel difference from Cycles:", report)
-    # (the box's faces get a 64x64 image's share: its checker's edges blur over a texel)
+    # (the box's faces get a share of the image: its checker's edges blur over a texel)
     assert report["noise"] < 0.03 and report["checker"] < 0.03 and report["box"] < 0.06, report
 
 
-def test_a_procedural_colour_without_uvs_is_noted_with_its_own_colour():
-    """No UV map to bake on: the note says so, and the input's own colour is shown."""
-    sc = bh.fresh_scene("torus")
-    bpy.ops.mesh.primitive_cube_add(size=0.2, location=(0, 0.4, 0))
+def test_an_object_without_uvs_is_baked_on_a_smart_uv_project_and_matches_cycles(tmp_path):
+    """No UV map: the colour (a Noise Texture, on Generated coordinates, which need none) is baked on
+    a Smart UV Project of a temporary copy, whose UVs the cube gets; against Cycles as above."""
+    sc = bh.fresh_scene("torus", size=SIZE)
+    sc.thurston.quality = "standard"
+    sc.thurston.light_reach = LIGHT_REACH
+    sc.view_settings.view_transform = "Standard"
+    bpy.ops.mesh.primitive_cube_add(size=0.2, location=(0, 0.3, 0), rotation=(0.4, 0.3, 0.6))
     cube = bpy.context.object
+    cube.pass_index = 1
     cube.data.uv_layers.remove(cube.data.uv_layers[0])
     cube.data.materials.append(procedural("noise", "noise"))
-    bh.point_light((0.05, 0.1, 0.15), energy=2.0)
-    bh.camera()
+    bh.point_light((0.05, 0.08, 0.15), energy=2.0).data.shadow_soft_size = 0.0
+    bh.camera((0, -0.05, 0))
     from thurston_addon.blender import export
 
     job = export.RenderJob(sc, bpy.context.evaluated_depsgraph_get())
-    said = [m for m in job.messages() if "material 'noise'" in m]
-    assert len(said) == 1 and "no UV map to bake it on" in said[0] and "own colour" in said[0], said
-    (obj,) = [o for o in job.scene.objects if o.name == cube.name]
-    assert obj.materials[0].color_texture is None
+    (said,) = [m for m in job.messages() if "material 'noise'" in m]
+    assert "baked by Cycles to a 128x128 image on a Smart UV Project" in said, said
+    assert len(cube.data.uv_layers) == 0 and "Thurston Bake" not in bpy.data.scenes  # (temporary)
+    sc.view_layers[0].use_pass_z = sc.view_layers[0].use_pass_object_index = True
+    L = "ViewLayer."
+    ch = bh.f12(sc, tmp_path / "thurston.exr")
+    thurston = bh.rgb(ch, L + "Combined.")
+    mask = bh.interior((ch[L + "Depth.Z"] < 1.0) & (np.abs(ch[L + "IndexOB.X"] - 1) < 0.01))
+    bh.tile_torus_for_cycles(sc, 3, own_cell_light=True)
+    cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=32), L + "Combined.")
+    assert mask.sum() > 100
+    error = float(np.abs(thurston[mask] - cycles[mask]).sum() / cycles[mask].sum())
+    print("mean relative per-pixel difference from Cycles:", error)
+    np.testing.assert_allclose(thurston[mask].mean(axis=0), cycles[mask].mean(axis=0), rtol=0.05, atol=0.003)
+    assert error < 0.05
 
 
 def test_off_blenders_main_thread_the_note_says_why_it_is_not_baked():

@@ -1,22 +1,27 @@
 """Colours that procedural nodes give (a Noise Texture, a ColorRamp, a checker made of nodes, ... into
 a Base Color or an Emission Color), baked by Cycles: what reaches the input is wired into a
 temporary Emission shader and Cycles' Emit bake writes it to a float image on the object's active
-render UV map, which the material then reads as its texture. The bake runs on a temporary copy
-of the evaluated mesh (only the faces of that material) in a temporary scene, all removed after.
+render UV map (an object without one: a Smart UV Project of its copy, whose UVs the object then
+gets), which the material then reads as its texture. The bake runs on a temporary copy of the
+evaluated mesh (only the faces of that material) in a temporary scene, all removed after.
 Blender bakes only on its main thread: a render on another (an interactive F12) keeps the note
 that the input's own colour is shown."""
 
 from __future__ import annotations
 
 import threading
+from dataclasses import dataclass
 
 import numpy as np
 
-# The baked image's side: the render's longer side rounded up to a power of two, within these
+# The baked image's side: twice the render's longer side (an object filling the frame spreads over
+# part of its UV square), rounded up to a power of two, within these
+BAKE_PER_PIXEL = 2
 BAKE_LEAST, BAKE_MOST = 64, 2048
 BAKE_SAMPLES = 4  # per texel: enough to smooth a texel's edges, the colour itself is not noisy
 BAKE_MARGIN = 2  # texels: bilinear lookups at a UV island's edge stay within the island's colours
-_NAME = "Thurston Bake"  # the temporary datablocks'
+_NAME = "Thurston Bake"  # the temporary datablocks' (and the UV map Smart UV Project makes)
+UNWRAP_MARGIN = 0.02  # Smart UV Project's island margin (of the UV square)
 
 
 class Unavailable(Exception):
@@ -26,27 +31,39 @@ class Unavailable(Exception):
 def bake_size(bscene) -> int:
     """The side of a baked image for a render of this scene (see BAKE_LEAST, BAKE_MOST)."""
     r = bscene.render
-    side = max(r.resolution_x, r.resolution_y) * r.resolution_percentage / 100
+    side = BAKE_PER_PIXEL * max(r.resolution_x, r.resolution_y) * r.resolution_percentage / 100
     return int(min(max(2 ** int(np.ceil(np.log2(max(side, 1)))), BAKE_LEAST), BAKE_MOST))
+
+
+@dataclass
+class Baked:
+    """A baked colour: its (size, size, 3) linear pixels, rows top-down, the UV map it was baked on
+    (None: a Smart UV Project of the object's copy) and then that projection's UVs per corner of the
+    evaluated mesh (its loops)."""
+
+    pixels: np.ndarray
+    uv_map: str | None
+    loop_uvs: np.ndarray | None = None
 
 
 class Baker:
     """Bakes colour inputs of one evaluated mesh object's materials: call it with the material, its
-    slot and the input socket (in the material's own tree, not a node group's); it returns the
-    baked (size, size, 3) linear pixels, rows top-down, and the UV map's name, or raises
-    Unavailable."""
+    slot and the input socket (in the material's own tree, not a node group's); it returns what was
+    Baked, or raises Unavailable. An object without a UV map is baked on a Smart UV Project of its
+    temporary copy (made once, for all its materials), whose UVs the export then gives the object."""
 
     def __init__(self, obj, matrix_world, size: int):
         self.obj, self.matrix_world, self.size = obj, matrix_world, size
-        self._done: dict[tuple, tuple[np.ndarray, str]] = {}
+        self._done: dict[tuple, Baked] = {}
+        self._unwrapped: np.ndarray | None = None  # the Smart UV Project's UVs per loop
 
-    def __call__(self, mat, slot: int, socket) -> tuple[np.ndarray, str]:
+    def __call__(self, mat, slot: int, socket) -> Baked:
         key = (mat.name, slot, socket.node.name, socket.identifier)
         if key not in self._done:
             self._done[key] = self._bake(mat, slot, socket)
         return self._done[key]
 
-    def _bake(self, mat, slot: int, socket) -> tuple[np.ndarray, str]:
+    def _bake(self, mat, slot: int, socket) -> Baked:
         import bpy
 
         if threading.current_thread() is not threading.main_thread():
@@ -55,32 +72,35 @@ class Baker:
                 "(the viewport's rendered view and `thurston render-blend` bake it)"
             )
         uv = next((layer.name for layer in self.obj.data.uv_layers if layer.active_render), None)
-        if uv is None:
-            raise Unavailable("the object has no UV map to bake it on (add one: UV > Unwrap)")
         made = []  # the temporary datablocks, removed whatever happens
         try:
             mesh = bpy.data.meshes.new_from_object(self.obj)
             made.append((bpy.data.meshes, mesh))
+            scene = bpy.data.scenes.new(_NAME)
+            made.append((bpy.data.scenes, scene))
+            obj = bpy.data.objects.new(_NAME, mesh)
+            made.insert(0, (bpy.data.objects, obj))
+            obj.matrix_world = self.matrix_world  # (Position and World coordinates as the object's)
+            scene.collection.objects.link(obj)
+            layer = scene.view_layers[0]
+            layer.objects.active = obj
+            override = dict(scene=scene, view_layer=layer, active_object=obj, object=obj)
+            override.update(selected_objects=[obj], selected_editable_objects=[obj])
+            if uv is None:
+                self._unwrap(mesh, override)
+            mesh.uv_layers.active = mesh.uv_layers[uv or _NAME]
             _keep_slot(mesh, slot)
             copy = mat.copy()
             made.append((bpy.data.materials, copy))
             mesh.materials.clear()
             mesh.materials.append(copy)
-            mesh.uv_layers.active = mesh.uv_layers[uv]
             image = bpy.data.images.new(_NAME, self.size, self.size, float_buffer=True)
             made.append((bpy.data.images, image))
             _emit_input(copy.node_tree, socket, image)
-            scene = bpy.data.scenes.new(_NAME)
-            made.append((bpy.data.scenes, scene))
             scene.render.engine = "CYCLES"
             scene.cycles.device = "CPU"
             scene.cycles.samples = BAKE_SAMPLES
-            obj = bpy.data.objects.new(_NAME, mesh)
-            made.insert(0, (bpy.data.objects, obj))
-            obj.matrix_world = self.matrix_world  # (Position and World coordinates as the object's)
-            scene.collection.objects.link(obj)
-            override = dict(scene=scene, view_layer=scene.view_layers[0], active_object=obj, object=obj)
-            with bpy.context.temp_override(**override, selected_objects=[obj], selected_editable_objects=[obj]):
+            with bpy.context.temp_override(**override):
                 result = bpy.ops.object.bake(
                     type="EMIT",
                     width=self.size,
@@ -99,7 +119,27 @@ class Baker:
             for collection, datablock in made:
                 collection.remove(datablock)
         rgb = pixels.reshape(self.size, self.size, 4)[::-1, :, :3]  # Blender's rows are bottom-up
-        return np.ascontiguousarray(rgb), uv
+        return Baked(np.ascontiguousarray(rgb), uv, None if uv else self._unwrapped)
+
+    def _unwrap(self, mesh, override):
+        """A UV map on the temporary mesh (all its faces): the object's Smart UV Project, made once."""
+        import bpy
+
+        mesh.uv_layers.new(name=_NAME)
+        if self._unwrapped is None:
+            with bpy.context.temp_override(**override):
+                bpy.ops.object.mode_set(mode="EDIT")
+                try:
+                    with bpy.context.temp_override(edit_object=override["object"]):
+                        bpy.ops.mesh.select_all(action="SELECT")
+                        bpy.ops.uv.smart_project(island_margin=UNWRAP_MARGIN)
+                finally:
+                    bpy.ops.object.mode_set(mode="OBJECT")
+            uvs = np.empty(len(mesh.loops) * 2, np.float32)  # (edit mode made the mesh's layers anew)
+            mesh.uv_layers[_NAME].data.foreach_get("uv", uvs)
+            self._unwrapped = uvs.reshape(-1, 2)
+        else:
+            mesh.uv_layers[_NAME].data.foreach_set("uv", self._unwrapped.ravel())
 
 
 def _keep_slot(mesh, slot: int):

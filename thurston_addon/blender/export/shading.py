@@ -58,6 +58,7 @@ class Texture:
     source: str | None = None
     affine: np.ndarray = field(default_factory=lambda: np.eye(2, 4))
     pixels: np.ndarray | None = None  # a baked colour's linear pixels (then image is None)
+    loop_uvs: np.ndarray | None = None  # the UVs it was baked on per mesh corner, where not a UV map's
 
     @property
     def key(self) -> int:
@@ -211,12 +212,17 @@ class Walk:
         if groups:
             return None, ": not baked inside a node group"
         try:
-            pixels, uv = self.bake(socket)
+            baked = self.bake(socket)
         except bake.Unavailable as exc:
             return None, f"; not baked: {exc}"
-        side = pixels.shape[0]
-        self.note(f"{what} comes from {source}: baked by Cycles to a {side}x{side} image on UV map {uv!r}")
-        return Texture(None, pixels=pixels), ""
+        side = baked.pixels.shape[0]
+        on = (
+            f"UV map {baked.uv_map!r}"
+            if baked.uv_map
+            else "a Smart UV Project of a temporary copy (the object has no UV map)"
+        )
+        self.note(f"{what} comes from {source}: baked by Cycles to a {side}x{side} image on {on}")
+        return Texture(None, pixels=baked.pixels, loop_uvs=baked.loop_uvs), ""
 
     def coordinates(self, tex_node, groups, texture: Texture) -> list[str]:
         """The coordinates an Image Texture reads: UV maps, Generated, Object, through Mapping nodes;

@@ -161,7 +161,8 @@ def material_surface(mat, object_name: str, bake=None) -> tuple[scenes.Material,
     except scenes.SceneError as exc:
         raise scenes.SceneError(f"{where}: {exc}") from None
     texture = surface.texture
-    if texture is not None and texture.source is None and np.array_equal(texture.affine, np.eye(2, 4)):
+    plain = texture is not None and texture.source is None and texture.loop_uvs is None
+    if plain and np.array_equal(texture.affine, np.eye(2, 4)):
         texture = None
     return result, texture
 
@@ -175,11 +176,14 @@ def texture_uvs(texture: shading.Texture, mesh, co, loops) -> np.ndarray | None:
     elif texture.source == "OBJECT":
         points = co[np.asarray(tri_vertices(mesh, loops))]
     else:
-        layer = mesh.uv_layers.get(texture.source) if texture.source else None
-        layer = layer or next((layer for layer in mesh.uv_layers if layer.active_render), None)
-        if layer is None:
-            return None
-        uv = _get(layer.data, "uv", len(layer.data) * 2, np.float64).reshape(-1, 2)[loops]
+        if texture.loop_uvs is not None:  # baked on a Smart UV Project of the object
+            uv = texture.loop_uvs.astype(np.float64)[loops]
+        else:
+            layer = mesh.uv_layers.get(texture.source) if texture.source else None
+            layer = layer or next((layer for layer in mesh.uv_layers if layer.active_render), None)
+            if layer is None:
+                return None
+            uv = _get(layer.data, "uv", len(layer.data) * 2, np.float64).reshape(-1, 2)[loops]
         points = np.concatenate([uv, np.zeros(uv.shape[:-1] + (1,))], axis=-1)
     homogeneous = np.concatenate([points, np.ones(points.shape[:-1] + (1,))], axis=-1)
     return homogeneous @ texture.affine.T
