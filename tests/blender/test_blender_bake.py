@@ -145,18 +145,74 @@ def test_an_object_without_uvs_is_baked_on_a_smart_uv_project_and_matches_cycles
     assert error < 0.05
 
 
-def test_off_blenders_main_thread_the_note_says_why_it_is_not_baked():
+def not_baked_before(roughness):
+    """Materials whose trees no earlier test baked (bakes are kept by what they depend on)."""
+    for mat in bpy.data.materials:
+        mat.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = roughness
+
+
+def test_off_blenders_main_thread_only_kept_bakes_are_used():
     """An interactive F12 renders on a thread of its own, where Blender cannot bake: the note says
-    so, and the input's own colour is shown."""
+    so, and the input's own colour is shown; where the main thread baked the same input before
+    (the rendered viewport), that bake is used."""
     import threading
 
     sc = build()
+    not_baked_before(0.987)
     from thurston_addon.blender import export
 
-    depsgraph, said = bpy.context.evaluated_depsgraph_get(), []
-    thread = threading.Thread(target=lambda: said.extend(export.RenderJob(sc, depsgraph).messages()))
-    thread.start()
-    thread.join()
-    for name in ("noise", "checker", "box"):
-        (note,) = [m for m in said if f"material {name!r}" in m]
+    def notes_on_a_thread():
+        depsgraph, said = bpy.context.evaluated_depsgraph_get(), []
+        thread = threading.Thread(target=lambda: said.extend(export.RenderJob(sc, depsgraph).messages()))
+        thread.start()
+        thread.join()
+        return {name: [m for m in said if f"material {name!r}" in m] for name in ("noise", "checker", "box")}
+
+    for (note,) in notes_on_a_thread().values():
         assert "not baked: Blender bakes only on its main thread" in note, note
+    export.RenderJob(sc, bpy.context.evaluated_depsgraph_get())  # on the main thread: bakes
+    for (note,) in notes_on_a_thread().values():
+        assert "baked by Cycles" in note and "not baked" not in note, note
+
+
+def test_bakes_are_kept_until_what_they_depend_on_changes():
+    """The rendered viewport exports again after every change, and a bake's temporary datablocks are
+    changes: a second export bakes nothing and leaves nothing changed (the loop ends); an edited
+    node bakes its material again, and only it."""
+    sc = build()
+    not_baked_before(0.876)
+    from thurston_addon.blender import engine, export
+
+    bakes = []
+
+    def record(scene, depsgraph):  # a bake evaluates its temporary scene
+        if scene.name.startswith("Thurston Bake"):
+            bakes.append(scene.name)
+
+    def changed():
+        updates = []
+        bpy.app.handlers.depsgraph_update_post.append(lambda s, d: updates.append(engine.changes_scene(d)))
+        try:
+            bpy.context.view_layer.update()
+        finally:
+            bpy.app.handlers.depsgraph_update_post.pop()
+        return any(updates)
+
+    def export_scene():
+        bakes.clear()
+        export.export_scene(bpy.context.evaluated_depsgraph_get(), 1.0, [], meshes={})
+        return len(bakes)
+
+    bpy.app.handlers.depsgraph_update_post.append(record)
+    try:
+        bpy.context.view_layer.update()
+        first = export_scene()  # four bakes (the checker's two inputs)
+        changed()
+        assert export_scene() == 0 and not changed()
+        bpy.data.materials["noise"].node_tree.nodes["Noise Texture"].inputs["Scale"].default_value = 9.0
+        assert changed()
+        assert 0 < export_scene() <= first / 4  # the noise's alone
+        changed()
+        assert export_scene() == 0 and not changed()
+    finally:
+        bpy.app.handlers.depsgraph_update_post.remove(record)

@@ -4,11 +4,14 @@ temporary Emission shader and Cycles' Emit bake writes it to a float image on th
 render UV map (an object without one: a Smart UV Project of its copy, whose UVs the object then
 gets), which the material then reads as its texture. The bake runs on a temporary copy of the
 evaluated mesh (only the faces of that material) in a temporary scene, all removed after.
-Blender bakes only on its main thread: a render on another (an interactive F12) keeps the note
-that the input's own colour is shown."""
+Bakes are kept (the last CACHE_MOST) by everything they depend on: the node tree, the evaluated
+mesh, the object's place, the size. Blender bakes only on its main thread: a render on another (an
+interactive F12) uses the kept bake of an unchanged input (the rendered viewport's, an earlier
+render's) and otherwise keeps the note that the input's own colour is shown."""
 
 from __future__ import annotations
 
+import hashlib
 import threading
 from dataclasses import dataclass
 
@@ -54,14 +57,30 @@ class Baker:
 
     def __init__(self, obj, matrix_world, size: int):
         self.obj, self.matrix_world, self.size = obj, matrix_world, size
-        self._done: dict[tuple, Baked] = {}
         self._unwrapped: np.ndarray | None = None  # the Smart UV Project's UVs per loop
 
     def __call__(self, mat, slot: int, socket) -> Baked:
-        key = (mat.name, slot, socket.node.name, socket.identifier)
-        if key not in self._done:
-            self._done[key] = self._bake(mat, slot, socket)
-        return self._done[key]
+        """The bake of `socket`, made again only where anything it depends on changed: the
+        rendered viewport exports again after each change, and a bake's temporary datablocks are
+        a change (its cache ends that loop)."""
+        key = (
+            self.obj.original.name,
+            mat.name,
+            slot,
+            socket.node.name,
+            socket.identifier,
+            self.size,
+            tree_fingerprint(mat.node_tree),
+            mesh_fingerprint(self.obj),
+            tuple(map(tuple, self.matrix_world)),
+        )
+        baked = _CACHE.pop(key, None)
+        if baked is None:
+            baked = self._bake(mat, slot, socket)
+        _CACHE[key] = baked  # (the most recent last)
+        while len(_CACHE) > CACHE_MOST:
+            _CACHE.pop(next(iter(_CACHE)))
+        return baked
 
     def _bake(self, mat, slot: int, socket) -> Baked:
         import bpy
@@ -69,7 +88,8 @@ class Baker:
         if threading.current_thread() is not threading.main_thread():
             raise Unavailable(
                 "Blender bakes only on its main thread, not in an interactive F12 render "
-                "(the viewport's rendered view and `thurston render-blend` bake it)"
+                "(the viewport's rendered view bakes it, and F12 then uses that bake; `thurston "
+                "render-blend` bakes it)"
             )
         uv = next((layer.name for layer in self.obj.data.uv_layers if layer.active_render), None)
         made = []  # the temporary datablocks, removed whatever happens
@@ -140,6 +160,75 @@ class Baker:
             self._unwrapped = uvs.reshape(-1, 2)
         else:
             mesh.uv_layers[_NAME].data.foreach_set("uv", self._unwrapped.ravel())
+
+
+CACHE_MOST = 64  # bakes kept between exports
+_CACHE: dict[tuple, Baked] = {}  # by what they depend on (Baker.__call__), least recent first
+# Node properties that do not change what a node computes
+_LAYOUT = {"location", "location_absolute", "width", "height", "dimensions", "select", "hide", "label", "name"}
+
+
+def tree_fingerprint(tree, seen=None) -> tuple:
+    """What a node tree computes, as a tuple: its nodes' types, settings and input values (colour
+    ramps, curves and node groups' trees within), and its links."""
+    seen = set() if seen is None else seen
+    if tree is None or tree.name in seen:
+        return ()
+    seen.add(tree.name)
+    nodes = []
+    for node in tree.nodes:
+        settings = [
+            (p.identifier, _plain(getattr(node, p.identifier)))
+            for p in node.bl_rna.properties
+            if p.type in ("BOOLEAN", "INT", "FLOAT", "STRING", "ENUM") and p.identifier not in _LAYOUT
+        ]
+        inputs = [(i.identifier, _plain(getattr(i, "default_value", None))) for i in node.inputs]
+        extra = []
+        ramp = getattr(node, "color_ramp", None)
+        if ramp is not None:
+            extra += [ramp.interpolation, ramp.color_mode]
+            extra += [(e.position, tuple(e.color)) for e in ramp.elements]
+        mapping = getattr(node, "mapping", None)
+        if mapping is not None and hasattr(mapping, "curves"):
+            extra += [tuple((p.location[:], p.handle_type) for p in c.points) for c in mapping.curves]
+        for pointer in ("image", "object", "node_tree"):
+            value = getattr(node, pointer, None)
+            extra.append(getattr(value, "name", None))
+        if getattr(node, "image", None) is not None:
+            extra.append(node.image.is_dirty)
+        extra.append(tree_fingerprint(getattr(node, "node_tree", None), seen))
+        nodes.append((node.name, node.bl_idname, node.mute, tuple(settings), tuple(inputs), tuple(extra)))
+    links = [
+        (k.from_node.name, k.from_socket.identifier, k.to_node.name, k.to_socket.identifier, k.is_muted)
+        for k in tree.links
+    ]
+    return tuple(nodes), tuple(links)
+
+
+def _plain(value):
+    """A property's value as something hashable."""
+    try:
+        return tuple(value)
+    except TypeError:
+        return value
+
+
+def mesh_fingerprint(obj) -> str:
+    """A digest of the evaluated mesh's positions, corners, UV maps and face materials."""
+    mesh = obj.data
+    digest = hashlib.blake2b(digest_size=16)
+    for collection, attribute, count, dtype in (
+        (mesh.vertices, "co", 3 * len(mesh.vertices), np.float32),
+        (mesh.loops, "vertex_index", len(mesh.loops), np.int32),
+        (mesh.polygons, "loop_start", len(mesh.polygons), np.int32),
+        (mesh.polygons, "material_index", len(mesh.polygons), np.int32),
+        *((layer.data, "uv", 2 * len(layer.data), np.float32) for layer in mesh.uv_layers),
+    ):
+        values = np.empty(count, dtype)
+        collection.foreach_get(attribute, values)
+        digest.update(values.tobytes())
+    digest.update(repr([(layer.name, layer.active_render) for layer in mesh.uv_layers]).encode())
+    return digest.hexdigest()
 
 
 def _keep_slot(mesh, slot: int):
