@@ -179,7 +179,7 @@ def test_bakes_are_kept_until_what_they_depend_on_changes():
     """The rendered viewport exports again after every change, and a bake's temporary datablocks are
     changes: a second export bakes nothing and leaves nothing changed (the loop ends); an edited
     node bakes its material again, and only it."""
-    sc = build()
+    build()
     not_baked_before(0.876)
     from thurston_addon.blender import engine, export
 
