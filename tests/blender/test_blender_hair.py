@@ -79,3 +79,42 @@ def test_children_replace_their_parents_as_in_cycles():
     assert tube_triangles() == 8 * settings.child_percent * per_strand
     settings.use_parent_particles = True
     assert tube_triangles() == 8 * (settings.child_percent + 1) * per_strand
+
+
+def test_curves_objects_are_tubes_that_match_cycles_tiled(tmp_path):
+    """Blender's hair since 3.3, a Curves object: 36 slanted curves of 5 points tapering from
+    radius 0.006 to 0.002 (the radius attribute), against Cycles as above."""
+    sc = bh.fresh_scene("torus", size=SIZE)
+    sc.thurston.quality = "standard"
+    sc.thurston.light_reach = 0.5
+    sc.thurston.max_distance = 0.8
+    sc.view_settings.view_transform = "Standard"
+    curves = bpy.data.hair_curves.new("Strands")
+    curves.add_curves([5] * 36)
+    t = np.linspace(0, 1, 5)
+    roots = np.stack(np.meshgrid(np.linspace(-0.1, 0.1, 6), np.linspace(-0.04, 0.04, 6)), -1).reshape(-1, 2)
+    points = np.array([[(x + 0.03 * s, 0.3 + y, -0.08 + 0.15 * s) for s in t] for x, y in roots], np.float32)
+    curves.position_data.foreach_set("vector", points.ravel())
+    radius = curves.attributes.new("radius", "FLOAT", "POINT")
+    radius.data.foreach_set("value", np.tile(0.006 - 0.004 * t, 36).astype(np.float32))
+    curves.materials.append(bh.lambert(bh.material("Strands", (0.3, 0.5, 0.8))))
+    strands = bh.link(bpy.data.objects.new("Strands", curves))
+    bh.point_light((0.06, 0.12, 0.12), energy=2.0).data.shadow_soft_size = 0.0
+    bh.camera((0, -0.25, 0)).data.clip_end = 0.8
+    from thurston_addon.blender import export
+
+    job = export.RenderJob(sc, bpy.context.evaluated_depsgraph_get())
+    assert not [m for m in job.messages() if "curves" in m], job.messages()
+    L = "ViewLayer."
+    thurston = bh.rgb(bh.f12(sc, tmp_path / "thurston.exr"), L + "Combined.")
+    bh.tile_torus_for_cycles(sc, 3, own_cell_light=True)
+    (own_cell,) = bpy.data.objects["Light"].users_collection  # the lights' copies light their cells
+    own_cell.objects.link(strands)
+    sc.collection.objects.unlink(strands)
+    cycles = bh.rgb(bh.cycles_render(sc, tmp_path / "cycles.exr", samples=32), L + "Combined.")
+    hair, cycles_hair = (image.mean(axis=-1) > 0.02 for image in (thurston, cycles))
+    totals = thurston.sum(axis=(0, 1)), cycles.sum(axis=(0, 1))
+    print("curves' pixels (Thurston, Cycles):", hair.sum(), cycles_hair.sum(), "light summed:", totals)
+    assert cycles_hair.sum() > 150
+    assert abs(hair.sum() / cycles_hair.sum() - 1) < 0.1  # (strands a pixel or two wide)
+    np.testing.assert_allclose(totals[0], totals[1], rtol=0.07)

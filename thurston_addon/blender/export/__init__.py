@@ -275,7 +275,11 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
             scene.objects.extend(strands)
             if thinned:
                 skipped.setdefault(HAIR_THINNED_NOTE, []).extend(thinned)
-        if obj.type not in ("MESH", "LIGHT", "CAMERA", "EMPTY"):
+        if obj.type == "CURVES":
+            strands = hair.curves_object(inst, obj, scale, lambda mat: surfaces.material(mat, original.name))
+            if strands is not None:
+                scene.objects.append(strands)
+        elif obj.type not in ("MESH", "LIGHT", "CAMERA", "EMPTY"):
             skipped.setdefault(f"{obj.type.lower()} objects (only meshes)", []).append(original.name)
     if meshes is not None:
         meshes.clear()

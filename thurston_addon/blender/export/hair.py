@@ -1,7 +1,9 @@
-"""Hair particle systems as Cycles renders them: each strand (the children where the system has
-any, else the parents, as Cycles) along the path Blender evaluates for the render (its keys:
-2^steps + 1 per strand), as a thin tube mesh of Cycles' radius, tapering from root to tip by the
-system's shape, shaded with smooth normals round the tube, in the material the system names."""
+"""Hair as Cycles renders it, as thin tube meshes shaded with smooth normals round them. Hair
+particle systems: each strand (the children where the system has any, else the parents, as
+Cycles) along the path Blender evaluates for the render (its keys: 2^steps + 1 per strand), of
+Cycles' radius tapering from root to tip by the system's shape, in the material the system names.
+Curves objects (Blender's hair since 3.3): each curve through its evaluated points, of the radius
+attribute (Cycles' 0.005 where there is none), in the object's first material."""
 
 from __future__ import annotations
 
@@ -66,10 +68,11 @@ def radii(settings, keys: int) -> np.ndarray:
 
 
 def tubes(keys: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Tube meshes round polylines (strands, keys, 3) of the given radius at each key: vertices,
-    triangles (wound outwards) and corner normals (round the tube). A key of radius 0 at the end
-    closes the tube in a point."""
+    """Tube meshes round polylines (strands, keys, 3) of the given radius at each key (keys, or
+    strands x keys): vertices, triangles (wound outwards) and corner normals (round the tube).
+    Where every strand's last radius is 0, the tubes close there in a point."""
     n, k, _ = keys.shape
+    radius = np.broadcast_to(radius, (n, k))
     tangent = np.gradient(keys, axis=1)
     tangent /= np.maximum(np.linalg.norm(tangent, axis=-1, keepdims=True), 1e-30)
     # a normal per strand, from the axis least along its mean direction
@@ -79,13 +82,13 @@ def tubes(keys: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray,
     normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-30)
     binormal = np.cross(tangent, normal)
     angle = 2 * math.pi * np.arange(HAIR_SIDES) / HAIR_SIDES
-    closed = radius[-1] == 0
+    closed = bool(np.all(radius[:, -1] == 0))
     rings = k - 1 if closed else k
     around = (
         np.cos(angle)[None, None, :, None] * normal[:, :rings, None, :]
         + np.sin(angle)[None, None, :, None] * binormal[:, :rings, None, :]
     )  # (n, rings, sides, 3)
-    ring_vertices = keys[:, :rings, None, :] + WIDTH_FACTOR * radius[None, :rings, None, None] * around
+    ring_vertices = keys[:, :rings, None, :] + WIDTH_FACTOR * radius[:, :rings, None, None] * around
     per_strand = rings * HAIR_SIDES + (1 if closed else 0)
     s = np.arange(HAIR_SIDES)
     a = np.arange(rings - 1)[:, None] * HAIR_SIDES + s  # (rings - 1, sides): ring j, side s
@@ -140,3 +143,47 @@ def hair_objects(obj, scale: float, render: bool, material) -> tuple[list[scenes
             )
         )
     return objects, notes
+
+
+CURVES_RADIUS = 0.005  # Cycles' radius of curves without a radius attribute
+
+
+def curves_object(inst, obj, scale: float, material) -> scenes.SceneObject | None:
+    """A Curves object's evaluated curves as tubes in chart coordinates (world / scale), through
+    their points (Catmull-Rom and Bezier curves: their control points joined straight), the radius
+    scaled as the object's size; None where it has no curve of two points or more."""
+    data = obj.data
+    points, curves = len(data.points), len(data.curves)
+    if curves == 0:
+        return None
+    position = np.empty(points * 3, np.float32)
+    data.position_data.foreach_get("vector", position)
+    offsets = np.empty(curves + 1, np.int32)
+    data.curve_offset_data.foreach_get("value", offsets)
+    attribute = data.attributes.get("radius")
+    radius = np.full(points, CURVES_RADIUS, np.float32)
+    if attribute is not None and attribute.domain == "POINT" and attribute.data_type == "FLOAT":
+        attribute.data.foreach_get("value", radius)
+    M = np.array(inst.matrix_world, float)
+    world = position.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+    size = abs(np.linalg.det(M[:3, :3])) ** (1 / 3)
+    lengths = np.diff(offsets)
+    parts = []
+    for k in np.unique(lengths[lengths >= 2]):  # curves of k points together
+        index = offsets[:-1][lengths == k][:, None] + np.arange(k)
+        parts.append(tubes(world[index] / scale, radius[index] * size / scale))
+    if not parts:
+        return None
+    base = np.cumsum([0] + [len(v) for v, _, _ in parts[:-1]])
+    mat = material(obj.material_slots[0].material if len(obj.material_slots) else None)
+    name = obj.original.name if not inst.is_instance else f"{obj.original.name} ({inst.parent.original.name})"
+    return scenes.SceneObject(
+        name,
+        np.concatenate([v for v, _, _ in parts]),
+        np.concatenate([t + b for (_, t, _), b in zip(parts, base)]).astype(np.int32),
+        mat.color,
+        mat.emission,
+        pass_index=obj.original.pass_index,
+        corner_normals=np.concatenate([n for _, _, n in parts]),
+        materials=[mat],
+    )
