@@ -118,3 +118,31 @@ def test_curves_objects_are_tubes_that_match_cycles_tiled(tmp_path):
     assert cycles_hair.sum() > 150
     assert abs(hair.sum() / cycles_hair.sum() - 1) < 0.1  # (strands a pixel or two wide)
     np.testing.assert_allclose(totals[0], totals[1], rtol=0.07)
+
+
+def test_principled_hair_is_a_diffuse_surface_of_the_hairs_colour():
+    """Hair shading is not modelled: a Principled Hair BSDF shows as a diffuse surface of the colour
+    its parametrization gives, noted. Cycles turns a colour c into the absorption
+    (ln c / poly(radial roughness))^2 (Chiang et al.); that absorption must give c back."""
+    from thurston_addon.blender.export import surfaces
+
+    bh.fresh_scene()
+    mat = bpy.data.materials.new("Hair")
+    tree = mat.node_tree
+    hair = tree.nodes.new("ShaderNodeBsdfHairPrincipled")
+    tree.links.new(hair.outputs[0], tree.nodes["Material Output"].inputs["Surface"])
+    colour, beta = np.array([0.6, 0.35, 0.15]), 0.4
+    hair.inputs["Radial Roughness"].default_value = beta
+    poly = 0.245 * beta**5 + 5.574 * beta**4 - 10.73 * beta**3 + 2.532 * beta**2 - 0.215 * beta + 5.969
+    hair.parametrization = "ABSORPTION"
+    hair.inputs["Absorption Coefficient"].default_value = tuple((np.log(colour) / poly) ** 2)
+    with pytest.warns(UserWarning, match="diffuse surface of the hair's colour"):
+        np.testing.assert_allclose(surfaces.material(mat, "Tuft").color, colour, rtol=1e-5)
+    hair.parametrization = "MELANIN"
+    hair.inputs["Melanin"].default_value = 0.0  # no pigment: white
+    with pytest.warns(UserWarning):
+        np.testing.assert_allclose(surfaces.material(mat, "Tuft").color, 1.0, rtol=1e-6)
+    hair.parametrization = "COLOR"
+    hair.inputs["Color"].default_value = (*colour, 1)
+    with pytest.warns(UserWarning):
+        np.testing.assert_allclose(surfaces.material(mat, "Tuft").color, colour, rtol=1e-6)

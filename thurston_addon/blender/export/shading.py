@@ -41,8 +41,8 @@ UNSUPPORTED_SHADERS = {
     "SUBSURFACE_SCATTERING": "a diffuse surface of its colour is shown",
     "BSDF_SHEEN": "black is shown (no sheen)",
     "BSDF_TOON": "a diffuse surface of its colour is shown",
-    "BSDF_HAIR": "black is shown (no hair shading)",
-    "BSDF_HAIR_PRINCIPLED": "black is shown (no hair shading)",
+    "BSDF_HAIR": "a diffuse surface of its colour is shown (no hair scattering)",
+    "BSDF_HAIR_PRINCIPLED": "a diffuse surface of the hair's colour is shown (no hair scattering)",
     "BSDF_RAY_PORTAL": "black is shown (no ray portal)",
     "EEVEE_SPECULAR": "a diffuse surface of its base colour is shown",
 }
@@ -298,6 +298,8 @@ class Walk:
             ior = self.value(inp["IOR"], groups, f"the IOR of {_named(node)}")
             rough = self.value(inp["Roughness"], groups, f"the Roughness of {_named(node)}")
             return [Lobe(weight, roughness=_unit(rough), specular=0.5, ior=max(ior, 1e-5))]
+        if t == "BSDF_HAIR_PRINCIPLED":
+            return [Lobe(weight, color=hair_colour(node), roughness=1.0)]
         if shows.startswith("a diffuse"):
             key = next((k for k in ("Color", "Base Color") if k in inp), None)
             color = np.array(inp[key].default_value[:3], float) if key else np.full(3, 0.8)
@@ -396,6 +398,32 @@ class Walk:
             shown = "the baked colour" if found[0].image is None else repr(found[0].image.name)
             self.note(f"it mixes {len(found)} {what} textures: only {shown} is shown")
         return found[0] if found else None
+
+
+# Cycles' Principled Hair BSDF (kernel/closure/bsdf_principled_hair_*.h): the absorption of
+# eumelanin and pheomelanin per unit concentration, and the polynomial in the radial roughness
+# relating absorption and the hair's colour (Chiang et al. 2016): colour = exp(-sqrt(sigma) poly)
+EUMELANIN, PHEOMELANIN = np.array([0.506, 0.841, 1.653]), np.array([0.343, 0.733, 1.924])
+HAIR_ROUGHNESS_POLY = (0.245, 5.574, -10.73, 2.532, -0.215, 5.969)  # highest power first
+
+
+def hair_colour(node) -> np.ndarray:
+    """The colour of a Principled Hair BSDF as Cycles parametrizes it (its own values): Direct
+    Coloring's Color; Melanin's and Absorption's absorption turned into the colour that absorption
+    gives (the inverse of Cycles' colour to absorption)."""
+    inp = node.inputs
+    if node.parametrization == "COLOR":
+        return np.array(inp["Color"].default_value[:3], float)
+    poly = np.polyval(HAIR_ROUGHNESS_POLY, inp["Radial Roughness"].default_value)
+    if node.parametrization == "ABSORPTION":
+        sigma = np.array(inp["Absorption Coefficient"].default_value[:3], float)
+    else:
+        quantity = -np.log(max(1.0 - inp["Melanin"].default_value, 1e-4))
+        redness = inp["Melanin Redness"].default_value
+        sigma = quantity * ((1 - redness) * EUMELANIN + redness * PHEOMELANIN)
+        tint = np.clip(np.array(inp["Tint"].default_value[:3], float), 1e-6, None)
+        sigma = sigma + (np.log(tint) / poly) ** 2
+    return np.exp(-np.sqrt(np.maximum(sigma, 0.0)) * poly)
 
 
 def clamped(key: str, value: float) -> float:
