@@ -1,7 +1,8 @@
 """Lamps as Cycles shades them, and what Thurston does not render, said: a light's Temperature and
 its constant node tree (Emission strength and colour, a Blackbody into it) tint its power; a point
-light's radius is an emitting sphere (soft shadows, compared with Cycles); non-constant light trees,
-spot radii, hair, motion blur, pixel aspect, stereoscopy and a lighting World are noted by name."""
+light's radius is an emitting sphere (soft shadows, compared with Cycles), a spot's point spots
+through its sphere; non-constant light trees, spot radii, motion blur, pixel aspect, stereoscopy
+and a lighting World are noted by name."""
 
 from __future__ import annotations
 
@@ -101,9 +102,10 @@ def test_temperature_and_constant_node_trees_tint_the_light(registered_addon):
     assert all(name not in note.message for name in ("Warm", "Tinted", "Hot", "Dark"))
 
 
-def test_point_radius_is_a_sphere_spot_radius_is_noted(registered_addon):
+def test_point_radius_is_a_sphere_spot_radius_is_point_spots_noted(registered_addon):
     """A point light of radius r: a one-sided black sphere of that radius (chart units) emitting its
-    power, radiance power / (pi area); a spot with a radius: a point, with a note naming it."""
+    power, radiance power / (pi area); a spot with a radius: point spots sharing its power, spread
+    through its sphere, with a note naming it (against Cycles: test_blender_soft_spot.py)."""
     from support import blender_helpers as bh
 
     bh.fresh_scene("torus", scale=2.0)
@@ -116,8 +118,13 @@ def test_point_radius_is_a_sphere_spot_radius_is_noted(registered_addon):
 
     notes = []
     scene = ex.export_scene(bpy.context.evaluated_depsgraph_get(), 2.0, notes)
-    (spot,) = scene.lights
-    assert spot.spot_direction is not None
+    from thurston_addon.blender.export import lamps
+
+    spots = scene.lights
+    assert len(spots) == lamps.SPOT_POINTS and all(s.spot_direction is not None for s in spots)
+    assert math.isclose(sum(s.power for s in spots), 30.0 / (4 * math.pi**2) / 4)  # (scale 2)
+    offsets = np.array([s.position for s in spots]) - [0, 0.2, 0]
+    assert np.linalg.norm(offsets, axis=1).max() <= 0.05 + 1e-9 and np.abs(offsets.mean(axis=0)).max() < 0.01
     bulb = next(o for o in scene.objects if o.name == "Bulb")
     assert bulb.materials[0].one_sided and np.all(bulb.color == 0)
     np.testing.assert_allclose(np.linalg.norm(bulb.vertices - [0.2, 0, 0], axis=1), 0.05, rtol=1e-6)
@@ -126,12 +133,13 @@ def test_point_radius_is_a_sphere_spot_radius_is_noted(registered_addon):
     assert 0.95 < area / (4 * math.pi * 0.05**2) < 1.0  # the inscribed polyhedron
     np.testing.assert_allclose(bulb.emission, np.array([1.0, 0.5, 0.25]) * 30.0 / 4 / (math.pi * area), rtol=1e-6)
     (note,) = [n for n in notes if "spot lights with a radius" in n.message]
-    assert "hard shadows" in note.message and "Soft Spot" in note.message
+    assert "point spots" in note.message and "soft" in note.message and "Soft Spot" in note.message
 
 
 def test_ignored_features_are_noted(registered_addon):
-    """Hair, motion blur, pixel aspect, stereoscopy and a World that lights: one note each, naming
-    what the image shows instead. Blender's default grey World and the add-on's panorama: none."""
+    """Motion blur, pixel aspect, stereoscopy and a World that lights: one note each, naming what
+    the image shows instead. Blender's default grey World and the add-on's panorama: none. (Hair
+    renders: test_blender_hair.py.)"""
     import bpy
     from support import blender_helpers as bh
 
@@ -140,7 +148,7 @@ def test_ignored_features_are_noted(registered_addon):
     from thurston_addon.blender.export import ignored
 
     sc = bh.fresh_scene("torus", scale=4.0)
-    furry = bh.box("Furry", 0.5, (0, 0, 0))
+    bh.box("Box", 0.5, (0, 0, 0))
     bh.point_light((0.5, -0.5, 0.5), energy=50.0)
     bh.camera((0, -1.5, 0))
 
@@ -152,18 +160,15 @@ def test_ignored_features_are_noted(registered_addon):
     sc.world = bpy.data.worlds.new("Default Grey")
     sc.world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.0509, 0.0509, 0.0509, 1)
     assert notes() == []
-    furry.modifiers.new("Fur", "PARTICLE_SYSTEM")
-    furry.particle_systems[0].settings.type = "HAIR"
     sc.render.use_motion_blur = True
     sc.render.pixel_aspect_x = 2.0
     sc.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 3.0
     said = notes()
-    assert "skipped hair particle systems (their meshes show without hair): Furry" in said
     assert ignored.MOTION_BLUR_NOTE in said
     assert any("Pixel Aspect 2:1" in m and "square pixels" in m for m in said), said
     (world,) = [m for m in said if m.startswith("World")]
     assert "'Default Grey' (colour (0.153, 0.153, 0.153))" in world and "lights nothing" in world
-    assert len(said) == 4, said
+    assert len(said) == 3, said
     image = bpy.data.images.new("Panorama", 8, 4, float_buffer=True)
     results.set_world_panorama(sc, image)  # Bake Panorama's: the view itself, not a light
     assert not [m for m in notes() if m.startswith("World")]

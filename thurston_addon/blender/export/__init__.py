@@ -13,7 +13,7 @@ import numpy as np
 
 from ... import checks, render, scenes, spaces
 from ...passes import BLENDER_PASSES, LENGTHS, BlenderPass
-from . import ignored, lamps, surfaces
+from . import bake, hair, ignored, lamps, surfaces
 
 GUIDE_TAG = "thurston_guide"
 FILE = "FILE"  # space_id of a user's space file (space_file)
@@ -217,6 +217,7 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
     skipped: dict[str, list[str]] = {}
     flat: list[str] = []  # objects and area lights scaled to 0 (on some axis)
     hidden_collections = _hidden_collections(depsgraph.view_layer)
+    bake_size = bake.bake_size(depsgraph.scene)
     # Instances of one mesh share one scene object (surfaces.mesh_key): the mesh, read at the first
     # of them, and the chart maps of all.
     placements: dict[tuple, tuple[scenes.SceneObject | None, list[np.ndarray]]] = {}
@@ -227,14 +228,14 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
             continue
         if inst.is_instance and inst.parent.original.type not in ("MESH", "EMPTY"):
             continue  # geometry of a curve, text, ... object: skipped (and noted) as that object
-        if obj.type == "MESH":
+        if obj.type == "MESH" and inst.show_self:  # (a hair emitter may show its hair alone)
             key = surfaces.mesh_key(inst, obj)
             if key not in placements:
                 if meshes is not None and key in meshes:
                     mesh = meshes[key]
                 else:
                     try:
-                        mesh = surfaces.mesh_object(inst, obj, scale)
+                        mesh = surfaces.mesh_object(inst, obj, scale, bake_size)
                     except scenes.SceneError as exc:
                         raise ExportError(str(exc)) from None
                 placements[key] = (mesh, [])
@@ -259,16 +260,26 @@ def export_scene(depsgraph, scale: float, notes: list[checks.Note], meshes: dict
             if light.type == "SPOT" and light.shadow_soft_size > 0:
                 skipped.setdefault(SPOT_RADIUS_NOTE, []).append(original.name)
             try:
-                light_object = export_light(light, np.array(inst.matrix_world, float), scale, tint)
+                light_objects = export_light(light, np.array(inst.matrix_world, float), scale, tint)
             except scenes.SceneError as exc:
                 raise ExportError(f"light {original.name!r}: {exc}") from None
-            if isinstance(light_object, scenes.SceneObject):
-                scene.objects.append(light_object)
-            else:
-                scene.lights.append(light_object)
-        if obj.type == "MESH" and not inst.is_instance and ignored.hair(obj):
-            skipped.setdefault(ignored.HAIR_NOTE, []).append(original.name)
-        if obj.type not in ("MESH", "LIGHT", "CAMERA", "EMPTY"):
+            for light_object in light_objects:
+                if isinstance(light_object, scenes.SceneObject):
+                    scene.objects.append(light_object)
+                else:
+                    scene.lights.append(light_object)
+        if obj.type == "MESH" and not inst.is_instance and inst.show_particles:
+            strands, thinned = hair.hair_objects(
+                obj, scale, depsgraph.mode == "RENDER", lambda mat: surfaces.material(mat, original.name)
+            )
+            scene.objects.extend(strands)
+            if thinned:
+                skipped.setdefault(HAIR_THINNED_NOTE, []).extend(thinned)
+        if obj.type == "CURVES":
+            strands = hair.curves_object(inst, obj, scale, lambda mat: surfaces.material(mat, original.name))
+            if strands is not None:
+                scene.objects.append(strands)
+        elif obj.type not in ("MESH", "LIGHT", "CAMERA", "EMPTY"):
             skipped.setdefault(f"{obj.type.lower()} objects (only meshes)", []).append(original.name)
     if meshes is not None:
         meshes.clear()
@@ -335,15 +346,23 @@ NODES_NOTE = (
     "light node trees that are not constant (textures, Light Falloff, ...) are ignored, those lights "
     "shine with the power and colour set on them"
 )
-SPOT_RADIUS_NOTE = "spot lights with a radius cast hard shadows here (a point of their power, within the cone)"
-_NOT_SKIPPED = (NODES_NOTE, SPOT_RADIUS_NOTE)
+SPOT_RADIUS_NOTE = (
+    f"spot lights with a radius are {lamps.SPOT_POINTS} point spots spread through their sphere here: "
+    f"their shadows soft in {lamps.SPOT_POINTS} steps"
+)
+HAIR_THINNED_NOTE = (
+    f"hair systems of more than {hair.HAIR_STRANDS_MOST} strands show every k-th of them (as tubes, their "
+    "radius unchanged)"
+)
+_NOT_SKIPPED = (NODES_NOTE, SPOT_RADIUS_NOTE, HAIR_THINNED_NOTE)
 
 
-def export_light(light, world: np.ndarray, scale: float, tint=None):
-    """A point or spot light (scenes.PointLight) or an area light (an emissive mesh, scenes.flat_light)
-    as Cycles lights them, in chart units (world / scale). Point and spot: Blender's power (W)
-    radiates over 4 pi sr, and a Lambert surface of albedo rho sends rho / pi of its irradiance back;
-    a spot is that point light within Cycles' cone (spot size and blend; its axis the light's -Z).
+def export_light(light, world: np.ndarray, scale: float, tint=None) -> list:
+    """A point or spot light (scenes.PointLight; with a radius: an emitting sphere, or point spots
+    spread through it) or an area light (an emissive mesh, scenes.flat_light) as Cycles lights
+    them, in chart units (world / scale), as a list. Point and spot: Blender's power (W) radiates
+    over 4 pi sr, and a Lambert surface of albedo rho sends rho / pi of its irradiance back; a spot
+    is that point light within Cycles' cone (spot size and blend; its axis the light's -Z).
     Area: a Lambertian emitter of power `strength` from one side, radiance strength / (pi area) as
     Cycles renders it (tests/blender/test_blender_lights.py; strength / pi where not normalized), area =
     size x size_y (times pi / 4 for a disk or ellipse) scaled by the object, emitted towards -Z."""
@@ -351,16 +370,20 @@ def export_light(light, world: np.ndarray, scale: float, tint=None):
     color = np.array(light.color[:3], float) * lamps.temperature_tint(light) * tint
     strength = light.energy * 2.0 ** getattr(light, "exposure", 0.0)
     position = world[:3, 3] / scale
-    if light.type == "POINT" and light.shadow_soft_size > 0:
-        # (Cycles takes the radius as it is, whatever the object's scale)
-        return lamps.sphere_light(light.name, position, light.shadow_soft_size / scale, color, strength / scale**2)
+    # (Cycles takes the radius as it is, whatever the object's scale)
+    radius = light.shadow_soft_size / scale if light.type in ("POINT", "SPOT") else 0.0
+    if light.type == "POINT" and radius > 0:
+        return [lamps.sphere_light(light.name, position, radius, color, strength / scale**2)]
     if light.type in ("POINT", "SPOT"):
         spot = (
             {}
             if light.type == "POINT"
             else dict(spot_direction=-world[:3, 2], spot_size=light.spot_size, spot_blend=light.spot_blend)
         )
-        return scenes.PointLight(position, color, strength / (4 * math.pi**2) / scale**2, **spot)
+        power = strength / (4 * math.pi**2) / scale**2
+        if radius > 0:
+            return lamps.spot_points(position, radius, color, power, **spot)
+        return [scenes.PointLight(position, color, power, **spot)]
     width = light.size
     height = light.size_y if light.shape in ("RECTANGLE", "ELLIPSE") else light.size
     disc = light.shape in ("DISK", "ELLIPSE")
@@ -368,7 +391,7 @@ def export_light(light, world: np.ndarray, scale: float, tint=None):
     area = 4 * np.linalg.norm(np.cross(u, v)) * (math.pi / 4 if disc else 1.0)
     normalized = getattr(light, "normalize", True)
     radiance = color * strength / math.pi / (area if normalized else 1.0)
-    return scenes.flat_light(light.name, position, u / scale, v / scale, radiance, disc=disc)
+    return [scenes.flat_light(light.name, position, u / scale, v / scale, radiance, disc=disc)]
 
 
 def export_camera(bscene, depsgraph, scale: float, width: int, height: int, camera_object=None) -> scenes.Camera:

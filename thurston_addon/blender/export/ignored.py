@@ -1,4 +1,4 @@
-"""What Blender renders and Thurston does not: hair, motion blur, non-square pixels, stereoscopy,
+"""What Blender renders and Thurston does not: motion blur, non-square pixels, stereoscopy,
 the World's light. Each is said in the render's notes, naming what the image shows instead."""
 
 from __future__ import annotations
@@ -9,24 +9,11 @@ from ... import checks
 
 IGNORED = "ignored"  # a render setting the image does not follow (the message says what it shows)
 
-HAIR_NOTE = "hair particle systems (their meshes show without hair)"
-
 MOTION_BLUR_NOTE = "Motion Blur is not rendered: each frame shows the scene sharp, as it is at the frame"
 
 # The factory World's grey (0.0509, strength 1) is Blender's default, not a choice to light with:
 # a World brighter than this is noted.
 WORLD_LEAST = 0.06
-
-
-def hair(obj) -> bool:
-    """Whether the object shows hair in renders: a hair particle system drawn as strands (Path),
-    its modifier enabled in renders."""
-    for mod in obj.original.modifiers:
-        if mod.type == "PARTICLE_SYSTEM" and mod.show_render:
-            settings = mod.particle_system.settings
-            if settings.type == "HAIR" and settings.render_type == "PATH":
-                return True
-    return False
 
 
 def _linked_node(socket):

@@ -157,3 +157,41 @@ def sphere_light(name: str, centre, radius: float, colour, power: float) -> scen
     radiance = np.asarray(colour, float) * power / (math.pi * area)
     material = scenes.Material(np.zeros(3), radiance, name=name, one_sided=True)
     return scenes.SceneObject(name, vertices, triangles, material.color, material.emission, materials=[material])
+
+
+SPOT_POINTS = 16  # the point spots a spot light with a radius is shown as
+
+
+def ball_points(count: int) -> np.ndarray:
+    """`count` points in the unit ball whose projection onto any plane through its centre is close
+    to uniform on the unit disc (as a sphere of uniform radiance looks from any side): radial
+    density 1 / sqrt(1 - s^2) (the inverse Abel transform of a constant), so radius s = sin u with
+    u of density sin^2 u on [0, pi / 2]; stratified radii, directions on a Fibonacci sphere taken
+    in a shuffled order (so that radius and direction do not correlate)."""
+    u = np.linspace(0.0, math.pi / 2, 4097)
+    cdf = (u - np.sin(u) * np.cos(u)) / (math.pi / 2)
+    radius = np.sin(np.interp((np.arange(count) + 0.5) / count, cdf, u))
+    k = np.arange(count)
+    z = 1 - (2 * k + 1) / count
+    phi = k * math.pi * (3 - math.sqrt(5))
+    directions = np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], -1)
+    order = (k * _coprime_step(count)) % count
+    return radius[:, None] * directions[order]
+
+
+def _coprime_step(count: int) -> int:
+    """A step near count times the golden ratio's fraction, coprime to count."""
+    step = max(1, round(count * 0.618034))
+    while math.gcd(step, count) != 1:
+        step += 1
+    return step
+
+
+def spot_points(centre, radius: float, colour, power: float, **spot) -> list[scenes.PointLight]:
+    """A spot light of radius `radius` as SPOT_POINTS point spots of power / SPOT_POINTS each,
+    spread through its sphere (ball_points), each with the spot's cone: its shadows soft in
+    SPOT_POINTS steps. (Cycles takes the cone from the sphere's centre, each point here from itself:
+    the cone's edge moves by at most the radius.)"""
+    offsets = radius * ball_points(SPOT_POINTS)
+    share = power / SPOT_POINTS
+    return [scenes.PointLight(np.asarray(centre, float) + d, colour, share, **spot) for d in offsets]

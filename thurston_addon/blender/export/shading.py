@@ -4,8 +4,10 @@ an unconnected node), through reroutes, muted nodes and node groups. Diffuse, Gl
 Principled and Emission shaders, Mix Shader and Add Shader with constant factors become a weighted
 blend of the parameters the tracer has (see docs/blender.md, "Shader nodes"); Image Textures on a
 colour through a UV map, Generated or Object coordinates and a Mapping node become the material's
-texture and a UV transform. What the tracer cannot show is said, once per material, in a note
-naming the material and what the image shows instead."""
+texture and a UV transform. Any other node feeding a colour (procedural textures, ColorRamp, an
+Image Texture through other coordinates or projections) is baked by Cycles (bake.py) where the
+object has a UV map. What the tracer cannot show is said, once per material, in a note naming the
+material and what the image shows instead."""
 
 from __future__ import annotations
 
@@ -39,8 +41,8 @@ UNSUPPORTED_SHADERS = {
     "SUBSURFACE_SCATTERING": "a diffuse surface of its colour is shown",
     "BSDF_SHEEN": "black is shown (no sheen)",
     "BSDF_TOON": "a diffuse surface of its colour is shown",
-    "BSDF_HAIR": "black is shown (no hair shading)",
-    "BSDF_HAIR_PRINCIPLED": "black is shown (no hair shading)",
+    "BSDF_HAIR": "a diffuse surface of its colour is shown (no hair scattering)",
+    "BSDF_HAIR_PRINCIPLED": "a diffuse surface of the hair's colour is shown (no hair scattering)",
     "BSDF_RAY_PORTAL": "black is shown (no ray portal)",
     "EEVEE_SPECULAR": "a diffuse surface of its base colour is shown",
 }
@@ -48,13 +50,20 @@ UNSUPPORTED_SHADERS = {
 
 @dataclass
 class Texture:
-    """An Image Texture on a colour: its image, the coordinates it reads (None: the active render
-    UV map; a UV map's name; "GENERATED" or "OBJECT") and the affine map (2x4: of (x, y, z, 1) to
-    the xy the image is read at; UVs have z = 0) that Mapping nodes apply."""
+    """An Image Texture on a colour (or a baked colour): its image, the coordinates it reads (None:
+    the active render UV map; a UV map's name; "GENERATED" or "OBJECT") and the affine map (2x4: of
+    (x, y, z, 1) to the xy the image is read at; UVs have z = 0) that Mapping nodes apply."""
 
     image: object
     source: str | None = None
     affine: np.ndarray = field(default_factory=lambda: np.eye(2, 4))
+    pixels: np.ndarray | None = None  # a baked colour's linear pixels (then image is None)
+    loop_uvs: np.ndarray | None = None  # the UVs it was baked on per mesh corner, where not a UV map's
+
+    @property
+    def key(self) -> int:
+        """What tells textures apart: the image, or the baked pixels."""
+        return id(self.image if self.image is not None else self.pixels)
 
     def same_coordinates(self, other: Texture) -> bool:
         return self.source == other.source and np.allclose(self.affine, other.affine)
@@ -98,8 +107,9 @@ class Surface:
 class Walk:
     """Reads one material's tree from its output, gathering notes."""
 
-    def __init__(self, mat):
+    def __init__(self, mat, bake=None):
         self.mat = mat
+        self.bake = bake  # bake.Baker bound to this material's slot (socket -> pixels, UV map), or None
         self.notes: list[str] = []
 
     def note(self, text: str):
@@ -158,8 +168,9 @@ class Walk:
         return float(socket.default_value)
 
     def color(self, socket, groups, what: str) -> tuple[np.ndarray, Texture | None]:
-        """A colour input: (constant, None), or (white, texture) for an Image Texture's colour; other
-        links: the socket's own value, noted."""
+        """A colour input: (constant, None), or (white, texture) for an Image Texture's colour read
+        flat through coordinates the tracer has, or for a colour Cycles bakes (any other node);
+        where it cannot bake: the socket's own value, noted."""
         node, out, inner = self.source(socket, groups)
         if node is None or node.type == "RGB":
             return np.array(out.default_value[:3], float), None
@@ -167,22 +178,57 @@ class Walk:
             if node.image is None:  # Cycles: an Image Texture without an image is black
                 return np.zeros(3), None
             texture = Texture(node.image)
-            self.coordinates(node, inner, texture)
+            unread = self.coordinates(node, inner, texture)
             if node.projection != "FLAT":
-                self.note(f"{_named(node)} uses {node.projection.title()} projection: projected flat")
+                unread.append(f"{_named(node)} uses {node.projection.title()} projection: projected flat")
             if node.extension != "REPEAT":
-                self.note(f"{_named(node)} has {node.extension.title()} extension: repeated")
+                unread.append(f"{_named(node)} has {node.extension.title()} extension: repeated")
+            if not unread:
+                return np.ones(3), texture
+            baked, why = self.baked(socket, groups, what, _named(node))
+            if baked is not None:
+                return np.ones(3), baked
+            for text in unread:
+                self.note(text + (f" ({why.lstrip('; :')})" if why else ""))
             return np.ones(3), texture
+        baked, why = self.baked(socket, groups, what, f"a {_kind(node)}")
+        if baked is not None:
+            return np.ones(3), baked
         own = np.array(socket.default_value[:3], float)
         self.note(
-            f"{what} comes from a {_kind(node)} (procedural colours are not rendered): "
+            f"{what} comes from a {_kind(node)} (procedural colours are not rendered{why}): "
             f"its own colour ({', '.join(f'{c:.3g}' for c in own)}) is shown"
         )
         return own, None
 
-    def coordinates(self, tex_node, groups, texture: Texture):
-        """The coordinates an Image Texture reads: UV maps, Generated, Object, through Mapping nodes."""
+    def baked(self, socket, groups, what: str, source: str) -> tuple[Texture | None, str]:
+        """The colour reaching `socket` as Cycles bakes it (bake.py), noted; (None, why not, as the
+        note says it) where it cannot: no baker, the socket inside a node group, or what
+        bake.Unavailable says."""
+        from . import bake
+
+        if self.bake is None:
+            return None, ""
+        if groups:
+            return None, ": not baked inside a node group"
+        try:
+            baked = self.bake(socket)
+        except bake.Unavailable as exc:
+            return None, f"; not baked: {exc}"
+        side = baked.pixels.shape[0]
+        on = (
+            f"UV map {baked.uv_map!r}"
+            if baked.uv_map
+            else "a Smart UV Project of a temporary copy (the object has no UV map)"
+        )
+        self.note(f"{what} comes from {source}: baked by Cycles to a {side}x{side} image on {on}")
+        return Texture(None, pixels=baked.pixels, loop_uvs=baked.loop_uvs), ""
+
+    def coordinates(self, tex_node, groups, texture: Texture) -> list[str]:
+        """The coordinates an Image Texture reads: UV maps, Generated, Object, through Mapping nodes;
+        returns what the tracer cannot read (as notes: what it reads instead)."""
         socket = tex_node.inputs["Vector"]
+        unread = []
         affine = np.eye(4)
         while True:
             node, out, groups = self.source(socket, groups)
@@ -202,9 +248,10 @@ class Walk:
                 texture.source = "OBJECT"
             else:
                 what = f"{out.name} coordinates" if node.type == "TEX_COORD" else f"a {_kind(node)}"
-                self.note(f"{_named(tex_node)} reads {what}: the UV map is used")
+                unread.append(f"{_named(tex_node)} reads {what}: the UV map is used")
             break
         texture.affine = affine[:2]
+        return unread
 
     # --- shaders ------------------------------------------------------------------------------------
     def shader(self, socket, groups, weight: float, depth: int = 0) -> list[Lobe]:
@@ -251,6 +298,8 @@ class Walk:
             ior = self.value(inp["IOR"], groups, f"the IOR of {_named(node)}")
             rough = self.value(inp["Roughness"], groups, f"the Roughness of {_named(node)}")
             return [Lobe(weight, roughness=_unit(rough), specular=0.5, ior=max(ior, 1e-5))]
+        if t == "BSDF_HAIR_PRINCIPLED":
+            return [Lobe(weight, color=hair_colour(node), roughness=1.0)]
         if shows.startswith("a diffuse"):
             key = next((k for k in ("Color", "Base Color") if k in inp), None)
             color = np.array(inp[key].default_value[:3], float) if key else np.full(3, 0.8)
@@ -345,9 +394,36 @@ class Walk:
 
     def one_texture(self, textures, what) -> Texture | None:
         found = [t for t in textures if t is not None]
-        if len({id(t.image) for t in found}) > 1:
-            self.note(f"it mixes {len(found)} {what} textures: only {found[0].image.name!r} is shown")
+        if len({t.key for t in found}) > 1:
+            shown = "the baked colour" if found[0].image is None else repr(found[0].image.name)
+            self.note(f"it mixes {len(found)} {what} textures: only {shown} is shown")
         return found[0] if found else None
+
+
+# Cycles' Principled Hair BSDF (kernel/closure/bsdf_principled_hair_*.h): the absorption of
+# eumelanin and pheomelanin per unit concentration, and the polynomial in the radial roughness
+# relating absorption and the hair's colour (Chiang et al. 2016): colour = exp(-sqrt(sigma) poly)
+EUMELANIN, PHEOMELANIN = np.array([0.506, 0.841, 1.653]), np.array([0.343, 0.733, 1.924])
+HAIR_ROUGHNESS_POLY = (0.245, 5.574, -10.73, 2.532, -0.215, 5.969)  # highest power first
+
+
+def hair_colour(node) -> np.ndarray:
+    """The colour of a Principled Hair BSDF as Cycles parametrizes it (its own values): Direct
+    Coloring's Color; Melanin's and Absorption's absorption turned into the colour that absorption
+    gives (the inverse of Cycles' colour to absorption)."""
+    inp = node.inputs
+    if node.parametrization == "COLOR":
+        return np.array(inp["Color"].default_value[:3], float)
+    poly = np.polyval(HAIR_ROUGHNESS_POLY, inp["Radial Roughness"].default_value)
+    if node.parametrization == "ABSORPTION":
+        sigma = np.array(inp["Absorption Coefficient"].default_value[:3], float)
+    else:
+        quantity = -np.log(max(1.0 - inp["Melanin"].default_value, 1e-4))
+        redness = inp["Melanin Redness"].default_value
+        sigma = quantity * ((1 - redness) * EUMELANIN + redness * PHEOMELANIN)
+        tint = np.clip(np.array(inp["Tint"].default_value[:3], float), 1e-6, None)
+        sigma = sigma + (np.log(tint) / poly) ** 2
+    return np.exp(-np.sqrt(np.maximum(sigma, 0.0)) * poly)
 
 
 def clamped(key: str, value: float) -> float:
@@ -398,9 +474,10 @@ def _mapping(node, groups, walk) -> np.ndarray:
     return M
 
 
-def surface(mat, viewport_color) -> Surface:
-    """The material's surface, read from its Material Output (see the module's docstring)."""
-    return Walk(mat).surface(viewport_color)
+def surface(mat, viewport_color, bake=None) -> Surface:
+    """The material's surface, read from its Material Output (see the module's docstring); `bake`
+    bakes colours of one object's slot (bake.Baker with the material and slot), None: noted."""
+    return Walk(mat, bake).surface(viewport_color)
 
 
 def warn_notes(mat, notes: list[str]):

@@ -5,6 +5,7 @@ coordinates and Mapping a material's Image Texture reads), and one material per 
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import bpy
@@ -12,7 +13,7 @@ import numpy as np
 
 from ... import scenes
 from ...images import srgb_to_linear
-from . import shading
+from . import bake, shading
 
 
 def mesh_key(inst, obj) -> tuple:
@@ -31,10 +32,11 @@ def chart_map(inst, scale: float) -> np.ndarray:
     return M
 
 
-def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
+def mesh_object(inst, obj, scale: float, bake_size: int | None = None) -> scenes.SceneObject | None:
     """The evaluated mesh of a depsgraph instance in its own coordinates over the scale (place it
-    with chart_map); None where it has no faces. Raises SceneError for what cannot be used
-    (named)."""
+    with chart_map); None where it has no faces. Colours from procedural nodes are baked by Cycles
+    to images of side `bake_size` (None: not baked, noted). Raises SceneError for what cannot be
+    used (named)."""
     original = obj.original
     mesh = obj.data  # evaluated: modifiers applied
     mesh.calc_loop_triangles()
@@ -69,7 +71,10 @@ def mesh_object(inst, obj, scale: float) -> scenes.SceneObject | None:
             uv = _get(layer.data, "uv", len(layer.data) * 2, np.float32)
         uvs = uv.reshape(-1, 2)[loops]
     slots = [slot.material for slot in obj.material_slots]
-    surfaces = [material_surface(m, original.name) for m in slots] or [material_surface(None, original.name)]
+    baker = None if bake_size is None else bake.Baker(obj, inst.matrix_world.copy(), bake_size)
+    surfaces = [
+        material_surface(m, original.name, baker and functools.partial(baker, m, k)) for k, m in enumerate(slots)
+    ] or [material_surface(None, original.name)]
     materials = [m for m, _ in surfaces]
     face_material = _attribute(mesh, "material_index", "FACE", "value", len(mesh.polygons), np.int32)
     if face_material is None:  # (no attribute: every face has the first slot)
@@ -133,20 +138,20 @@ def material(mat, object_name: str) -> scenes.Material:
     return material_surface(mat, object_name)[0]
 
 
-def material_surface(mat, object_name: str) -> tuple[scenes.Material, shading.Texture | None]:
+def material_surface(mat, object_name: str, bake=None) -> tuple[scenes.Material, shading.Texture | None]:
     """The scene material and the texture whose coordinates its triangles get (None: the active
-    render UV map as it is)."""
+    render UV map as it is); `bake`: see shading.surface."""
     if mat is None:
         return scenes.Material(name=""), None
     where = f"object {object_name!r}, material {mat.name!r}"
     if mat.node_tree is not None and (bpy.app.version >= (5, 0, 0) or mat.use_nodes):
-        surface = shading.surface(mat, mat.diffuse_color)
+        surface = shading.surface(mat, mat.diffuse_color, bake)
     else:  # (before Blender 5, a material without nodes: its viewport colour, as Cycles)
         surface = shading.Surface(np.array(mat.diffuse_color[:3], float), np.zeros(3))
     color, emission = surface.color, surface.emission
     textures = []
     for texture, value in ((surface.color_texture, color), (surface.emission_texture, emission)):
-        pixels = None if texture is None else image_texture(texture.image)
+        pixels = None if texture is None else texture.pixels if texture.image is None else image_texture(texture.image)
         if texture is not None and pixels is None:  # magenta where the image has no pixels, as in Cycles
             value *= MISSING_IMAGE
         textures.append(pixels)
@@ -156,7 +161,8 @@ def material_surface(mat, object_name: str) -> tuple[scenes.Material, shading.Te
     except scenes.SceneError as exc:
         raise scenes.SceneError(f"{where}: {exc}") from None
     texture = surface.texture
-    if texture is not None and texture.source is None and np.array_equal(texture.affine, np.eye(2, 4)):
+    plain = texture is not None and texture.source is None and texture.loop_uvs is None
+    if plain and np.array_equal(texture.affine, np.eye(2, 4)):
         texture = None
     return result, texture
 
@@ -170,11 +176,14 @@ def texture_uvs(texture: shading.Texture, mesh, co, loops) -> np.ndarray | None:
     elif texture.source == "OBJECT":
         points = co[np.asarray(tri_vertices(mesh, loops))]
     else:
-        layer = mesh.uv_layers.get(texture.source) if texture.source else None
-        layer = layer or next((layer for layer in mesh.uv_layers if layer.active_render), None)
-        if layer is None:
-            return None
-        uv = _get(layer.data, "uv", len(layer.data) * 2, np.float64).reshape(-1, 2)[loops]
+        if texture.loop_uvs is not None:  # baked on a Smart UV Project of the object
+            uv = texture.loop_uvs.astype(np.float64)[loops]
+        else:
+            layer = mesh.uv_layers.get(texture.source) if texture.source else None
+            layer = layer or next((layer for layer in mesh.uv_layers if layer.active_render), None)
+            if layer is None:
+                return None
+            uv = _get(layer.data, "uv", len(layer.data) * 2, np.float64).reshape(-1, 2)[loops]
         points = np.concatenate([uv, np.zeros(uv.shape[:-1] + (1,))], axis=-1)
     homogeneous = np.concatenate([points, np.ones(points.shape[:-1] + (1,))], axis=-1)
     return homogeneous @ texture.affine.T
