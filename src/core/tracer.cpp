@@ -10,8 +10,24 @@ namespace thurston {
 
 namespace {
 
-constexpr std::size_t kChunk = 1024;  // rays per unit of work
+constexpr std::size_t kChunk = kRayBlock;
 constexpr std::chrono::milliseconds kPollInterval{100};
+
+// The chunks' starts (and count at the end): runs of kChunk rays, or with ray ids the runs whose
+// ids lie in one block of kChunk ids. A chunk's rays learn shadow-walk visibility together
+// (kernel_tracer.hpp), so a ray's light then depends on its block's rays alone, not on which of
+// them the call traces: a tile of an image or an adaptive pass's subset learns as the whole image.
+std::vector<std::size_t> chunk_starts(std::size_t count, const std::int64_t* ray_ids) {
+  std::vector<std::size_t> starts;
+  for (std::size_t i = 0; i < count; ++i) {
+    const bool new_block = ray_ids ? i == 0 || ray_ids[i] / std::int64_t(kChunk) !=
+                                                   ray_ids[i - 1] / std::int64_t(kChunk)
+                                   : i % kChunk == 0;
+    if (new_block) starts.push_back(i);
+  }
+  starts.push_back(count);
+  return starts;
+}
 
 }  // namespace
 
@@ -123,7 +139,8 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
                          const TraceOptions& options, const TraceOutputs& out, const Poll& poll) {
   const RunLock lock(*this);
   cancel_.store(false);
-  const std::size_t chunks = (count + kChunk - 1) / kChunk;
+  const std::vector<std::size_t> starts = chunk_starts(count, options.ray_ids);
+  const std::size_t chunks = starts.size() - 1;
   // Kept by chunk, so that the recording does not depend on the thread count.
   std::vector<std::vector<double>> chunk_segments(options.record_segments ? chunks : 0);
   std::atomic<std::uint64_t> chords{0}, light_failures{0}, light_paths{0}, emitter_paths{0},
@@ -131,7 +148,7 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
   // summed in chunk order: the same for any threads
   std::vector<double> chunk_energy(chunks, 0.0), chunk_emitter_energy(chunks, 0.0);
   const std::size_t traced = run_chunks(
-      count,
+      starts,
       [&](std::size_t chunk, std::size_t begin, std::size_t end) {
         std::vector<double>* segments = options.record_segments ? &chunk_segments[chunk] : nullptr;
         TraceStats local;
@@ -168,7 +185,7 @@ void Tracer::query_segments(std::size_t count, Strided2<double> starts, Strided2
                             float* t, std::int32_t* prim, std::int32_t* instance) {
   const RunLock lock(*this);
   run_chunks(
-      count,
+      chunk_starts(count, nullptr),
       [&](std::size_t, std::size_t begin, std::size_t end) {
         for (std::size_t i = begin; i < end; ++i) {
           const Vec3 x0{starts(i, 0), starts(i, 1), starts(i, 2)};
@@ -184,10 +201,10 @@ void Tracer::query_segments(std::size_t count, Strided2<double> starts, Strided2
       nullptr, false);
 }
 
-std::size_t Tracer::run_chunks(std::size_t count,
+std::size_t Tracer::run_chunks(const std::vector<std::size_t>& starts,
                                const std::function<void(std::size_t, std::size_t, std::size_t)>& fn,
                                const Poll& poll, bool cancellable) {
-  const std::size_t chunks = (count + kChunk - 1) / kChunk;
+  const std::size_t chunks = starts.size() - 1;
   std::atomic<std::size_t> next{0}, done{0};
   std::atomic<bool>& stop = run_stop_;
   stop = poll && !poll(0);
@@ -196,7 +213,7 @@ std::size_t Tracer::run_chunks(std::size_t count,
       while (!stop.load()) {
         const std::size_t chunk = next.fetch_add(1);
         if (chunk >= chunks) break;
-        const std::size_t begin = chunk * kChunk, end = std::min(count, begin + kChunk);
+        const std::size_t begin = starts[chunk], end = starts[chunk + 1];
         fn(chunk, begin, end);
         done.fetch_add(end - begin);
       }
@@ -213,7 +230,7 @@ std::size_t Tracer::run_chunks(std::size_t count,
   if (pool_.error()) std::rethrow_exception(pool_.error());
   if (poll && !stop.load()) poll(done.load());  // the final count
   // Chunks are handed out in order and every chunk taken is finished.
-  return std::min(count, std::min(next.load(), chunks) * kChunk);
+  return starts[std::min(next.load(), chunks)];
 }
 
 }  // namespace thurston

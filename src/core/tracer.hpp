@@ -41,6 +41,10 @@ struct Strided2 {
 // the emitters). The last two are for measuring the first.
 enum class EmitterSampling : std::uint8_t { kMis = 0, kLightSamples = 1, kBounces = 2 };
 
+// Rays per unit of work, and the block of ray ids whose rays learn shadow-walk visibility together
+// (TraceOptions::ray_ids): a tile of an image that holds whole blocks is traced as the image is.
+constexpr std::size_t kRayBlock = 1024;
+
 struct TraceOptions {
   double max_distance;
   int max_crossings;
@@ -58,8 +62,9 @@ struct TraceOptions {
   // strongest geodesics to the lights' copies and the emitters' samples always, the rest sampled
   // in proportion to their unshadowed light; 0: every geodesic (the exact sum).
   int light_budget = 0;
-  // Per ray, the index its random numbers are drawn for (a subset of a larger trace's rays keeps
-  // theirs); null: its position.
+  // Per ray, increasing: the index its random numbers are drawn for and the block of kChunk ids
+  // whose rays learn shadow-walk visibility together (a subset of a larger trace's rays, a tile of
+  // an image, keeps both); null: its position.
   const std::int64_t* ray_ids = nullptr;
 };
 
@@ -254,9 +259,9 @@ class Tracer {
   std::vector<std::uint32_t> mesh_triangle_ids(std::size_t mesh, bool casting) const;
   std::vector<SceneHandle> mesh_scenes_[2];  // by casting, per mesh: built where instanced
 
-  // Runs fn(chunk, begin, end) over [0, count) in chunks on the pool, polling from this thread;
-  // returns how many items (a prefix) were done before a stop.
-  std::size_t run_chunks(std::size_t count,
+  // Runs fn(chunk, begin, end) over the chunks [starts[k], starts[k + 1]) on the pool, polling
+  // from this thread; returns how many items (a prefix) were done before a stop.
+  std::size_t run_chunks(const std::vector<std::size_t>& starts,
                          const std::function<void(std::size_t, std::size_t, std::size_t)>& fn,
                          const Poll& poll, bool cancellable);
 

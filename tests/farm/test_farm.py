@@ -55,6 +55,16 @@ def test_tiles_are_the_single_process_render(world, cluster, tmp_path):
     assert not list(tmp_path.iterdir())  # nothing kept once written
 
 
+def test_tiles_of_whole_ray_blocks_keep_sampled_light_exact(world, cluster, tmp_path):
+    """With sampled light paths the bands are whole blocks of pixel ids (render.ray_block): the
+    tiles are the single process's render bit for bit."""
+    settings = dataclasses.replace(SETTINGS, width=64, height=48, light_paths=4)
+    parts = farm.split(settings, 3)
+    step = render.ray_block() // 64
+    assert len(parts) == 3 and all(p.region[1] % step == 0 for p in parts)
+    assert_same_passes(on_farm(world, cluster, settings, tmp_path / "t.exr", tiles=3), single(world, settings))
+
+
 def test_tiles_keep_adaptive_sampling_exact(world, cluster, tmp_path):
     """Adaptive sampling decides per pixel: a tile's pixels take the samples they take in the whole image."""
     adaptive = dataclasses.replace(SETTINGS, samples=12, bounces=2, noise_threshold=0.05, min_samples=4)

@@ -152,3 +152,23 @@ def test_cli_light_paths(tmp_path, capsys):
     )
     assert out.exists()
     assert "--light-paths 3" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("adaptive", [0.0, 0.05])
+def test_a_region_of_whole_ray_blocks_is_the_images_own_pixels(adaptive):
+    """Sampled light learns which walks are shadowed over blocks of render.ray_block() pixel ids:
+    a render region made of whole blocks (64 wide: 16 rows a block) gives exactly the whole
+    image's pixels there, adaptive passes included (a farm's tiles rely on it)."""
+    space = spaces.load("poincare")
+    scene = default_scene(space)
+    settings = render.Settings(
+        width=64, height=48, samples=8, bounces=1, light_paths=4, noise_threshold=adaptive, threads=2
+    )
+    rows = render.ray_block() // 64
+    whole = render.render(space, scene, settings)
+    region = render.Settings(**{**settings.__dict__, "region": (0, rows, 64, rows)})
+    part = render.render(space, scene, region)
+    if adaptive:  # pixels stopped in every block: each pass traces subsets, learning by block all the same
+        assert 0 < np.mean(whole.samples_taken < 8) < 1
+    for name in ("color", "albedo", "depth"):
+        np.testing.assert_array_equal(part.passes[name], whole.passes[name][rows : 2 * rows], err_msg=name)

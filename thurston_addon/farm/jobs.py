@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import math
 import pickle
 from dataclasses import dataclass
 from pathlib import Path
@@ -103,4 +104,10 @@ def split(settings: render.Settings, tiles: int = 1, sample_passes: int = 1) -> 
             "use sample passes or one tile"
         )
     rows = [settings.height * t // tiles for t in range(tiles + 1)]
-    return [Part(t, region=(0, rows[t], settings.width, rows[t + 1] - rows[t])) for t in range(tiles)]
+    if settings.light_budget > 0:
+        # sampled light learns visibility over blocks of pixel ids (render.ray_block): bands of whole
+        # blocks are then traced as in the whole image (fewer bands where the image is small)
+        block = render.ray_block()
+        step = block // math.gcd(settings.width, block)
+        rows = sorted({0, settings.height} | {min(settings.height, round(r / step) * step) for r in rows})
+    return [Part(t, region=(0, a, settings.width, b - a)) for t, (a, b) in enumerate(zip(rows, rows[1:]))]

@@ -33,7 +33,7 @@ from .settings import (
 )
 from .statistics import Result, noise_of, pixel_errors, pixel_noise
 from .stereo import eye_camera, layout_of, side_by_side
-from .tracer import core_scene, make_tracer, trace
+from .tracer import core_scene, make_tracer, ray_block, trace
 
 __all__ = [
     "BYTES_PER_PIXEL",
@@ -79,6 +79,7 @@ __all__ = [
     "own_hits",
     "pixel_errors",
     "pixel_noise",
+    "ray_block",
     "render",
     "render_eyes",
     "layout_of",

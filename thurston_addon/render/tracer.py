@@ -30,6 +30,14 @@ def core_scene(data: dict):
     return core.Scene(data["geometry"], **{part: kinds[part](**arrays) for part, arrays in given.items()})
 
 
+def ray_block() -> int:
+    """The block of ray ids whose rays learn shadow-walk visibility together in the core: a render
+    region of whole blocks traces as the whole image does."""
+    import thurston_core
+
+    return thurston_core.RAY_BLOCK
+
+
 def make_tracer(space: Space, scene: Scene, threads: int = 0, light_reach: float | None = None):
     """The C++ tracer for a scene, summing light over light_reach (None: default_light_reach); what
     the core rejects (ValueError) is raised as RenderError."""

@@ -8,12 +8,14 @@
 #include "embree.hpp"
 #include "registry.hpp"
 #include "thread_pool.hpp"
+#include "tracer.hpp"
 
 namespace nb = nanobind;
 
 NB_MODULE(thurston_core, m) {
   m.doc() = "C++ core of Thurston: the ray tracer through fundamental domains (Embree).";
   m.attr("EMBREE_VERSION") = RTC_VERSION_STRING;
+  m.attr("RAY_BLOCK") = thurston::kRayBlock;  // the ray ids that learn visibility together
   nb::exception<thurston::ThreadStartError>(m, "ThreadStartError", PyExc_RuntimeError);
 
   // The kernel registry's geometries, by name (a contract test checks them against Python's).
