@@ -422,6 +422,8 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
         radiance.append(np.asarray(light.color, float) * light.power)
     return dict(
         geometry=g.kernel,
+        # what configures the kernel (graph's bumps; none for the others)
+        geometry_parameters=list(getattr(g, "kernel_parameters", [])),
         face_covectors=np.ascontiguousarray(space.domain.covectors()),
         face_maps=np.ascontiguousarray(np.array([f.pairing for f in space.domain.faces])),
         vertices=np.ascontiguousarray(V, np.float64),
