@@ -6,7 +6,7 @@
 // |n| <= m_i (Python's image counts), so f, grad f and Hess f cost 3 (2 m + 1) exponentials a bump.
 // Geodesics x'' = -grad f (x'^T Hess f x') / (1 + |grad f|^2) have no closed form: segments are
 // Dormand-Prince 5(4) steps with their local error held below the accuracy asked for, evaluated
-// anywhere by one more step from the knot below. Light paths by shooting (connections).
+// anywhere by one more step from the knot below. No light paths (connections).
 #pragma once
 
 #include <algorithm>
@@ -281,62 +281,15 @@ struct GraphFlow : AffineChart {
     return g;
   }
 
-  // Light paths by shooting: Newton on exp_h(w) = l from the chart displacement (w a chart vector
-  // at h, the Jacobian by central differences), one geodesic per copy of the light, the one the
-  // straight guess leads to (others, beyond caustics, are not searched); returns 1 where Newton
-  // did not converge (a miss, counted).
-  int connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>& paths) const {
-    Vec3 w = sub3(l, h);
-    if (!(norm3(w) <= reach)) return 0;  // g >= I: no path is shorter than the chart distance
-    if (!(norm3(w) > 0.0)) return 0;
-    constexpr double kTolerance = 1e-10, kStep = 1e-6;
-    std::array<Vec3, 3> J;
-    for (int iteration = 0; iteration < 20; ++iteration) {
-      const Vec3 r = sub3(exp(h, w), l);
-      if (norm3(r) <= kTolerance * (1.0 + norm3(l))) {
-        const double length = std::sqrt(dot(h, w, w));
-        if (!(length <= reach)) return 0;
-        jacobian(h, w, kStep, J);
-        const double det = std::abs(det3(J));
-        // in orthonormal frames: sqrt(det g) at l over sqrt(det g) at h (det(I + a a^T) = 1 +
-        // |a|^2)
-        const Vec3 gh = gradient(h), gl = gradient(l);
-        const double density =
-            det * std::sqrt((1.0 + dot3(gl, gl)) / (1.0 + dot3(gh, gh))) * length * length;
-        paths.push_back({vector4(scaled3(1.0 / length, w)), length, floored_falloff(density)});
-        return 0;
-      }
-      jacobian(h, w, kStep, J);
-      const std::array<Vec3, 3> rows{
-          {{J[0][0], J[1][0], J[2][0]}, {J[0][1], J[1][1], J[2][1]}, {J[0][2], J[1][2], J[2][2]}}};
-      Vec3 dw;
-      if (!solve3(rows, r, dw)) return 1;
-      w = sub3(w, dw);
-      if (!(norm3(w) <= 3.0 * reach + 3.0)) return 1;
-    }
-    return 1;
+  // No light paths: shooting for them costs some 30 ms a copy of the light per shaded point, so
+  // graph spaces render in the pseudo-colour modes only (the library refuses point lights there);
+  // every copy within reach counts as missed.
+  int connections(const Vec3& h, const Vec3& l, double reach, std::vector<LightPath>&) const {
+    return norm3(sub3(l, h)) <= reach ? 1
+                                      : 0;  // g >= I: no path is shorter than the chart distance
   }
 
  private:
-  // exp_h(w): the geodesic from h along w for its metric length.
-  Vec3 exp(const Vec3& h, const Vec3& w) const {
-    const double length = std::sqrt(dot(h, w, w));
-    if (!(length > 0.0)) return h;
-    Vec3 x, u;
-    double error;
-    flow(h, scaled3(1.0 / length, w), length, 1e-13, x, u, error);
-    return x;
-  }
-  // J[j] = d exp_h / d w_j (columns).
-  void jacobian(const Vec3& h, const Vec3& w, double step, std::array<Vec3, 3>& J) const {
-    for (int j = 0; j < 3; ++j) {
-      Vec3 a = w, b = w;
-      a[j] += step;
-      b[j] -= step;
-      J[j] = scaled3(0.5 / step, sub3(exp(h, a), exp(h, b)));
-    }
-  }
-  static double det3(const std::array<Vec3, 3>& J) { return dot3(J[0], cross3(J[1], J[2])); }
   // The 1-d sums S_i, S_i', S_i'' of bump b at x (x reduced into the cell about the centre first).
   void axis_sums(const Bump& b, const Vec3& x, Vec3& S, Vec3& dS, Vec3& ddS) const {
     for (int a = 0; a < 3; ++a) {

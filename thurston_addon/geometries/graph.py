@@ -53,6 +53,9 @@ class Graph(AffineGeometry):
 
     name = "graph"
     parameter_table = "graph"  # the space file's table that configures it (spaces.space.read_geometry)
+    # The geodesics to a light have no closed form and shooting for them costs some 30 ms a copy
+    # per shaded point: graph spaces render in the pseudo-colour shading modes only, without lights.
+    point_lights = False
 
     def __init__(self, bumps=(), slope=(0.0, 0.0, 0.0), period=None):
         self.bumps = tuple(bumps)
