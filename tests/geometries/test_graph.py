@@ -169,3 +169,31 @@ def test_the_registry_holds_the_flat_graph_and_spaces_their_own(loaded):
     # the kernel refuses parameters that are not a graph's
     with pytest.raises(ValueError, match="parameters are not graph's"):
         thurston_core.geodesic_flow("graph", np.zeros((1, 3)), np.eye(3)[:1].copy(), np.ones(1), parameters=[1.0, 2.0])
+
+
+def test_a_tall_narrow_bump_and_rays_grazing_it():
+    """Height 3, width 0.1 (|grad f| up to 18): rays at impact parameters 0 to 3 widths from its
+    centre, through it and grazing it, against DOP853 of the reference equation."""
+    g = Graph([Bump((0.0, 0.0, 0.0), 3.0, (0.1, 0.1, 0.1))])
+    start = np.array([-0.6, 0.0, 0.0])
+    for b in (0.0, 0.05, 0.1, 0.3):
+        x = start + [0.0, b, 0.0]
+        u = unit(g, x, np.array([1.0, 0.0, 0.02]))
+        x_ref, v_ref = dop853(reference_christoffel(g), x, u, 1.2)
+        xc, vc = thurston_core.geodesic_flow(
+            "graph", x[None], u[None], np.array([1.2]), parameters=list(g.kernel_parameters)
+        )
+        np.testing.assert_allclose(xc[0], x_ref, rtol=0, atol=1e-8)
+        np.testing.assert_allclose(vc[0], v_ref, rtol=0, atol=1e-8)
+
+
+def test_a_thousand_periods_keep_the_speed():
+    """graph_two's flow over 2000 (about 1000 periods of the lattice): finite, and of unit speed in
+    the metric to 1e-8 (the geodesic flow conserves it; the integrator does not impose it)."""
+    g = spaces.load("graph_two").geometry
+    x = np.array([[0.1, 0.2, 0.3], [-0.5, 0.4, 0.0]])
+    u = np.array([unit(g, p, d) for p, d in zip(x, [[1.0, 0.3, 0.1], [0.2, 1.0, -0.4]])])
+    xt, vt = thurston_core.geodesic_flow("graph", x, u, np.full(2, 2000.0), 1e-10, parameters=list(g.kernel_parameters))
+    assert np.all(np.isfinite(xt)) and np.all(np.linalg.norm(xt - x, axis=1) > 100)
+    speed = np.einsum("ni,nij,nj->n", vt, g.metric(xt), vt)
+    np.testing.assert_allclose(speed, 1.0, rtol=0, atol=1e-8)
