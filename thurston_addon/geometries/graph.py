@@ -6,7 +6,8 @@ f : R^3 -> R in R^4, pulled back to R^3:
 a sum of Gaussian bumps (centre c, height h, width w per axis) and an optional constant slope s.
 With `period` (L_x, L_y, L_z) the bumps repeat on the lattice L_i Z (f is then periodic and the space
 a flat 3-torus of that lattice with a non-homogeneous metric; the slope must be 0 there); without,
-the space is R^3 itself.
+f lives on R^3 alone, which the geometry traces (the tests' round bump) but no space file holds yet:
+the spaces layer needs a group and a compact domain.
 
 Closed forms: with y = x - c and a_i = y_i / w_i^2, one bump G = h exp(-sum y_i a_i / 2) has
 grad G = -G a and Hess G = G (a a^T - diag(1 / w^2)); g^-1 = I - grad f grad f^T / (1 + |grad f|^2)
