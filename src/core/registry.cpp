@@ -5,6 +5,7 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "graph.hpp"
 #include "h2xr.hpp"
 #include "integrator.hpp"
 #include "kernel_tracer.hpp"
@@ -72,6 +73,32 @@ bool normalise_affine(int, Vec4& X) {
   return finite4(X);
 }
 
+// Whether a flow is configured by parameters (GraphFlow's bumps: Flow::from_parameters).
+template <class Flow, class = void>
+struct HasParameters : std::false_type {};
+template <class Flow>
+struct HasParameters<Flow, std::void_t<decltype(&Flow::from_parameters)>> : std::true_type {};
+
+// The flow of the geometry's parameters; false where they are not its (flows without parameters
+// take none).
+template <class Flow>
+bool configured(const std::vector<double>& parameters, Flow& flow) {
+  if constexpr (HasParameters<Flow>::value) {
+    return Flow::from_parameters(parameters, flow);
+  } else {
+    flow = Flow();
+    return parameters.empty();
+  }
+}
+
+template <class Flow>
+bool accepts_of(const std::vector<double>& parameters) {
+  Flow flow;
+  return configured(parameters, flow);
+}
+
+bool accepts_none(const std::vector<double>& parameters) { return parameters.empty(); }
+
 template <class Flow>
 bool start_marching(int, Vec4& X, Vec4& V) {
   return MarchingKernel<Flow>().start(X, V);
@@ -87,8 +114,10 @@ struct Geometry {
   std::unique_ptr<Tracer> (*make)(int curvature, SceneData scene, unsigned threads);
   bool (*normalise)(int curvature, Vec4& X);
   bool (*start)(int curvature, Vec4& X, Vec4& V);
-  bool (*flow)(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt);
-  std::unique_ptr<Connections> (*connections)(double reach);
+  bool (*flow)(const std::vector<double>& parameters, const Vec3& x, const Vec3& v, double t,
+               double accuracy, Vec3& xt, Vec3& vt);
+  std::unique_ptr<Connections> (*connections)(double reach, const std::vector<double>& parameters);
+  bool (*accepts)(const std::vector<double>& parameters);
   const char* chart_region = nullptr;  // where the chart is not all of R^3: the region, in words
   bool (*in_chart)(int curvature, const Vec3& x) = nullptr;
 };
@@ -100,14 +129,20 @@ std::unique_ptr<Tracer> make_projective(int k, SceneData scene, unsigned threads
 
 template <class Flow>
 std::unique_ptr<Tracer> make_marching(int, SceneData scene, unsigned threads) {
-  return std::make_unique<KernelTracer<MarchingKernel<Flow>>>(MarchingKernel<Flow>(),
+  Flow flow;
+  if (!configured(scene.geometry_parameters, flow))
+    throw std::invalid_argument("geometry_parameters are not the geometry's");
+  return std::make_unique<KernelTracer<MarchingKernel<Flow>>>(MarchingKernel<Flow>(flow),
                                                               std::move(scene), threads, true);
 }
 
 template <class Flow>
-bool flow_of(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt) {
+bool flow_of(const std::vector<double>& parameters, const Vec3& x, const Vec3& v, double t,
+             double accuracy, Vec3& xt, Vec3& vt) {
+  Flow flow;
+  if (!configured(parameters, flow)) return false;
   double error;
-  Flow().flow(x, v, t, accuracy, xt, vt, error);
+  flow.flow(x, v, t, accuracy, xt, vt, error);
   return true;
 }
 
@@ -115,7 +150,9 @@ bool flow_of(const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, 
 template <class Flow>
 class MarchingConnections final : public Connections {
  public:
-  explicit MarchingConnections(double reach) : reach_(reach) { kernel_.prepare_light_paths(reach); }
+  MarchingConnections(double reach, const Flow& flow) : kernel_(flow), reach_(reach) {
+    kernel_.prepare_light_paths(reach);
+  }
   int connect(const Vec3& h, const Vec3& l, std::vector<LightPath>& paths) const override {
     return kernel_.light_paths(point4(h), {point4(l)}, reach_, paths);
   }
@@ -126,25 +163,31 @@ class MarchingConnections final : public Connections {
 };
 
 template <class Flow>
-std::unique_ptr<Connections> connections_of(double reach) {
-  return std::make_unique<MarchingConnections<Flow>>(reach);
+std::unique_ptr<Connections> connections_of(double reach, const std::vector<double>& parameters) {
+  Flow flow;
+  if (!configured(parameters, flow)) return nullptr;
+  return std::make_unique<MarchingConnections<Flow>>(reach, flow);
 }
 
 const Geometry kGeometries[] = {
-    {"E3", 0, make_projective, normalise_projective, start_projective, nullptr, nullptr},
-    {"S3", 1, make_projective, normalise_projective, start_projective, nullptr, nullptr},
+    {"E3", 0, make_projective, normalise_projective, start_projective, nullptr, nullptr,
+     accepts_none},
+    {"S3", 1, make_projective, normalise_projective, start_projective, nullptr, nullptr,
+     accepts_none},
     {"H3", -1, make_projective, normalise_projective, start_projective, nullptr, nullptr,
-     "the unit ball (the Klein model)", in_projective_chart},
+     accepts_none, "the unit ball (the Klein model)", in_projective_chart},
     {"Nil", 0, make_marching<NilFlow>, normalise_affine, start_marching<NilFlow>, flow_of<NilFlow>,
-     connections_of<NilFlow>},
+     connections_of<NilFlow>, accepts_of<NilFlow>},
     {"Sol", 0, make_marching<SolFlow>, normalise_affine, start_marching<SolFlow>, flow_of<SolFlow>,
-     connections_of<SolFlow>},
+     connections_of<SolFlow>, accepts_of<SolFlow>},
     {"H2xR", 0, make_marching<H2xRFlow>, H2xRFlow::normalise_lift, start_marching<H2xRFlow>,
-     flow_of<H2xRFlow>, connections_of<H2xRFlow>},
+     flow_of<H2xRFlow>, connections_of<H2xRFlow>, accepts_of<H2xRFlow>},
     {"S2xR", 0, make_marching<S2xRFlow>, normalise_affine, start_marching<S2xRFlow>,
-     flow_of<S2xRFlow>, connections_of<S2xRFlow>},
+     flow_of<S2xRFlow>, connections_of<S2xRFlow>, accepts_of<S2xRFlow>},
     {"SL2", 0, make_marching<SL2Flow>, SL2Flow::normalise_lift, start_marching<SL2Flow>,
-     flow_of<SL2Flow>, connections_of<SL2Flow>},
+     flow_of<SL2Flow>, connections_of<SL2Flow>, accepts_of<SL2Flow>},
+    {"graph", 0, make_marching<GraphFlow>, normalise_affine, start_marching<GraphFlow>,
+     flow_of<GraphFlow>, connections_of<GraphFlow>, accepts_of<GraphFlow>},
 };
 
 const Geometry& find(const std::string& name) {
@@ -189,15 +232,22 @@ std::unique_ptr<Tracer> make_tracer(const std::string& geometry, SceneData scene
   return g.make(g.curvature, std::move(scene), threads);
 }
 
-bool geodesic_flow(const std::string& geometry, const Vec3& x, const Vec3& v, double t,
-                   double accuracy, Vec3& xt, Vec3& vt) {
-  const Geometry& g = find(geometry);
-  return g.flow && g.flow(x, v, t, accuracy, xt, vt);
+bool has_flow(const std::string& geometry) { return find(geometry).flow != nullptr; }
+
+bool accepts_parameters(const std::string& geometry, const std::vector<double>& parameters) {
+  return find(geometry).accepts(parameters);
 }
 
-std::unique_ptr<Connections> make_connections(const std::string& geometry, double reach) {
+bool geodesic_flow(const std::string& geometry, const std::vector<double>& parameters,
+                   const Vec3& x, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt) {
   const Geometry& g = find(geometry);
-  return g.connections ? g.connections(reach) : nullptr;
+  return g.flow && g.flow(parameters, x, v, t, accuracy, xt, vt);
+}
+
+std::unique_ptr<Connections> make_connections(const std::string& geometry, double reach,
+                                              const std::vector<double>& parameters) {
+  const Geometry& g = find(geometry);
+  return g.connections ? g.connections(reach, parameters) : nullptr;
 }
 
 }  // namespace thurston

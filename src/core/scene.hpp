@@ -75,6 +75,7 @@ struct Emitters {
 };
 
 struct SceneData {
+  std::vector<double> geometry_parameters;  // what configures the geometry (graph's bumps)
   DomainFaces domain;
   Meshes meshes;
   std::vector<Instance> instances;

@@ -13,8 +13,9 @@ bpy = pytest.importorskip("bpy")
 pytestmark = pytest.mark.usefixtures("registered_addon")
 
 from support import blender_helpers as bh  # noqa: E402
+from support.presets import presets  # noqa: E402
 
-from thurston_addon import checks, spaces  # noqa: E402
+from thurston_addon import checks  # noqa: E402
 from thurston_addon.blender import domain_guide, export  # noqa: E402
 
 
@@ -64,8 +65,8 @@ def assert_lit(hit, grey, least=3):
     assert np.mean((values > 0.05) & (values < 0.95)) > 0.5, np.quantile(values, [0.1, 0.5, 0.9])
 
 
-# --- A. every preset, shells included ---------------------------------------------------------------------
-@pytest.mark.parametrize("space", spaces.preset_ids())
+# --- A. every preset, shells included (graph's are unlit: support.presets.SWEPT_APART) -----------------------
+@pytest.mark.parametrize("space", presets())
 def test_fit_scale_shows_the_startup_scene_lit_in_every_preset(tmp_path, space):
     """Fit Scale alone (the scale, in a shell the scene moved to the domain's centre, the exposure
     measured) turns the startup scene into a lit image in each preset: hits, most neither black nor

@@ -597,7 +597,7 @@ def scene_arrays():
 @pytest.mark.parametrize(
     "change, message",
     [
-        (dict(geometry="Flat"), r"unknown geometry 'Flat' \(known: E3, S3, H3, Nil, Sol, H2xR, S2xR, SL2\)"),
+        (dict(geometry="Flat"), r"unknown geometry 'Flat' \(known: E3, S3, H3, Nil, Sol, H2xR, S2xR, SL2, graph\)"),
         (
             dict(face_covectors=cube_faces(HALF).astype(np.float32)),
             r"face_covectors must have dtype float64, got float32",

@@ -127,7 +127,7 @@ def test_metric_derivative_helper_matches_finite_differences(name, rng):
 
 
 def test_get_unknown_geometry():
-    with pytest.raises(ValueError, match="'SL3'; known: E3, S3, H3, Nil, Sol, H2xR, S2xR, SL2"):
+    with pytest.raises(ValueError, match="'SL3'; known: E3, S3, H3, Nil, Sol, H2xR, S2xR, SL2, graph"):
         geometries.get("SL3")
 
 

@@ -2,12 +2,14 @@
 
 `get(name)` returns the geometry for a space file's `geometry` field. Every geometry fulfils the
 contract of base.py (ProjectiveGeometry for E3, S3, H3; AffineGeometry for Nil, Sol and S2xR; H2xR
-and SL2 their own); `register` adds one (tests register test-only geometries, `unregister` removes
+and SL2 their own; Graph, the graph of a height function, is configured per space by its space
+file's table, `parameter_table`: the registry holds its flat instance); `register` adds one (tests register test-only geometries, `unregister` removes
 them).
 """
 
 from .base import Geometry
 from .euclidean import Euclidean
+from .graph import Graph
 from .h2xr import H2xR
 from .hyperbolic import Hyperbolic
 from .nil import Nil
@@ -16,7 +18,7 @@ from .sl2 import SL2
 from .sol import Sol
 from .spherical import Spherical
 
-GEOMETRIES = {g.name: g for g in (Euclidean(), Spherical(), Hyperbolic(), Nil(), Sol(), H2xR(), S2xR(), SL2())}
+GEOMETRIES = {g.name: g for g in (Euclidean(), Spherical(), Hyperbolic(), Nil(), Sol(), H2xR(), S2xR(), SL2(), Graph())}
 
 
 def get(name: str) -> Geometry:

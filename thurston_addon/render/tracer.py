@@ -24,10 +24,14 @@ def core_scene(data: dict):
         emitters=core.Emitters,
     )
     given = {part: {name: value for name, value in data.items() if hasattr(kind, name)} for part, kind in kinds.items()}
-    unknown = set(data) - {"geometry"} - set().union(*given.values())
+    unknown = set(data) - {"geometry", "geometry_parameters"} - set().union(*given.values())
     if unknown:
         raise TypeError(f"no part of the core's scene takes {sorted(unknown)}")
-    return core.Scene(data["geometry"], **{part: kinds[part](**arrays) for part, arrays in given.items()})
+    return core.Scene(
+        data["geometry"],
+        **{part: kinds[part](**arrays) for part, arrays in given.items()},
+        geometry_parameters=data.get("geometry_parameters", []),
+    )
 
 
 def ray_block() -> int:

@@ -71,9 +71,11 @@ def default_scene(space) -> Scene:
             (0.3, 0.6, 0.95),
         )
     )
+    g = space.geometry
+    if not getattr(g, "point_lights", True):  # (graph: the pseudo-colour modes only)
+        return Scene(objects=objects, lights=[])
     # behind and above the camera; bright enough to light the walls one domain away
     position = np.asarray(cam.position, float) + 0.3 * inr * (up - 0.5 * forward)
-    g = space.geometry
     X = g.to_model(position)
     falloff = float(g.falloff_along(X, g.normalize_tangent(X, g.tangent_to_model(position, forward)), space.inradius))
     if space.group_order is not None:

@@ -31,6 +31,7 @@ SPACE_KEYS = (
     "covolume",
     "camera",
     "generator",
+    "graph",  # the graph geometry's height function (geometries/graph.py)
 )
 CAMERA_KEYS = ("position", "forward", "up", "fov")
 GENERATOR_KEYS = ("name", "matrix", "face", "antipodal")

@@ -52,6 +52,12 @@ class Space:
         for name, M in _generator_tables(data, where, self.geometry):
             self.generators.append(M)
             self.generator_names.append(name)
+        check_group = getattr(self.geometry, "check_group", None)
+        if check_group is not None:  # a geometry made from the file's parameters (graph) checks the group
+            try:
+                check_group(self.generators, f"{where}: [{self.geometry.parameter_table}]")
+            except ValueError as exc:
+                raise SpaceError(str(exc)) from None
         if all(map(is_identity, self.generators)):
             raise SpaceError(
                 f"{where}: every generator is the identity: the group is trivial, and the space would be "
@@ -338,7 +344,10 @@ def read_geometry(data, where):
     if not isinstance(data["geometry"], str):
         raise SpaceError(f"{where}: geometry must be a string ({known}), got {data['geometry']!r}")
     try:
-        return geometries.get(data["geometry"])
+        g = geometries.get(data["geometry"])
+        # a geometry with parameters (graph) is made from the space file's table of them
+        table = getattr(g, "parameter_table", None)
+        return g.with_parameters(data.get(table, {}), f"{where}: [{table}]") if table else g
     except ValueError as exc:
         raise SpaceError(f"{where}: {exc}") from None
 

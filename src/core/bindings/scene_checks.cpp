@@ -338,7 +338,12 @@ SceneData scene_from_record(const SceneRecord& record) {
     for (const std::string& name : geometry_names()) known += (known.empty() ? "" : ", ") + name;
     throw nb::value_error(("unknown geometry '" + geometry + "' (known: " + known + ")").c_str());
   }
+  if (!accepts_parameters(geometry, record.geometry_parameters))
+    throw nb::value_error(("geometry_parameters are not " + geometry +
+                           "'s (graph: its kernel_parameters; the others: none)")
+                              .c_str());
   SceneData scene;
+  scene.geometry_parameters = record.geometry_parameters;
 
   check<double>(domain.face_covectors, "face_covectors", {-1, 4}, "(F,4)");
   const std::int64_t F = domain.face_covectors.shape(0);

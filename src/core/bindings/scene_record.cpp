@@ -20,7 +20,9 @@ chart point is X[:3] / X[3] and geodesics are exact chart lines; the marching ge
 "Sol", "H2xR", "S2xR", "SL2"): points are (x, 1) and tangent vectors (v, 0) in the chart, and
 geodesics are followed in chords within the trace's tolerance (thurston_core.KERNELS names
 them all). domain, meshes, surfaces, lights: the parts of those names; instances (without them:
-one mesh of all triangles, placed once by the identity) and emitters (without them: none).)";
+one mesh of all triangles, placed once by the identity) and emitters (without them: none).
+geometry_parameters: what configures the geometry ("graph": its bumps, geometries.graph.Graph.
+kernel_parameters; the other geometries take none).)";
 
 const char* const kDomainDoc = R"(The fundamental domain and its face pairings.
 
@@ -167,12 +169,22 @@ void bind_scene_record(nb::module_& m) {
       .def_ro("emitter_copy_group", &EmitterArrays::emitter_copy_group);
 
   nb::class_<SceneRecord>(m, "Scene", kSceneDoc)
-      .def(nb::init<std::string, DomainArrays, MeshArrays, SurfaceArrays, LightArrays,
-                    InstanceArrays, EmitterArrays>(),
-           nb::arg("geometry"), nb::arg("domain"), nb::arg("meshes"), nb::arg("surfaces"),
-           nb::arg("lights"), nb::arg("instances").sig("Instances()") = InstanceArrays{},
-           nb::arg("emitters").sig("Emitters()") = EmitterArrays{})
+      .def(
+          "__init__",
+          [](SceneRecord* self, std::string geometry, DomainArrays domain, MeshArrays meshes,
+             SurfaceArrays surfaces, LightArrays lights, InstanceArrays instances,
+             EmitterArrays emitters, std::vector<double> geometry_parameters) {
+            new (self) SceneRecord{std::move(geometry),  std::move(geometry_parameters),
+                                   std::move(domain),    std::move(meshes),
+                                   std::move(surfaces),  std::move(lights),
+                                   std::move(instances), std::move(emitters)};
+          },
+          nb::arg("geometry"), nb::arg("domain"), nb::arg("meshes"), nb::arg("surfaces"),
+          nb::arg("lights"), nb::arg("instances").sig("Instances()") = InstanceArrays{},
+          nb::arg("emitters").sig("Emitters()") = EmitterArrays{},
+          nb::arg("geometry_parameters") = std::vector<double>{})
       .def_ro("geometry", &SceneRecord::geometry)
+      .def_ro("geometry_parameters", &SceneRecord::geometry_parameters)
       .def_ro("domain", &SceneRecord::domain)
       .def_ro("meshes", &SceneRecord::meshes)
       .def_ro("surfaces", &SceneRecord::surfaces)

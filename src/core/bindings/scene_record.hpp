@@ -47,6 +47,7 @@ struct EmitterArrays {
 
 struct SceneRecord {
   std::string geometry;
+  std::vector<double> geometry_parameters;  // what configures the geometry (graph's bumps)
   DomainArrays domain;
   MeshArrays meshes;
   SurfaceArrays surfaces;
