@@ -43,7 +43,9 @@ def main():
     rows = ["| preset | geometry | default view |", "|---|---|---|"]
     for sid in spaces.preset_ids():
         space = spaces.load(sid)
-        result = render.render(space, default_scene(space), render.Settings(width=w, height=h, quality=args.quality))
+        shading = "lambert" if space.geometry.point_lights else "normal"  # (graph: pseudo-colour only)
+        settings = render.Settings(width=w, height=h, quality=args.quality, shading=shading)
+        result = render.render(space, default_scene(space), settings)
         out = DOCS / f"{sid}.png"
         images.write(out, result.passes, overwrite=True)
         rows.append(f"| `{sid}` | {space.geometry.name} | ![{sid}](docs/{out.name}) |")

@@ -190,10 +190,33 @@ class Geometry(abc.ABC):
         """A lower bound of the distances from model points X (..., 4) to a domain."""
 
     # --- light ----------------------------------------------------------------------------------
+    # Whether point lights (and the lambert shading that sums them) are rendered: the graph
+    # geometry has no practical light paths and renders the pseudo-colour shadings only.
+    point_lights: bool = True
+
     @abc.abstractmethod
     def falloff_along(self, P, V, r):
         """The falloff of a point light at P seen at distance r along the geodesic (P, V):
         1 / (r^2 |det d exp_P(r V)|) in orthonormal frames."""
+
+    # --- parameters (a geometry made from its space file's table: graph) -----------------------
+    # The space file's table of the geometry's parameters; None: it takes none.
+    parameter_table: str | None = None
+
+    def with_parameters(self, table, where):
+        """The geometry that the space file's parameter table makes (ValueError naming `where` and
+        the key on bad input); the registry's own instance where it takes none."""
+        return self
+
+    def check_group(self, generators, where):
+        """ValueError naming `where` where the parameters are not invariant under a generator (a
+        geometry without parameters: every isometry keeps it)."""
+        return None
+
+    @property
+    def kernel_parameters(self):
+        """The parameters as the core's kernel reads them (a flat list of floats; empty: none)."""
+        return ()
 
     # --- faces ----------------------------------------------------------------------------------
     @property

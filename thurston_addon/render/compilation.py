@@ -398,7 +398,7 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
     colors = np.array([o.color for o in scene.objects], np.float32).reshape(-1, 3)
     emission = np.array([o.emission for o in scene.objects], np.float32).reshape(-1, 3)
     lifts, axes, of_lift, radiance = [], [], [], []
-    if scene.lights and not getattr(g, "point_lights", True):
+    if scene.lights and not g.point_lights:
         raise SceneError(
             f"{g.name} spaces have no point lights (their light paths are not traced): remove the scene's "
             f"{len(scene.lights)} light(s) and render with a pseudo-colour shading (normal, depth, position, "
@@ -429,7 +429,7 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
     return dict(
         geometry=g.kernel,
         # what configures the kernel (graph's bumps; none for the others)
-        geometry_parameters=list(getattr(g, "kernel_parameters", [])),
+        geometry_parameters=list(g.kernel_parameters),
         face_covectors=np.ascontiguousarray(space.domain.covectors()),
         face_maps=np.ascontiguousarray(np.array([f.pairing for f in space.domain.faces])),
         vertices=np.ascontiguousarray(V, np.float64),

@@ -140,7 +140,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
             f"camera lens shift {[float(s) for s in camera.shift]} must be within ±{MAX_LENS_SHIFT:g} image widths "
             "(as Blender's); a larger one aims every ray along the image plane"
         )
-    if settings.shading == "lambert" and not getattr(space.geometry, "point_lights", True):
+    if settings.shading == "lambert" and not space.geometry.point_lights:
         raise RenderError(
             f"{space.geometry.name} spaces render in the pseudo-colour shadings only (normal, depth, position, "
             "object, crossings): their light paths are not traced; choose one of them"

@@ -72,7 +72,7 @@ def default_scene(space) -> Scene:
         )
     )
     g = space.geometry
-    if not getattr(g, "point_lights", True):  # (graph: the pseudo-colour modes only)
+    if not g.point_lights:  # (graph: the pseudo-colour modes only)
         return Scene(objects=objects, lights=[])
     # behind and above the camera; bright enough to light the walls one domain away
     position = np.asarray(cam.position, float) + 0.3 * inr * (up - 0.5 * forward)

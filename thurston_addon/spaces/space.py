@@ -52,12 +52,10 @@ class Space:
         for name, M in _generator_tables(data, where, self.geometry):
             self.generators.append(M)
             self.generator_names.append(name)
-        check_group = getattr(self.geometry, "check_group", None)
-        if check_group is not None:  # a geometry made from the file's parameters (graph) checks the group
-            try:
-                check_group(self.generators, f"{where}: [{self.geometry.parameter_table}]")
-            except ValueError as exc:
-                raise SpaceError(str(exc)) from None
+        try:  # a geometry made from the file's parameters (graph) checks them against the group
+            self.geometry.check_group(self.generators, f"{where}: [{self.geometry.parameter_table}]")
+        except ValueError as exc:
+            raise SpaceError(str(exc)) from None
         if all(map(is_identity, self.generators)):
             raise SpaceError(
                 f"{where}: every generator is the identity: the group is trivial, and the space would be "
@@ -346,7 +344,7 @@ def read_geometry(data, where):
     try:
         g = geometries.get(data["geometry"])
         # a geometry with parameters (graph) is made from the space file's table of them
-        table = getattr(g, "parameter_table", None)
+        table = g.parameter_table
         return g.with_parameters(data.get(table, {}), f"{where}: [{table}]") if table else g
     except ValueError as exc:
         raise SpaceError(f"{where}: {exc}") from None
