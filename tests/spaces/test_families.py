@@ -8,6 +8,7 @@ mirrored copies of the scene where the cover has them, with their normals)."""
 import math
 
 import numpy as np
+import OpenImageIO as oiio
 import pytest
 import trimesh
 from support.textured_quad import texel_centres, textured_quad
@@ -162,6 +163,15 @@ def test_genus_g_bundles(family, g):
         assert np.allclose(space.generators, reference.generators, atol=1e-12)
 
 
+@pytest.mark.slow
+def test_a_genus_three_view_hits_the_scene(tmp_path):
+    out = tmp_path / "view.exr"
+    argv = ["render", "--space", "unit_tangent(3)", "--size", "24x16", "--samples", "1", "--light-reach", "3"]
+    assert cli.main([*argv, "--out", str(out)]) == 0
+    pixels = oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[..., :3]
+    assert np.isfinite(pixels).all() and (pixels.sum(axis=-1) > 0).mean() > 0.5  # lit surfaces, most of the view
+
+
 def test_genus_below_two_is_refused():
     with pytest.raises(spaces.SpaceError, match="genus g >= 2"):
         spaces.load("surface_x_circle(1)")
@@ -188,7 +198,9 @@ def test_a_wrong_covolume_in_a_dirichlet_file_is_refused(cache, tmp_path):
 @pytest.mark.parametrize(
     "name, message",
     [
-        ("lens(7,1)", "L\\(7, ±1\\) is not supported"),
+        ("lens(7,1)", "L\\(7, ±1\\) is not supported: its group acts on C² by scalars"),
+        ("lens(7,6)", "a whole orbit at distance π/2"),
+        ("lens(2,1)", "L\\(2, ±1\\) = RP³ is not supported"),
         ("lens(6,3)", "q prime to p"),
         ("prism(1)", "n >= 2"),
         ("flat(klein)", "the closed flat manifolds are"),
