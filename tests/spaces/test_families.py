@@ -8,6 +8,7 @@ mirrored copies of the scene where the cover has them, with their normals)."""
 import math
 
 import numpy as np
+import OpenImageIO as oiio
 import pytest
 import trimesh
 from support.textured_quad import texel_centres, textured_quad
@@ -130,15 +131,50 @@ def test_sol_torus_bundles(a, b, c, d):
     assert factors.count(0) == 1 and math.prod(f for f in factors if f) == abs(2 - (a + d))
 
 
-@pytest.mark.parametrize("name, preset", [("surface_x_circle(2)", "genus2xs1"), ("unit_tangent(2)", "sl2")])
-def test_genus_two_bundles(name, preset):
-    space, reference = spaces.load(name), spaces.load(preset)
-    # (genus-2 surface) x S¹: 4π (the octagon's area) times 2 r_in, cosh r_in = cot(π/8); T¹Σ₂: 4π · 2π
-    r = math.acosh(1 / math.tan(math.pi / 8))
-    assert space.volume == pytest.approx(4 * math.pi * (2 * r if preset == "genus2xs1" else 2 * math.pi), rel=1e-6)
-    assert np.allclose(space.generators, reference.generators, atol=1e-12)  # the presets, written by hand
-    with pytest.raises(spaces.SpaceError, match="only genus 2"):
-        spaces.load(name.replace("2", "3"))
+def surface_relator(g):
+    """The regular 4g-gon's boundary word in its side translations A_0..A_2g-1 (opposite sides
+    paired): A0 A1^-1 A2 ... A_2g-1^-1 A0^-1 A1 ... A_2g-1 = 1, as (generator, exponent)."""
+    half = [(k, 1 if k % 2 == 0 else -1) for k in range(2 * g)]
+    return half + [(k, -e) for k, e in half]
+
+
+@pytest.mark.parametrize("g", [2, pytest.param(3, marks=pytest.mark.slow), pytest.param(4, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("family", ["surface_x_circle", "unit_tangent"])
+def test_genus_g_bundles(family, g):
+    space = spaces.load(f"{family}({g})")
+    # (genus-g surface) x S¹: 4π(g - 1) (the 4g-gon's area) times 2 r_in, cosh r_in = cot(π/4g); T¹Σ_g: times 2π
+    r = math.acosh(1 / math.tan(math.pi / (4 * g)))
+    fibre = 2 * r if family == "surface_x_circle" else 2 * math.pi
+    assert space.volume == pytest.approx(4 * math.pi * (g - 1) * fibre, rel=1e-6)
+    # the generators hold the surface relation (in SL2~ up to the fibre translation by 4π(g - 1) = ±1 as matrices)
+    word = np.eye(4)
+    for k, e in surface_relator(g):
+        word = word @ np.linalg.matrix_power(space.generators[k], e)
+    assert np.allclose(word, np.eye(4), atol=1e-6)  # (rounding: 4g letters of entries up to cosh 2r = 50)
+    # H1 from the presentation <A_k, f | relator f^-e, [A_k, f]>, e = 0 (x S¹) or 2 - 2g (Euler number)
+    euler = 0 if family == "surface_x_circle" else 2 * g - 2
+    f = 2 * g
+    relators = [surface_relator(g) + [(f, -1)] * euler] + [[(k, 1), (f, 1), (k, -1), (f, -1)] for k in range(f)]
+    rows = homology.abelianised(homology.Presentation(list(range(f + 1)), relators))
+    published = " + ".join(["Z"] * (2 * g) + ["Z" if euler == 0 else f"Z/{euler}"])
+    assert homology.homology_text(homology.invariant_factors(rows, f + 1)) == published
+    if g == 2:  # the presets, written by hand
+        reference = spaces.load("genus2xs1" if family == "surface_x_circle" else "sl2")
+        assert np.allclose(space.generators, reference.generators, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_a_genus_three_view_hits_the_scene(tmp_path):
+    out = tmp_path / "view.exr"
+    argv = ["render", "--space", "unit_tangent(3)", "--size", "24x16", "--samples", "1", "--light-reach", "3"]
+    assert cli.main([*argv, "--out", str(out)]) == 0
+    pixels = oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[..., :3]
+    assert np.isfinite(pixels).all() and (pixels.sum(axis=-1) > 0).mean() > 0.5  # lit surfaces, most of the view
+
+
+def test_genus_below_two_is_refused():
+    with pytest.raises(spaces.SpaceError, match="genus g >= 2"):
+        spaces.load("surface_x_circle(1)")
 
 
 def test_a_member_is_a_file_the_user_keeps(cache):
@@ -162,7 +198,9 @@ def test_a_wrong_covolume_in_a_dirichlet_file_is_refused(cache, tmp_path):
 @pytest.mark.parametrize(
     "name, message",
     [
-        ("lens(7,1)", "L\\(7, ±1\\) is not supported"),
+        ("lens(7,1)", "L\\(7, ±1\\) is not supported: its group acts on C² by scalars"),
+        ("lens(7,6)", "a whole orbit at distance π/2"),
+        ("lens(2,1)", "L\\(2, ±1\\) = RP³ is not supported"),
         ("lens(6,3)", "q prime to p"),
         ("prism(1)", "n >= 2"),
         ("flat(klein)", "the closed flat manifolds are"),

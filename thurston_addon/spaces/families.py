@@ -92,13 +92,15 @@ def lens(member, p: int, q: int) -> dict:
     """L(p, q) = S3 / Z/p, (z1, z2) -> (ζ z1, ζ^q z2), ζ = e^(2πi/p), z1 = X0 + i X1, z2 = X2 + i X3;
     seen from a point of the Clifford torus |z1| = |z2|, whose orbit spans R^4 when q ≠ ±1 (mod p):
     its Dirichlet domain then lies within distance π/2, inside the gnomonic chart."""
-    if p < 3 or math.gcd(p, q) != 1:
-        raise SpaceError(f"{member}: L(p, q) needs p >= 3 and q prime to p, got p = {p}, q = {q}")
+    if p < 2 or math.gcd(p, q) != 1:
+        raise SpaceError(f"{member}: L(p, q) needs p >= 2 and q prime to p, got p = {p}, q = {q}")
     if q % p in (1, p - 1):
         raise SpaceError(
-            f"{member}: L({p}, ±1) is not supported: every Dirichlet domain of it reaches distance π/2 "
-            f"from its centre (the orbit lies on one Hopf circle), the horizon of S3's gnomonic chart; "
-            f"a q ≠ ±1 (mod p) works, e.g. lens({p if p >= 5 else 5},2)"
+            f"{member}: L({p}, ±1){' = RP³' if p == 2 else ''} is not supported: its group acts on C² "
+            "by scalars (for one of the two complex structures), so for any centre x the circle of the "
+            "complex line orthogonal to x is a whole orbit at distance π/2 from x, on the horizon of S3's "
+            "gnomonic chart around x; every fundamental domain holds a point of that orbit, so none fits "
+            f"in the chart (a Dirichlet domain or any other). A q ≠ ±1 (mod p) works, e.g. lens({max(p, 5)},2)"
         )
     angle = 2 * math.pi / p
     G = np.zeros((4, 4))
@@ -300,12 +302,8 @@ def sol(member, a: int, b: int, c: int, d: int) -> dict:
 def _polygon(member: str, g: int) -> tuple[float, list[float]]:
     """The regular 4g-gon of angles 2π/4g (a genus-g surface, its sides paired opposite): the
     inradius r (cosh r = cot(π/4g)) and the directions of the sides paired by translations by 2r."""
-    if g != 2:
-        raise SpaceError(
-            f"{member}: only genus 2 is supported (a hyperbolic surface has genus >= 2; from genus 3 "
-            "the 4g-gon's vertices lie so near the disk's rim that the coordinate domain's checks in "
-            "double precision, its volume quadrature and its reductions, miss their tolerances)"
-        )
+    if g < 2:
+        raise SpaceError(f"{member}: a hyperbolic surface has genus g >= 2, not {g}")
     n = 4 * g
     return math.acosh(1 / math.tan(math.pi / n)), [2 * math.pi * k / n for k in range(2 * g)]
 
