@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib.util
 import io
 import json
 import os
@@ -112,7 +113,7 @@ def _load_world(args):
 
 def cmd_render(args):
     stereo = _stereo(args)
-    layout = None if stereo is None else stereo.layout or render.PROJECTIONS[args.projection].stereo_layout
+    layout = None if stereo is None else stereo.layout_for(args.projection)
     outs = [files.check_output(path, args.overwrite) for path in view_paths(args.out, layout)]
     for out in outs:
         if out.suffix.lower() not in (".exr", ".png", ".jpg", ".jpeg", ".tif", ".tiff"):
@@ -150,7 +151,7 @@ def cmd_render(args):
     render.camera_frame(space, camera)  # a camera that cannot be used is refused before the notes on it
     walk = checks.long_walk(
         space,
-        w * h * settings.samples_per_pixel,
+        w * h * settings.samples_per_pixel * (1 if stereo is None else 2),  # (each eye its rays)
         settings.max_distance or space.max_distance,
         space.max_crossings if settings.max_crossings is None else settings.max_crossings,
         settings.threads or os.cpu_count() or 1,
@@ -559,10 +560,8 @@ def _private_network(argv) -> int | None:
     allows no such namespace (the cluster then runs here, with a warning)."""
     from .farm import cluster
 
-    try:
-        cluster.import_ray()  # its absence said here, not by the command run again
-    except cluster.FarmError as exc:
-        raise CommandError(str(exc)) from None
+    if importlib.util.find_spec("ray") is None:  # its absence said here, not by the command run again
+        raise CommandError(cluster.RAY_MISSING)
     command = cluster.private_network_command([sys.executable, "-m", "thurston_addon.cli", *(argv or sys.argv[1:])])
     if command is None:
         return None

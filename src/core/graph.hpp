@@ -16,6 +16,7 @@
 
 #include "affine_chart.hpp"
 #include "kernel.hpp"
+#include "segmented_flow.hpp"
 #include "vec.hpp"
 
 namespace thurston {
@@ -223,20 +224,7 @@ struct GraphFlow : AffineChart {
 
   void flow(const Vec3& p, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt,
             double& error) const {
-    Segment s;
-    xt = p;
-    vt = v;
-    error = 0.0;
-    for (double done = 0.0; done < t;) {
-      segment(xt, vt, t - done, accuracy, s);
-      if (!(s.length > 0.0)) {
-        xt = vt = {kNaN, kNaN, kNaN};
-        return;
-      }
-      s.at(s.length, xt, vt);
-      done += s.length;
-      error += s.error;
-    }
+    flow_by_segments(*this, p, v, t, accuracy, xt, vt, error);
   }
 
   // |x''| = |grad f| |u^T H u| / (1 + |grad f|^2) <= |H| / 2 (|u| <= 1: g >= I, and

@@ -17,6 +17,7 @@
 #include "affine_chart.hpp"
 #include "exp_table.hpp"
 #include "kernel.hpp"
+#include "segmented_flow.hpp"
 #include "vec.hpp"
 
 namespace thurston {
@@ -163,20 +164,7 @@ struct SolFlow : AffineChart {
   // The geodesic from p with unit chart velocity v at arclength t (segment after segment).
   void flow(const Vec3& p, const Vec3& v, double t, double accuracy, Vec3& xt, Vec3& vt,
             double& error) const {
-    Segment s;
-    xt = p;
-    vt = v;
-    error = 0.0;
-    for (double done = 0.0; done < t;) {
-      segment(xt, vt, t - done, accuracy, s);
-      if (!(s.length > 0.0)) {
-        xt = vt = {kNaN, kNaN, kNaN};
-        return;
-      }
-      s.at(s.length, xt, vt);
-      done += s.length;
-      error += s.error;
-    }
+    flow_by_segments(*this, p, v, t, accuracy, xt, vt, error);
   }
 
   // x'' = -2 x' z', y'' = 2 y' z', z'' = e^{2z} x'^2 - e^{-2z} y'^2, with |e^z x'|, |e^-z y'|,

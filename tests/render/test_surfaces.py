@@ -5,12 +5,12 @@ written, the files' own numbers."""
 
 from __future__ import annotations
 
-import base64
 import json
 
 import numpy as np
 import pytest
 import trimesh
+from support.gltf_triangle import embedded, textured_triangle, triangle_blob
 from support.textured_quad import texel_centres, textured_quad
 
 from thurston_addon import render, spaces
@@ -214,30 +214,9 @@ def test_glb_normals_uvs_and_base_colour_factor(tmp_path):
 def test_gltf_base_colour_texture(tmp_path):
     """A glTF written by hand: one triangle with TEXCOORD_0 and a base colour texture in a PNG."""
     write_png(tmp_path / "tex.png", BYTES)
-    positions = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
-    uvs = np.array([[0, 0], [1, 0], [0, 1]], np.float32)  # glTF: v down from the top
-    blob = positions.tobytes() + uvs.tobytes()
-    gltf = {
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0, "name": "tri"}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "material": 0}]}],
-        "materials": [{"name": "painted", "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
-        "textures": [{"source": 0}],
-        "images": [{"uri": "tex.png"}],
-        "buffers": [
-            {"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": 36},
-            {"buffer": 0, "byteOffset": 36, "byteLength": 24},
-        ],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
-            {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"},
-        ],
-    }
+    # glTF: v down from the top
+    blob = triangle_blob([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0], [1, 0], [0, 1]])
+    gltf = textured_triangle(embedded(blob), "tex.png", top=1.0, byte_length=len(blob))
     (tmp_path / "tri.gltf").write_text(json.dumps(gltf))
     (obj,) = load_mesh_file(tmp_path / "tri.gltf")
     np.testing.assert_allclose(obj.materials[0].color_texture, srgb_to_linear(BYTES / 255.0), atol=1e-6)

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import thurston_core
+from support.gltf_triangle import embedded, textured_triangle, triangle_blob
 from support.outputs import INTERNALS, default_signals, error_line, fill, listing, stop, tmpfs
 
 from thurston_addon import cli, files, render, scenes, spaces
@@ -675,37 +676,8 @@ def test_a_full_disk_where_a_gltf_texture_is_unpacked(tmp_path, monkeypatch):
 
     images.write(tmp_path / "tex.png", {"color": np.full((4, 4, 3), 0.5, np.float32)})
     png = base64.b64encode((tmp_path / "tex.png").read_bytes()).decode()
-    blob = (
-        np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]], np.float32).tobytes() + np.zeros((3, 2), np.float32).tobytes()
-    )
-    gltf = {
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0, "name": "tri"}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "material": 0}]}],
-        "materials": [{"name": "painted", "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
-        "textures": [{"source": 0}],
-        "images": [{"uri": f"data:image/png;base64,{png}"}],
-        "buffers": [
-            {"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": 36},
-            {"buffer": 0, "byteOffset": 36, "byteLength": 24},
-        ],
-        "accessors": [
-            {
-                "bufferView": 0,
-                "componentType": 5126,
-                "count": 3,
-                "type": "VEC3",
-                "min": [0, 0, 0],
-                "max": [0.1, 0.1, 0],
-            },
-            {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"},
-        ],
-    }
+    blob = triangle_blob([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]], np.zeros((3, 2)))
+    gltf = textured_triangle(embedded(blob), f"data:image/png;base64,{png}", top=0.1, byte_length=len(blob))
     path = tmp_path / "painted.gltf"
     path.write_text(json.dumps(gltf))
     with tmpfs(tmp_path / "tmp", "64k") as disk:

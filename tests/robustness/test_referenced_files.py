@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.gltf_triangle import textured_triangle
 from support.outputs import error_line
 
 from thurston_addon import cli, images, scenes
@@ -30,36 +31,7 @@ def write_texture(path: Path) -> Path:
 def gltf(scene: Path, buffer_uri: str, image_uri: str) -> Path:
     """A textured triangle whose buffer and image are the files these URIs name."""
     path = scene / "painted.gltf"
-    path.write_text(
-        json.dumps(
-            {
-                "asset": {"version": "2.0"},
-                "scene": 0,
-                "scenes": [{"nodes": [0]}],
-                "nodes": [{"mesh": 0, "name": "tri"}],
-                "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "material": 0}]}],
-                "materials": [{"name": "painted", "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
-                "textures": [{"source": 0}],
-                "images": [{"uri": image_uri}],
-                "buffers": [{"byteLength": 60, "uri": buffer_uri}],
-                "bufferViews": [
-                    {"buffer": 0, "byteOffset": 0, "byteLength": 36},
-                    {"buffer": 0, "byteOffset": 36, "byteLength": 24},
-                ],
-                "accessors": [
-                    {
-                        "bufferView": 0,
-                        "componentType": 5126,
-                        "count": 3,
-                        "type": "VEC3",
-                        "min": [0, 0, 0],
-                        "max": [0.1, 0.1, 0],
-                    },
-                    {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"},
-                ],
-            }
-        )
-    )
+    path.write_text(json.dumps(textured_triangle(buffer_uri, image_uri, top=0.1)))
     return path
 
 

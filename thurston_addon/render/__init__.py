@@ -32,7 +32,7 @@ from .settings import (
     memory_needed,
 )
 from .statistics import Result, noise_of, pixel_errors, pixel_noise
-from .stereo import eye_camera, layout_of, side_by_side
+from .stereo import eye_camera, side_by_side
 from .tracer import core_scene, make_tracer, ray_block, trace
 
 __all__ = [
@@ -82,7 +82,6 @@ __all__ = [
     "ray_block",
     "render",
     "render_eyes",
-    "layout_of",
     "side_by_side",
     "sample_offsets",
     "trace",

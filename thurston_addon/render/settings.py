@@ -106,6 +106,10 @@ class Stereo:
     pole_merge: tuple[float, float] | None = (60.0, 75.0)
     pivot: str = "center"
 
+    def layout_for(self, projection: str) -> str:
+        """The layout asked for, else the projection's."""
+        return self.layout or PROJECTIONS[projection].stereo_layout
+
     def offset(self, eye: str) -> float:
         """The eye's signed offset from the camera along its right direction (perspective)."""
         left = {"center": -0.5, "left": 0.0, "right": -1.0}[self.pivot] * self.interocular

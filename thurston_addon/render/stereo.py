@@ -124,10 +124,6 @@ class OmniEyes:
         return np.ascontiguousarray(origins.reshape(-1, 4)), np.ascontiguousarray(directions.reshape(-1, 4))
 
 
-def layout_of(settings: Settings) -> str:
-    return settings.stereo.layout or PROJECTIONS[settings.projection].stereo_layout
-
-
 def side_by_side(left: Result, right: Result, layout: str) -> dict:
     """The two views' passes in one image: left beside right (left on the left), or left above
     right, as Blender's Stereo 3D side-by-side and top-bottom formats and headset players lay them."""
