@@ -172,14 +172,19 @@ def test_a_stopped_job_resumes_and_a_changed_one_starts_afresh(world, cluster, t
     assert after != before  # another job's parts: the old ones removed, none reused
 
 
-def test_command_line_render_on_the_cluster(cluster, tmp_path):
+def test_command_line_render_on_the_cluster(cluster, tmp_path, capsys):
     common = ["render", "--space", "torus", "--size", "32x18", "--quality", "draft", "--bounces", "1"]
     common += ["--light-paths", "0", "--threads", "1"]
     assert cli.main([*common, "--out", str(tmp_path / "one.exr")]) == 0
+    capsys.readouterr()
     args = [*common, "--out", str(tmp_path / "farm.exr"), "--cluster", cluster["address"], "--tiles", "2"]
     assert cli.main(args) == 0
     one, farmed = (images.read_texture(tmp_path / n) for n in ("one.exr", "farm.exr"))
     np.testing.assert_array_equal(one, farmed)
+    # one progress line for the job: parts done of all, samples, workers busy, time, ETA while under way
+    lines = [line.strip() for line in capsys.readouterr().err.splitlines() if line.startswith("farm:")]
+    assert lines[-1].startswith("farm: 2/2 tiles (1 samples/pixel), 0 workers busy,"), lines
+    assert any(line.startswith("farm: 1/2 tiles") and "ETA" in line for line in lines), lines
 
 
 def test_both_eyes_of_an_omni_directional_stereo_panorama_on_the_cluster(world, cluster, tmp_path):

@@ -132,6 +132,7 @@ class Line:
         if done == self.done and not self.tty:
             return
         self.done = done
+        busy = 0 if done == total else busy  # (the cluster's count of held CPUs lags the last part)
         elapsed = time.perf_counter() - self.start
         eta = f", ETA {elapsed / done * (total - done):.0f} s" if 0 < done < total else ""
         detail = f" ({self.detail()})" if self.detail else ""
