@@ -136,6 +136,7 @@ def cmd_render(args):
         light_reach=args.light_reach,
         light_samples=args.light_samples,
         light_paths=args.light_paths,
+        light_map=args.light_map,
         bounces=args.bounces,
         threads=args.threads,
         tolerance=args.tolerance,
@@ -472,6 +473,13 @@ def build_parser():
         help="shadow walks per shaded point for direct light: the strongest geodesics to the lights' "
         "copies always, the rest sampled in proportion to their light (unbiased); 0: every geodesic, "
         "the exact sum (default: 8 with --bounces, else 0; see docs/lighting.md)",
+    )
+    r.add_argument(
+        "--light-map",
+        type=int,
+        help="texels per cube-face edge of each point light's visibility map, which answers whether "
+        "light reaches a point along each geodesic in place of its shadow walk; 0: none, every geodesic "
+        "walked (default: E3, S3 and H3 a texel per pixel angle, the other geometries 0; see docs/lighting.md)",
     )
     r.add_argument(
         "--bounces",

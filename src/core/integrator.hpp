@@ -129,37 +129,48 @@ inline typename KernelTracer<Kernel>::Reflected KernelTracer<Kernel>::illuminati
   const Vec4& H = v.X;
   std::vector<Candidate>& candidates = buffers.candidates;
   candidates.clear();
+  buffers.checks.clear();
+  Reflected sum;
   std::vector<LightPath>& paths = buffers.paths;
   const bool learn = v.camera_hit && !buffers.visible.empty();
+  // an opaque point's paths beyond the geodesic loop pass through it again: not even sought
+  const double reach = v.opaque ? std::min(light_reach_, geodesic_loop_) : light_reach_;
+  const bool fogged = std::isfinite(options.light_fog);
   for (std::size_t l = 0; l < light_lifts_.size(); ++l) {
     paths.clear();
-    stats.light_failures += kernel_.light_paths(H, light_lifts_[l], light_reach_, paths);
+    stats.light_failures += kernel_.light_paths(H, light_lifts_[l], reach, paths, v.S);
     if (learn) buffers.arcs.assign(light_lifts_[l].size(), 0);
     const Rgb& radiance = light_radiance_[l];
     const SpotCone& cone = light_cone_[l];
     const double mean_radiance = mean_rgb(radiance);
     for (const LightPath& path : paths) {
-      double weight = path.falloff * std::exp(-path.distance / options.light_fog);
+      const double cosine = kernel_.dot(H, v.S, path.direction);
+      if (!(cosine > 0.0)) continue;  // (those a kernel leaves out)
+      double weight = path.falloff;
+      if (fogged) weight *= std::exp(-path.distance / options.light_fog);
       if (cone.active())
         weight *= cone.attenuation(kernel_.dot(
             light_lifts_[l][path.lift], light_axes_[l][path.lift], kernel_.arrival(H, path)));
       ++stats.light_paths;
       stats.light_energy += weight * mean_radiance;
-      const double cosine = kernel_.dot(H, v.S, path.direction);
-      if (!(cosine > 0.0) || !(weight > 0.0) || (v.opaque && path.distance > geodesic_loop_))
-        continue;
-      candidates.push_back(
-          {path, &radiance, cosine * weight, 0.0, 0.0, false,
-           learn ? visibility_slot(light_slots_[l], path.lift, buffers.arcs) : -1});
+      if (!(weight > 0.0) || (v.opaque && path.distance > geodesic_loop_)) continue;
+      Candidate c{path,
+                  &radiance,
+                  cosine * weight,
+                  0.0,
+                  0.0,
+                  false,
+                  learn ? visibility_slot(light_slots_[l], path.lift, buffers.arcs) : -1};
+      if (!map_visibility(v, l, c, sum, options, stats, buffers, random)) candidates.push_back(c);
     }
   }
   if (!emitters_.triangles.empty() && options.emitter_sampling != EmitterSampling::kBounces)
     for (int s = 0; s < options.light_samples; ++s)
       sample_emitters(v, options, stats, buffers, random);
   choose_light_paths(v, buffers, options.light_budget, random);
-  Reflected sum;
+  candidates.insert(candidates.end(), buffers.checks.begin(), buffers.checks.end());
   for (const Candidate& c : candidates) {
-    if (!(c.weight > 0.0)) continue;
+    if (!(c.weight > 0.0) && !c.check()) continue;  // not drawn
     ++stats.shadow_walks;
     // Point lights are hidden by the occluders; an emitter's sample by every triangle, emitters
     // too (so that a closed emitter's far side is hidden by its near side), up to just short of it.
@@ -172,6 +183,13 @@ inline typename KernelTracer<Kernel>::Reflected KernelTracer<Kernel>::illuminati
       float& seen = buffers.visible[std::size_t(c.slot)];
       seen += kVisibilityRate * ((stop == kHit ? 0.0f : 1.0f) - seen);
     }
+    if (c.check()) {  // the map's error on this geodesic: what the walk finds less its answer
+      ++stats.map_checks;
+      const double error = (stop != kHit ? 1.0 : 0.0) - c.map_answer;
+      stats.map_checked_light += c.term * mean_rgb(*c.radiance);
+      stats.map_error_light += std::abs(error) * c.term * mean_rgb(*c.radiance);
+      continue;
+    }
     if (stop == kHit) {
       ++stats.shadowed_walks;
       continue;
@@ -183,6 +201,69 @@ inline typename KernelTracer<Kernel>::Reflected KernelTracer<Kernel>::illuminati
     reflect(sum, v, c.path.direction, c.term * c.weight * mis, *c.radiance);
   }
   return sum;
+}
+
+// Where light `light` has a visibility map (visibility_map.hpp), answers candidate c (one of its
+// geodesics, unshadowed light c.term) from the map and returns true; false where it has none, or
+// where c is longer than the map's walks (then c is walked). The four texels about the geodesic's
+// direction at the light each say lit where the first occluder along theirs lies beyond the
+// shaded point, less a margin for the texel's offset on the surface (the geodesics' spread over
+// 1.5 texels, 1 / sqrt(falloff) per radian, over the surface's slope seen from the light, at most
+// 10); the answer m is their bilinear mean (percentage-closer filtering: a shadow's edge is
+// resolved to the texels, softened across one), and m c.term is added to `sum`. With probability
+// options.map_check c is also walked, as a check (buffers.checks): how far the walk's visibility
+// is from m, times c's light, is the map's error there (TraceStats), not added to the light.
+template <class Kernel>
+inline bool KernelTracer<Kernel>::map_visibility(const Vertex& v, std::size_t light, Candidate& c,
+                                                 Reflected& sum, const TraceOptions& options,
+                                                 TraceStats& stats, LightBuffers& buffers,
+                                                 Random& random) const {
+  const VisibilityMap* map = maps_[light].get();
+  const double d = c.path.distance;
+  if (!map || !(c.term > 0.0) || d > map_length_) return false;
+  const std::size_t lift = std::size_t(c.path.lift);
+  const Vec4& X = light_lifts_[light][lift];
+  const std::array<Vec4, 3>& frame = light_frames_[light][lift];
+  const Vec4 leaving = kernel_.leaving(v.X, X, c.path);
+  const Vec3 u{kernel_.dot(X, frame[0], leaving), kernel_.dot(X, frame[1], leaving),
+               kernel_.dot(X, frame[2], leaving)};
+  const VisibilityMap::Footprint near = map->footprint(u);
+  const double incidence = std::abs(kernel_.dot(v.X, v.N, c.path.direction));
+  const double slope = std::min(
+      std::sqrt(std::max(1.0 - incidence * incidence, 0.0)) / std::max(incidence, 1e-12), 10.0);
+  const double margin = 1.5 * map->spacing() / std::sqrt(c.path.falloff) * slope +
+                        1e-6 * (1.0 + d) + 2.0 * kSelfSkip * scale_;
+  double m = 0.0;
+  for (int k = 0; k < 4; ++k) {
+    bool traced;
+    const double reach = map->reach(
+        near.texel[k], [&](const Vec3& w) { return map_reach(light, w, options); }, traced);
+    stats.map_texels += traced;
+    if (std::isnan(reach)) return false;  // cancelled: the walk will say so
+    if (reach >= d - margin) m += near.weight[k];
+  }
+  ++stats.map_lookups;
+  if (m > 0.0) reflect(sum, v, c.path.direction, c.term * m, *c.radiance);
+  if (options.map_check > 0.0 && random.uniform() < options.map_check) {
+    c.map_answer = m;
+    buffers.checks.push_back(c);
+  }
+  return true;
+}
+
+// The distance from light `light` to the first occluder along the geodesic leaving it in the unit
+// direction u of its frame (inf: none within the light reach; NaN: the walk was cancelled).
+template <class Kernel>
+inline double KernelTracer<Kernel>::map_reach(std::size_t light, const Vec3& u,
+                                              const TraceOptions& options) const {
+  Vec4 P = light_lifts_[light][std::size_t(map_origin_[light])];
+  const std::array<Vec4, 3>& E = light_frames_[light][std::size_t(map_origin_[light])];
+  Vec4 V = lin4(1.0, lin4(u[0], E[0], u[1], E[1]), u[2], E[2]);
+  if (!kernel_.start(P, V)) return kInf;
+  const Found f = first_hit(this->context(options), P, V, map_length_, options.max_crossings, 0.0,
+                            nullptr, nullptr, occluders_);
+  if (f.end.stop == kCancelled) return kNaN;
+  return f.end.stop == kHit ? f.end.distance + f.hit.s : kInf;
 }
 
 // Picks the candidates whose shadow walks are traced, with at most `budget` walks (0: all of
@@ -324,7 +405,7 @@ inline void KernelTracer<Kernel>::sample_emitters(const Vertex& v, const TraceOp
   const double scale = area_density * emitter_area_sum_.back() / (kPi * options.light_samples);
   std::vector<LightPath>& paths = buffers.paths;
   paths.clear();
-  stats.light_failures += kernel_.light_paths(H, buffers.lifts, light_reach_, paths);
+  stats.light_failures += kernel_.light_paths(H, buffers.lifts, light_reach_, paths, v.S);
   const Rgb& radiance = emitters_.radiance[t];
   const double mean_radiance = mean_rgb(radiance);
   const bool weighed = v.bounce_follows && options.emitter_sampling == EmitterSampling::kMis;
@@ -334,11 +415,11 @@ inline void KernelTracer<Kernel>::sample_emitters(const Vertex& v, const TraceOp
     const double emitted = emitted_cosine(t, buffers.lifts[path.lift], buffers.normals[path.lift],
                                           kernel_.arrival(H, path));
     const double weight = path.falloff * std::exp(-path.distance / options.light_fog) * scale;
+    const double cosine = kernel_.dot(H, v.S, path.direction);
+    if (!(cosine > 0.0)) continue;  // (those a kernel leaves out)
     ++stats.emitter_paths;
     stats.emitter_energy += weight * std::max(emitted, 0.0) * mean_radiance;
-    const double cosine = kernel_.dot(H, v.S, path.direction);
-    if (!(cosine > 0.0) || !(emitted > 0.0) || (v.opaque && path.distance > geodesic_loop_))
-      continue;
+    if (!(emitted > 0.0) || (v.opaque && path.distance > geodesic_loop_)) continue;
     buffers.candidates.push_back(
         {path, &radiance, cosine * emitted * weight, 0.0,
          weighed ? emitter_density(area_density, emitted, path, options) : 0.0, true,

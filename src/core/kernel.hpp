@@ -17,15 +17,19 @@
 //   bool normalise(const Vec4& X, Vec4& v)                 unit length at X;
 //   Vec3 chart_vector(const Vec4& X, const Vec4& v)         its chart image, unit in the chart;
 //   int light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
-//       std::vector<LightPath>&)   every geodesic from the surface point H to the lifts (copies of
+//       std::vector<LightPath>&, const Vec4& facing = {})   every geodesic from the surface point
+//       H to the lifts (copies of
 //       a light) no longer than reach: closed forms (ProjectiveKernel; the marching kernels of H2xR
 //       and S2xR), one-dimensional root searches per branch (Nil, SL2) or shooting from a table of
 //       the exponential map (Sol, which may miss some near caustics); returns how many it could
-//       tell were missed;
+//       tell were missed; those leaving H against `facing` (a tangent vector at H, nonzero) may be
+//       left out (the projective kernel does, before it takes their distances);
 //   void prepare_light_paths(double reach)   what light_paths needs to know of the reach before
 //       it is asked (Sol's table of its exponential map; nothing for the others);
 //   Vec4 arrival(const Vec4& H, const LightPath&)   the unit tangent at the path's far end that
 //       points back along it (towards H): the direction in which the light leaves;
+//   Vec4 leaving(const Vec4& H, const Vec4& X, const LightPath&)   the same up to a positive factor
+//       as the metric at the lift X sees it (its products with X's tangent vectors), cheaper;
 //   Vec4 chart_point(const Vec3& x), Vec4 chart_tangent(const Vec4& X, const Vec3& e)   the point
 //       of a chart point, and the tangent vector at it of a chart direction (for emitter samples);
 //   void move(const Mat4& M, Vec4& X, Vec4& V)    an isometry (a group element) applied to a point

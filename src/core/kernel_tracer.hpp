@@ -17,6 +17,7 @@
 #include "scene.hpp"
 #include "surface.hpp"
 #include "tracer.hpp"
+#include "visibility_map.hpp"
 
 namespace thurston {
 namespace {
@@ -62,6 +63,7 @@ class KernelTracer final : public Tracer {
       emitter_slots_.push_back(slots_);
       slots_ += kArcsPerCopy * copies.size();
     }
+    frame_lights();
   }
 
  private:
@@ -83,6 +85,9 @@ class KernelTracer final : public Tracer {
     bool emitter;
     std::int32_t slot;  // its visibility slot (-1: none)
     double weight = 1.0;
+    // A visibility map's check (map_visibility): the map's answer, the lit share (-1: no check).
+    double map_answer = -1.0;
+    bool check() const { return map_answer >= 0.0; }
   };
   // A shaded point's candidates for shadow walks, and what the chunk has learnt of their
   // visibility: per slot (a copy of a light, the k-th geodesic to it), a running average of
@@ -91,7 +96,7 @@ class KernelTracer final : public Tracer {
   struct LightBuffers {
     std::vector<LightPath> paths;
     std::vector<Vec4> lifts, normals;
-    std::vector<Candidate> candidates;
+    std::vector<Candidate> candidates, checks;
     std::vector<std::uint32_t> order;
     std::vector<std::uint8_t> arcs;  // per copy: the geodesics to it met so far
     std::vector<float> visible;      // per visibility slot
@@ -113,6 +118,76 @@ class KernelTracer final : public Tracer {
     const std::size_t arc = std::min<std::size_t>(k, kArcsPerCopy - 1);
     k = std::uint8_t(std::min<std::size_t>(k + 1, kArcsPerCopy));
     return std::int32_t(first + kArcsPerCopy * std::size_t(lift) + arc);
+  }
+
+  // The point lights' visibility maps (null: none) and, per light and lift, the light's frame
+  // there: the frame at the light's own lift (its copy in the domain), carried by the lift's group
+  // element. A light has a map where its copies are given and one of them is the identity.
+  std::vector<std::unique_ptr<VisibilityMap>> maps_;
+  std::vector<std::int32_t> map_origin_;  // per light: its own lift (-1: none)
+  std::vector<std::vector<std::array<Vec4, 3>>> light_frames_;
+  // What the maps' texels were traced with: a trace with other options starts them afresh.
+  struct MapKey {
+    int texels;
+    double tolerance, tolerance_per_distance;
+    int max_crossings;
+    bool skip_empty;
+    bool operator==(const MapKey& o) const {
+      return texels == o.texels && tolerance == o.tolerance &&
+             tolerance_per_distance == o.tolerance_per_distance &&
+             max_crossings == o.max_crossings && skip_empty == o.skip_empty;
+    }
+  };
+  MapKey map_key_{};
+  // How far the maps' texels are walked: the light reach, or the geodesic loop where shorter (an
+  // opaque point's paths end there); longer paths are walked, not looked up.
+  double map_length_ = 0.0;
+
+  void frame_lights() {
+    const std::size_t lights = light_lifts_.size();
+    maps_.resize(lights);
+    map_origin_.assign(lights, -1);
+    light_frames_.resize(lights);
+    for (std::size_t l = 0; l < lights; ++l) {
+      const auto& copies = light_copies_[l];
+      for (std::size_t k = 0; k < copies.size() && map_origin_[l] < 0; ++k) {
+        bool identity = true;
+        for (int e = 0; e < 16; ++e)
+          identity &= std::abs(copies[k][e] - (e % 5 == 0 ? 1.0 : 0.0)) <= 1e-12;
+        if (identity) map_origin_[l] = std::int32_t(k);
+      }
+      if (map_origin_[l] < 0) continue;
+      const Vec4& L = light_lifts_[l][std::size_t(map_origin_[l])];
+      Vec4 S = kernel_.chart_tangent(L, {0.0, 0.0, 1.0});
+      if (!kernel_.normalise(L, S)) {
+        map_origin_[l] = -1;
+        continue;
+      }
+      const Frame f = frame_at(L, S);
+      for (const Mat4& M : copies) {
+        std::array<Vec4, 3> moved;
+        const Vec4 E[3] = {f.T1, f.T2, f.S};
+        for (int a = 0; a < 3; ++a) {
+          Vec4 X = L;
+          moved[a] = E[a];
+          kernel_.move(M, X, moved[a]);
+        }
+        light_frames_[l].push_back(moved);
+      }
+    }
+  }
+
+  void prepare(const TraceOptions& options) override {
+    const MapKey key{options.visibility_map, options.tolerance, options.tolerance_per_distance,
+                     options.max_crossings, options.skip_empty};
+    if (key == map_key_) return;
+    map_key_ = key;
+    const double longest = std::min(light_reach_, geodesic_loop_);
+    map_length_ = std::isfinite(longest) ? longest * (1.0 + 1e-9) : options.max_distance;
+    for (std::size_t l = 0; l < maps_.size(); ++l)
+      maps_[l] = options.visibility_map > 0 && map_origin_[l] >= 0
+                     ? std::make_unique<VisibilityMap>(options.visibility_map)
+                     : nullptr;
   }
 
   void trace_range(std::size_t begin, std::size_t end, Strided2<double> origins,
@@ -209,15 +284,16 @@ class KernelTracer final : public Tracer {
   // `carried`: two tangent vectors at P that the walk carries along (or none).
   Found first_hit(const WalkContext& context, const Vec4& P, const Vec4& V, double length,
                   int max_crossings, double first_skip, std::vector<double>* segments,
-                  Vec4* carried = nullptr) const {
+                  Vec4* carried = nullptr, RTCScene among = nullptr) const {
     Found f;
+    RTCScene scene = among ? among : scene_.get();
     embree::FirstHit first;
     const auto query = [&](const Chord& chord, float tnear) {
       ++f.chords;
       if (segments)
         segments->insert(segments->end(), {chord.x0[0], chord.x0[1], chord.x0[2], chord.x1[0],
                                            chord.x1[1], chord.x1[2]});
-      first = embree::intersect(scene_.get(), embree::chord_ray(chord.x0, chord.x1, tnear));
+      first = embree::intersect(scene, embree::chord_ray(chord.x0, chord.x1, tnear));
       return first.prim >= 0;
     };
     // The triangle's chart plane, from its plane in the mesh and the instance's exact inverse.
@@ -249,7 +325,7 @@ class KernelTracer final : public Tracer {
             t1 = std::min(chord.length, centre + reach);
             Vec3 a, b;
             hit.curve_chord(t0, t1, a, b);
-            near = embree::intersect(scene_.get(), embree::chord_ray(a, b, 0.0f));
+            near = embree::intersect(scene, embree::chord_ray(a, b, 0.0f));
             if (near.prim >= 0) break;
           }
           if (near.prim < 0) {
@@ -416,6 +492,10 @@ class KernelTracer final : public Tracer {
 
   Reflected illumination(const WalkContext& context, const Vertex& v, const TraceOptions& options,
                          TraceStats& stats, LightBuffers& buffers, Random& random) const;
+  bool map_visibility(const Vertex& v, std::size_t light, Candidate& c, Reflected& sum,
+                      const TraceOptions& options, TraceStats& stats, LightBuffers& buffers,
+                      Random& random) const;
+  double map_reach(std::size_t light, const Vec3& u, const TraceOptions& options) const;
   void reflect(Reflected& sum, const Vertex& v, const Vec4& direction, double term,
                const Rgb& radiance) const;
 

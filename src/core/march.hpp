@@ -145,7 +145,7 @@ class MarchingKernel {
   // Every geodesic from H to the lifts no longer than reach (the flow's connections); returns how
   // many it could tell were missed.
   int light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
-                  std::vector<LightPath>& paths) const {
+                  std::vector<LightPath>& paths, const Vec4& = {}) const {
     int missed = 0;
     for (std::size_t i = 0; i < lifts.size(); ++i) {
       const std::size_t first = paths.size();
@@ -166,6 +166,8 @@ class MarchingKernel {
     flow_.flow(head3(H), head3(path.direction), path.distance, 1e-9, x, v, error);
     return vector4(scaled3(-1.0, v));
   }
+  // The path's leaving tangent at its lift, for the light's visibility map: its arrival.
+  Vec4 leaving(const Vec4& H, const Vec4&, const LightPath& path) const { return arrival(H, path); }
   static Vec4 chart_point(const Vec3& x) { return point4(x); }
   static Vec4 chart_tangent(const Vec4&, const Vec3& e) { return vector4(e); }
   void move(const Mat4& M, Vec4& X, Vec4& V) const {

@@ -234,19 +234,31 @@ struct ProjectiveKernel {
   // segment to each lift, and in S3 also the long arc round the great circle, of length 2 pi - d,
   // leaving in the opposite direction (the same falloff, sin^2 being symmetric). A lift on H (or
   // antipodal to it in S3) has no direction and is skipped. None is missed, and nothing needs
-  // preparing for the reach.
+  // preparing for the reach. Those leaving against `facing` are left out before their distance is
+  // taken.
   void prepare_light_paths(double) {}
   int light_paths(const Vec4& H, const std::vector<Vec4>& lifts, double reach,
-                  std::vector<LightPath>& paths) const {
+                  std::vector<LightPath>& paths, const Vec4& facing = {}) const {
+    const bool culls = facing != Vec4{};
+    const bool long_arcs = k > 0 && kPi < reach;
     for (std::size_t i = 0; i < lifts.size(); ++i) {
       const Vec4& L = lifts[i];
+      // the short arc leaves H along L's part across H, the long arc against it
+      const double ahead = culls ? inner(facing, k == 0 ? sub4(L, H) : L) : 1.0;
+      if (!(ahead > 0.0) && !long_arcs) continue;
       const double r = distance(H, L);
+      if (r > reach) continue;
       Vec4 direction = toward(H, L);
-      if (r > reach || !normalise(direction)) continue;
-      paths.push_back({direction, r, falloff(r), std::int32_t(i)});
+      if (!normalise(direction)) continue;
+      // sin^2 r (S3, the long arc's too) and sinh^2 r (H3) from the cosine, without their functions
+      const double c = k > 0 ? dot4(H, L) : -inner(H, L);
+      const double spread = k == 0 ? r * r : k > 0 ? 1.0 - c * c : c * c - 1.0;
+      if (ahead > 0.0 || !culls)
+        paths.push_back({direction, r, floored_falloff(spread), std::int32_t(i)});
       const double long_arc = 2.0 * kPi - r;
-      if (k > 0 && long_arc <= reach)
-        paths.push_back({scaled(-1.0, direction), long_arc, falloff(long_arc), std::int32_t(i)});
+      if (k > 0 && long_arc <= reach && (ahead < 0.0 || !culls))
+        paths.push_back(
+            {scaled(-1.0, direction), long_arc, floored_falloff(spread), std::int32_t(i)});
     }
     return 0;
   }
@@ -254,6 +266,14 @@ struct ProjectiveKernel {
     Vec4 X, Xv;
     advance(H, path.direction, turn(path.distance), X, Xv);
     return scaled(-1.0, Xv);
+  }
+  // What the light's visibility map is looked up with (integrator.hpp): a vector whose products
+  // with tangent vectors at the lift X are those of the path's leaving tangent there (towards H)
+  // times a positive factor. The tangent towards H is H's part across X: the short arc leaves
+  // along it, S3's long arc (longer than pi) against it.
+  Vec4 leaving(const Vec4& H, const Vec4& X, const LightPath& path) const {
+    if (k == 0) return sub4(H, X);
+    return path.distance > kPi ? scaled(-1.0, H) : H;
   }
   Vec4 chart_point(const Vec3& x) const { return model(x); }
   // The model point of x + e t is s (x + e t, 1) up to the part along X itself, s = X[3].

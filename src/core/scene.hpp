@@ -56,7 +56,10 @@ struct Lights {
   std::vector<Rgb> radiance;
   std::vector<SpotCone> cone;  // per light (empty: no spot lights)
   std::vector<Vec4> axis;      // per lift of a spot light: its unit axis there (else zero)
-  double reach = kInf;         // light paths longer than this are not summed
+  // per lift, where given: the group element (model map) that takes the light to it, which
+  // carries the light's frame there (its visibility map, visibility_map.hpp)
+  std::vector<Mat4> copies;
+  double reach = kInf;  // light paths longer than this are not summed
   // Every geodesic returns to its start after this length (S3 with -1 in the group: pi), so a light
   // path longer than it from an opaque surface passes through that surface again: shadowed.
   double geodesic_loop = kInf;

@@ -71,11 +71,13 @@ Tracer::Tracer(SceneData& scene, unsigned threads, bool occupancy)
 
   light_lifts_.resize(light_radiance_.size());
   light_axes_.resize(light_radiance_.size());
+  light_copies_.resize(light_radiance_.size());
   light_cone_.resize(light_radiance_.size());
   for (std::size_t k = 0; k < scene.lights.lifts.size(); ++k) {
     const std::int32_t l = scene.lights.of_lift[k];
     light_lifts_[l].push_back(scene.lights.lifts[k]);
     if (light_cone_[l].active()) light_axes_[l].push_back(scene.lights.axis[k]);
+    if (!scene.lights.copies.empty()) light_copies_[l].push_back(scene.lights.copies[k]);
   }
   double area = 0.0;
   for (const auto& t : emitters_.triangles) {
@@ -139,12 +141,13 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
                          const TraceOptions& options, const TraceOutputs& out, const Poll& poll) {
   const RunLock lock(*this);
   cancel_.store(false);
+  prepare(options);
   const std::vector<std::size_t> starts = chunk_starts(count, options.ray_ids);
   const std::size_t chunks = starts.size() - 1;
   // Kept by chunk, so that the recording does not depend on the thread count.
   std::vector<std::vector<double>> chunk_segments(options.record_segments ? chunks : 0);
-  std::atomic<std::uint64_t> chords{0}, light_failures{0}, light_paths{0}, emitter_paths{0},
-      bounce_paths{0}, emitter_hits{0}, shadow_walks{0}, shadowed_walks{0};
+  TraceStats stats;
+  std::mutex stats_mutex;
   // summed in chunk order: the same for any threads
   std::vector<double> chunk_energy(chunks, 0.0), chunk_emitter_energy(chunks, 0.0);
   const std::size_t traced = run_chunks(
@@ -153,28 +156,15 @@ TraceStats Tracer::trace(std::size_t count, Strided2<double> origins, Strided2<d
         std::vector<double>* segments = options.record_segments ? &chunk_segments[chunk] : nullptr;
         TraceStats local;
         trace_range(begin, end, origins, directions, options, out, segments, local);
-        chords.fetch_add(local.chords);
-        light_failures.fetch_add(local.light_failures);
-        light_paths.fetch_add(local.light_paths);
-        emitter_paths.fetch_add(local.emitter_paths);
-        bounce_paths.fetch_add(local.bounce_paths);
-        emitter_hits.fetch_add(local.emitter_hits);
-        shadow_walks.fetch_add(local.shadow_walks);
-        shadowed_walks.fetch_add(local.shadowed_walks);
+        {
+          const std::lock_guard<std::mutex> hold(stats_mutex);
+          stats.add_counts(local);
+        }
         chunk_energy[chunk] = local.light_energy;
         chunk_emitter_energy[chunk] = local.emitter_energy;
       },
       poll, true);
   for (std::size_t i = traced; i < count; ++i) out.write_miss(i, kCancelled, 0, 0.0, 0);
-  TraceStats stats;
-  stats.chords = chords.load();
-  stats.light_failures = light_failures.load();
-  stats.light_paths = light_paths.load();
-  stats.emitter_paths = emitter_paths.load();
-  stats.bounce_paths = bounce_paths.load();
-  stats.emitter_hits = emitter_hits.load();
-  stats.shadow_walks = shadow_walks.load();
-  stats.shadowed_walks = shadowed_walks.load();
   for (const double e : chunk_energy) stats.light_energy += e;
   for (const double e : chunk_emitter_energy) stats.emitter_energy += e;
   stats.segments = std::move(chunk_segments);

@@ -62,6 +62,12 @@ struct TraceOptions {
   // strongest geodesics to the lights' copies and the emitters' samples always, the rest sampled
   // in proportion to their unshadowed light; 0: every geodesic (the exact sum).
   int light_budget = 0;
+  // Texels per cube-face edge of each point light's visibility map (visibility_map.hpp; 0: none):
+  // a point light's geodesics are looked up in it instead of walked, and walked too with
+  // probability map_check, which measures the map's error (TraceStats; integrator.hpp,
+  // map_visibility).
+  int visibility_map = 0;
+  double map_check = 0.0;
   // Per ray, increasing: the index its random numbers are drawn for and the block of kChunk ids
   // whose rays learn shadow-walk visibility together (a subset of a larger trace's rays, a tile of
   // an image, keeps both); null: its position.
@@ -109,9 +115,10 @@ struct TraceOutputs {
 struct TraceStats {
   std::uint64_t chords = 0;
   std::uint64_t light_failures = 0;  // light paths known to be missed (Sol's shooting)
-  std::uint64_t light_paths = 0;     // geodesics to lights summed (a shadow ray each where facing)
-  // Sum over shaded points of the mean radiance times falloff (and fog) along the summed paths,
-  // before cosines and shadows: what the reach lets in, against which the part left out is told.
+  // geodesics to lights that arrive at a shaded point's front (of its shading normal), summed
+  std::uint64_t light_paths = 0;
+  // Sum over shaded points of the mean radiance times falloff (and fog) along those paths, before
+  // cosines and shadows: what the reach lets in, against which the part left out is told.
   double light_energy = 0.0;
   // The same for the emitters' samples: geodesics to sampled points' copies, and their mean
   // radiance times cos' (at the emitter) times falloff (and fog) over the sampling density.
@@ -120,9 +127,31 @@ struct TraceStats {
   std::uint64_t shadow_walks = 0;    // shadow walks traced for direct light (the sampled paths)
   std::uint64_t shadowed_walks = 0;  // of them, those that met a blocker
   std::uint64_t bounce_paths = 0;    // geodesics traced for bounces (path tracing)
-  std::uint64_t emitter_hits = 0;    // bounces that met an emitter (its light weighted by MIS)
+  // Point lights' geodesics looked up in their visibility maps, those of them walked as checks,
+  // and the texels traced; the checks' unshadowed light (mean radiance times the rest of the
+  // term) and of it the part the map answered wrongly (|walk's visibility - map's|).
+  std::uint64_t map_lookups = 0, map_checks = 0, map_texels = 0;
+  double map_checked_light = 0.0, map_error_light = 0.0;
+  std::uint64_t emitter_hits = 0;  // bounces that met an emitter (its light weighted by MIS)
   // Recorded chords by chunk of rays, in ray order: 6 doubles each, start xyz and end xyz.
   std::vector<std::vector<double>> segments;
+
+  // Adds another's counts (not its energies or segments, which are summed in chunk order).
+  void add_counts(const TraceStats& o) {
+    chords += o.chords;
+    light_failures += o.light_failures;
+    light_paths += o.light_paths;
+    emitter_paths += o.emitter_paths;
+    shadow_walks += o.shadow_walks;
+    shadowed_walks += o.shadowed_walks;
+    bounce_paths += o.bounce_paths;
+    emitter_hits += o.emitter_hits;
+    map_lookups += o.map_lookups;
+    map_checks += o.map_checks;
+    map_texels += o.map_texels;
+    map_checked_light += o.map_checked_light;
+    map_error_light += o.map_error_light;
+  }
 };
 
 // What every tracer shares: Embree scenes, the thread pool, runs, cancel and progress.
@@ -164,6 +193,8 @@ class Tracer {
  protected:
   Tracer(SceneData& scene, unsigned threads, bool occupancy);  // takes the scene's vectors
 
+  // Readies what a trace with these options shares across its rays (the visibility maps).
+  virtual void prepare(const TraceOptions& options) = 0;
   // Traces rays [begin, end) into `out`; what the kernel does per ray.
   virtual void trace_range(std::size_t begin, std::size_t end, Strided2<double> origins,
                            Strided2<double> directions, const TraceOptions& options,
@@ -211,8 +242,9 @@ class Tracer {
   Surfaces surfaces_;
   std::vector<std::vector<Vec4>> light_lifts_;  // per light
   std::vector<Rgb> light_radiance_;
-  std::vector<SpotCone> light_cone_;           // per light
-  std::vector<std::vector<Vec4>> light_axes_;  // per light and lift, where it has a cone
+  std::vector<SpotCone> light_cone_;             // per light
+  std::vector<std::vector<Vec4>> light_axes_;    // per light and lift, where it has a cone
+  std::vector<std::vector<Mat4>> light_copies_;  // per light and lift, where given
   // The emitters: their triangles, a cumulative table of their chart areas (a triangle is picked
   // with probability its share), and each group's copies.
   Emitters emitters_;

@@ -397,7 +397,7 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
     O = np.concatenate(owner) if owner else np.zeros(0, np.int32)
     colors = np.array([o.color for o in scene.objects], np.float32).reshape(-1, 3)
     emission = np.array([o.emission for o in scene.objects], np.float32).reshape(-1, 3)
-    lifts, axes, of_lift, radiance = [], [], [], []
+    lifts, axes, elements, of_lift, radiance = [], [], [], [], []
     if scene.lights and not g.point_lights:
         raise SceneError(
             f"{g.name} spaces have no point lights (their light paths are not traced): remove the scene's "
@@ -421,9 +421,10 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
             ]
         )
         for position, direction in images:
-            copies, light_axes = _light_lifts(space, position, direction, i, light_reach)
+            copies, light_axes, light_elements = _light_lifts(space, position, direction, i, light_reach)
             lifts += copies
             axes += light_axes
+            elements += light_elements
             of_lift += [i] * len(copies)
         radiance.append(np.asarray(light.color, float) * light.power)
     return dict(
@@ -445,13 +446,17 @@ def compile_scene(space: Space, scene: Scene, light_reach: float | None = None):
         light_reach=light_reach,
         geodesic_loop=geodesic_loop(space),
         **_spot_arrays(scene.lights, axes),
+        # the group elements that carry each light's frame to its lifts (its visibility map); not
+        # in a folded space, where a light's lifts are copies of two points
+        **({} if space.fold is not None else {"light_copies": np.array(elements, np.float64).reshape(-1, 4, 4)}),
         **_emitter_arrays(space, scene, light_reach),
     )
 
 
 def _light_lifts(space: Space, position, direction, index: int, reach: float):
     """The copies of light `index` at `position` that the tracer lights with (model points,
-    light_copies), and the unit axis at each where it is a spot light along `direction` (else zero)."""
+    light_copies), the unit axis at each where it is a spot light along `direction` (else zero),
+    and the group element that takes the light (its copy in the domain) to each."""
     g = space.geometry
     try:  # its copies are taken around the domain, so start from the copy inside
         L, _, M0 = space.bring_inside(g.to_model(position))
@@ -461,7 +466,7 @@ def _light_lifts(space: Space, position, direction, index: int, reach: float):
     axis = np.zeros(4)
     if direction is not None:
         axis = g.normalize_tangent(L, M0 @ g.tangent_to_model(position, direction))
-    return [g.normalize_point(M @ L) for M in elements], [M @ axis for M in elements]
+    return [g.normalize_point(M @ L) for M in elements], [M @ axis for M in elements], list(elements)
 
 
 def _spot_arrays(lights, axes) -> dict:

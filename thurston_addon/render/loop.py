@@ -17,8 +17,9 @@ from .compilation import own_hits
 from .denoise import denoise
 from .lights import light_reach_for
 from .projections import PROJECTIONS
-from .settings import EYES, Cancelled, RenderError, Settings, memory_needed
+from .settings import EYES, MAP_CHECK, Cancelled, RenderError, Settings, memory_needed
 from .statistics import (
+    CORE_COUNTS,
     Result,
     accuracy_bound,
     error_sample,
@@ -163,6 +164,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     _, _, w, h = settings.window  # the pixels rendered
     pixel_angle = PROJECTIONS[settings.projection].width_angle(camera) / W
     tolerances = settings.tolerances(space, pixel_angle)
+    map_texels = settings.map_texels(space, pixel_angle)
     shade = settings.shading == "lambert"
     # (jitter, shade, is colour sample): the centre pass first where no colour sample gives it
     jobs = [(o, shade, True) for o in offsets]
@@ -188,8 +190,8 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     active = None  # adaptive: the pixels still taking samples
     passes_done = 0
     limit_reached = False
-    chords = light_failures = light_paths = shaded_points = bounce_paths = shadow_walks = shadowed = 0
-    light_energy = 0.0
+    counts = dict.fromkeys(CORE_COUNTS, 0)  # the core's counts, summed over the passes
+    shaded_points = 0
     for k, (jitter, shaded, colour) in enumerate(jobs):
         view = view_directions(camera, settings, jitter)
         origins, directions = camera_rays(space, camera, settings, jitter, frame=frame, view=view, eyes=eyes)
@@ -213,6 +215,8 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
             seed=settings.seed + k,
             bounces=settings.bounces,
             light_budget=settings.light_budget,
+            visibility_map=map_texels,
+            map_check=MAP_CHECK,
             # a subset's random numbers are those the same pixels draw in a whole pass
             ray_ids=rays if window_ids is None else window_ids if rays is None else window_ids[rays],
         )
@@ -221,13 +225,8 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         if rays is not None:
             out = _untraced_as_misses(out, rays, pixels)
         _miss_beyond(out, end - start)
-        chords += int(out["chords"])
-        light_failures += int(out["light_failures"])
-        light_paths += int(out["light_paths"]) + int(out["emitter_paths"])
-        light_energy += float(out["light_energy"]) + float(out["emitter_energy"])
-        bounce_paths += int(out["bounce_paths"])
-        shadow_walks += int(out["shadow_walks"])
-        shadowed += int(out["shadowed_walks"])
+        for key in CORE_COUNTS:
+            counts[key] += out[key].item()
         shaded_points += int(np.sum(out["stop"] == 0)) if shaded else 0
         if jitter == CENTRE:
             first, first_start, first_limits = out, start, limits
@@ -313,9 +312,9 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     stats = {
         "rays": len(offsets) * pixels,
         "rays_traced": total,
-        "chords": chords,
+        "chords": counts["chords"],
         "seconds": seconds,
-        "chords_per_ray": chords / total,
+        "chords_per_ray": counts["chords"] / total,
         "threads": tracer.num_threads,
         "crossings_per_ray": float(first["crossings"].mean()),
         "hit_fraction": float(hits.mean()),
@@ -339,9 +338,9 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "retrace_changed": changed,
         # measured: the largest distance of a (sampled) hit point from the reference geodesic
         "geodesic_error": geodesic_error(space, origins, directions, first["depth"][sample], first["position"][sample]),
-        "light_failures": light_failures,
+        "light_failures": counts["light_failures"],
         "bounces": settings.bounces,
-        "bounce_paths_per_point": bounce_paths / shaded_points if shaded_points else 0.0,
+        "bounce_paths_per_point": counts["bounce_paths"] / shaded_points if shaded_points else 0.0,
         "noise": pixel_noise(color_sum, brightness_squares, len(offsets))
         if full
         else noise_of(color_sum, brightness_squares, taken),
@@ -351,7 +350,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
         "time_limit": settings.time_limit or None,
         "time_limit_reached": limit_reached,
         "denoised": denoised,
-        **light_stats(space, settings, tracer, light_paths, light_energy, shaded_points, shadow_walks, shadowed),
+        **light_stats(space, settings, tracer, counts, shaded_points, map_texels),
         "stop_counts": {name: int((first["stop"] == i).sum()) for i, name in enumerate(STOP_REASONS)},
         # the limits the notes name (checks.after_render)
         "max_distance": reach,

@@ -17,27 +17,35 @@ from .projections import PROJECTIONS
 
 @dataclass(frozen=True)
 class Quality:
-    """A quality level: samples per pixel (antialiasing), and the bound of the hit-position error
+    """A quality level: samples per pixel (antialiasing), the bound of the hit-position error
     as a fraction of the pixel footprint at the hit's distance (where geodesics bend in the chart
-    and are followed in chords; in E3, S3 and H3 they are exact chart lines)."""
+    and are followed in chords; in E3, S3 and H3 they are exact chart lines), and the angle of a
+    visibility map's texel at its light in pixels (Settings.map_texels)."""
 
     samples: int
     footprint_fraction: float
+    texel_pixels: float = 1.0
 
 
 # The same names are used by the add-on. The fractions keep what the chords do to the image below
-# what the sampling does at each quality (benchmarks/bench_curved.py, its image table).
+# what the sampling does at each quality (benchmarks/bench_curved.py, its image table); the texels
+# what the maps do to the light near what the sampling does (docs/lighting.md, "Visibility maps").
 QUALITY = {
-    "draft": Quality(1, 1.0),
-    "preview": Quality(2, 0.5),
-    "standard": Quality(4, 0.25),
-    "final": Quality(16, 0.1),
+    "draft": Quality(1, 1.0, 2.0),
+    "preview": Quality(2, 0.5, 1.4),
+    "standard": Quality(4, 0.25, 1.0),
+    "final": Quality(16, 0.1, 0.7),
 }
 # Shadow walks per shaded point where light_paths is automatic and bounces follow: in path tracing
 # the bounces' noise dominates and the walks the cost, and 8 sampled walks beat the exact sum at
 # equal time (2.6x the efficiency in the Poincare space, 2 bounces; direct light alone, where the
 # exact sum is as good, stays exact: docs/lighting.md, "Sampled direct light").
 PATH_TRACED_LIGHT_PATHS = 8
+# The visibility maps' automatic texels per face edge (Settings.map_texels) are kept within these;
+# the share of the answered geodesics also walked to measure the maps' error.
+MAP_TEXELS = (64, 2048)
+MAP_CHECK = 1 / 256
+MAX_MAP_TEXELS = 4096  # the core's limit
 # `thurston trace` has no pixels: its qualities use the pixel of the default view (640 pixels
 # across 90 degrees).
 REFERENCE_PIXEL_ANGLE = math.radians(90.0) / 640
@@ -154,6 +162,10 @@ class Settings:
     # always, the rest sampled by their unshadowed light (unbiased); 0: every geodesic (the exact
     # sum); None: automatic (PATH_TRACED_LIGHT_PATHS with bounces, else the exact sum)
     light_paths: int | None = None
+    # texels per cube-face edge of each point light's visibility map, which answers whether the
+    # light reaches a point along a geodesic in place of its shadow walk (0: none, every geodesic
+    # walked; None: automatic, map_texels)
+    light_map: int | None = None
     bounces: int = 0  # bounces after each camera hit (path tracing, any quality); 0: direct light only
     seed: int = 0  # sample k's random numbers (light samples, bounces) come from seed + k
     transparent: bool = False  # alpha: the share of a pixel's samples that hit something (else 1)
@@ -192,6 +204,19 @@ class Settings:
         if self.light_paths is not None:
             return self.light_paths
         return PATH_TRACED_LIGHT_PATHS if self.bounces else 0
+
+    def map_texels(self, space: Space, pixel_angle: float) -> int:
+        """Texels per cube-face edge of the point lights' visibility maps: the given count, else
+        where geodesics are straight in the chart (E3, S3, H3) a texel the quality's texel_pixels
+        pixels wide (at a face's centre, 2 / texels radians), within MAP_TEXELS; none in the other
+        geometries, whose lookup needs the geodesic flowed to the light (docs/lighting.md,
+        "Visibility maps")."""
+        if self.light_map is not None:
+            return self.light_map
+        if not space.geometry.projective or self.shading != "lambert":
+            return 0
+        texels = 2.0 / (QUALITY[self.quality].texel_pixels * pixel_angle)
+        return int(min(max(round(texels), MAP_TEXELS[0]), MAP_TEXELS[1]))
 
     @property
     def min_samples_per_pixel(self) -> int:
@@ -243,6 +268,11 @@ class Settings:
             )
         if not (_whole(self.light_samples) and 1 <= self.light_samples <= 4096):
             raise RenderError(f"light samples must be a whole number between 1 and 4096, got {self.light_samples}")
+        if self.light_map is not None and not (_whole(self.light_map) and 0 <= self.light_map <= MAX_MAP_TEXELS):
+            raise RenderError(
+                f"light map must be a whole number of texels per cube-face edge from 0 (none: every geodesic "
+                f"walked) to {MAX_MAP_TEXELS}, got {self.light_map}"
+            )
         if self.light_paths is not None and not (_whole(self.light_paths) and 0 <= self.light_paths <= 2**20):
             raise RenderError(
                 f"light paths must be a whole number of shadow walks per shaded point from 0 (every "

@@ -73,6 +73,13 @@ def light_summary(s: dict) -> str:
         if s["light_budget"]
         else "exact sum, a shadow walk each"
     )
+    if s["light_map"]:
+        estimate = (
+            f"the point lights' from visibility maps of {s['light_map']}x{s['light_map']} texels a cube face "
+            f"(--light-map), their error {s['map_error']:.2%} of the light of {s['map_checks']} geodesics walked "
+            f"to check them"
+            + ("" if not s["light_budget"] and not s["emitter_triangles"] else f"; the rest {estimate}")
+        )
     return (
         f"light: {s['light_copies']} copies within reach {s['light_reach']:.3g} ({s['light_paths_per_point']:.1f} "
         f"geodesics per shaded point; {estimate}), energy beyond the reach up to the distance limit about "
@@ -111,13 +118,32 @@ def noise_of(color_sum, brightness_squares, taken) -> float | None:
     return float(np.sqrt(np.mean(pixel_errors(color_sum, brightness_squares, taken) ** 2)))
 
 
-def light_stats(
-    space: Space, settings: Settings, tracer, paths: int, energy: float, shaded: int, shadow_walks: int, shadowed: int
-) -> dict:
-    """The light a render summed: its reach, the copies of the lights the tracer has, the light paths
-    per shaded point, and the energy left out beyond the reach (up to the distance limit D, within
-    the geometry's longest geodesic to a light: 2 pi in S3), relative to what was summed (before
-    cosines and shadows, averaged over the shaded points). The estimate takes the copies of a light
+# The core's counts that a render sums over its passes (thurston_core.Tracer.trace's scalars).
+CORE_COUNTS = (
+    "chords",
+    "light_failures",
+    "light_paths",
+    "light_energy",
+    "emitter_paths",
+    "emitter_energy",
+    "bounce_paths",
+    "shadow_walks",
+    "shadowed_walks",
+    "map_lookups",
+    "map_checks",
+    "map_texels",
+    "map_checked_light",
+    "map_error_light",
+)
+
+
+def light_stats(space: Space, settings: Settings, tracer, counts: dict, shaded: int, map_texels: int) -> dict:
+    """The light a render summed (`counts`: the core's CORE_COUNTS over its passes, at `shaded`
+    points; the visibility maps' `map_texels`): its reach, the copies of the lights the tracer has, the light paths
+    per shaded point, how their visibility was found (walks, visibility maps), and the energy left
+    out beyond the reach (up to the distance limit D, within
+    the geometry's longest geodesic to a light: 2 pi in S3), relative to what was summed (the paths
+    arriving at the points' fronts, before cosines and shadows, averaged over the shaded points). The estimate takes the copies of a light
     of power p as spread uniformly, 1/vol per volume: a shell of radius r holds area(r) / vol of
     them and each sends p / area(r), so the part from R to D is 4 pi p (D - R) / vol in E3, H3
     and S3 alike (with fog f: 4 pi p f (exp(-R/f) - exp(-D/f)) / vol), and in every geometry: averaged
@@ -125,6 +151,9 @@ def light_stats(
     4 pi dr p / vol (the exponential map's Jacobian, which the falloff divides by, is the change of
     variables from the light's directions to the points). Without the limit the sum diverges
     (Olbers) wherever it is not cut at S3's two arcs."""
+    paths = counts["light_paths"] + counts["emitter_paths"]
+    energy = counts["light_energy"] + counts["emitter_energy"]
+    shadow_walks, shadowed = counts["shadow_walks"], counts["shadowed_walks"]
     reach = tracer.light_reach
     longest = min(settings.max_distance or space.max_distance, 2 * space.geometry.diameter)
     if reach >= longest:
@@ -132,7 +161,8 @@ def light_stats(
     else:
         f = settings.fog
         shell = f * (math.exp(-reach / f) - math.exp(-longest / f)) if f else longest - reach
-        left_out = 4 * math.pi * tracer.light_power * shell / space.volume
+        # half of it: the summed paths are those arriving at the points' fronts
+        left_out = 2 * math.pi * tracer.light_power * shell / space.volume
     summed = energy / shaded if shaded else 0.0
     return {
         "light_copies": tracer.num_light_lifts,
@@ -147,6 +177,14 @@ def light_stats(
         "light_samples": settings.light_samples,
         "light_reach": reach,
         "light_energy_left_out": left_out / summed if summed > 0 else (0.0 if left_out == 0 else math.inf),
+        # visibility maps: texels per cube-face edge (0: none), the point lights' geodesics looked
+        # up, the share of them walked, the checks drawn and how many found the map wrong
+        "light_map": map_texels if counts["map_lookups"] else 0,
+        "map_lookups_per_point": counts["map_lookups"] / shaded if shaded else 0.0,
+        "map_checks": counts["map_checks"],
+        # the share of the checked geodesics' light that the map answered wrongly
+        "map_error": counts["map_error_light"] / counts["map_checked_light"] if counts["map_checked_light"] else 0.0,
+        "map_texels": counts["map_texels"],
     }
 
 

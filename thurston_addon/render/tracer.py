@@ -72,6 +72,8 @@ def trace(
     bounces=0,
     light_budget=0,
     ray_ids=None,
+    visibility_map=0,
+    map_check=0.0,
 ):
     """tracer.trace, with what the core rejects (ValueError) raised as RenderError. Exceptions
     from the progress callback pass through unchanged (they are the caller's, not the input's)."""
@@ -100,6 +102,8 @@ def trace(
             bounces=bounces,
             light_budget=light_budget,
             ray_ids=ray_ids,
+            visibility_map=visibility_map,
+            map_check=map_check,
         )
     except ValueError as exc:
         if raised:

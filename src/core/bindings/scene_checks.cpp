@@ -236,6 +236,17 @@ void make_instances(const OptionalArray& mesh_first_triangle, const InstanceArra
   }
 }
 
+// The (C,4,4) float64 array m as row-major matrices.
+std::vector<Mat4> matrices(const Array& m) {
+  const auto* mp = static_cast<const double*>(m.data());
+  std::vector<Mat4> out(std::size_t(m.shape(0)));
+  for (std::size_t c = 0; c < out.size(); ++c)
+    for (int r = 0; r < 4; ++r)
+      for (int k = 0; k < 4; ++k)
+        out[c][4 * r + k] = mp[std::int64_t(c) * m.stride(0) + r * m.stride(1) + k * m.stride(2)];
+  return out;
+}
+
 // Spot cones, with each spot light's axis at each of its lifts.
 void make_spots(const LightArrays& given, const std::string& geometry, Lights& lights) {
   const std::int64_t NL = lights.radiance.size(), K = lights.lifts.size();
@@ -310,15 +321,7 @@ void make_emitters(const EmitterArrays& given, Emitters& e) {
   e.group = indices(*given.emitter_group, groups, "emitter_group", "C");
   e.copy_group = indices(*given.emitter_copy_group, std::max<std::int64_t>(groups, 1),
                          "emitter_copy_group", "C");
-  const Array& m = *given.emitter_copies;
-  const auto* mp = static_cast<const double*>(m.data());
-  for (std::int64_t c = 0; c < C; ++c) {
-    Mat4 M;
-    for (int r = 0; r < 4; ++r)
-      for (int k = 0; k < 4; ++k)
-        M[4 * r + k] = mp[c * m.stride(0) + r * m.stride(1) + k * m.stride(2)];
-    e.copies.push_back(M);
-  }
+  e.copies = matrices(*given.emitter_copies);
   require_finite(e.copies, "emitter_copies");
 }
 
@@ -422,6 +425,12 @@ SceneData scene_from_record(const SceneRecord& record) {
       throw nb::value_error(
           ("light_lifts row " + std::to_string(i) + " is not a point of " + geometry).c_str());
   make_spots(lights, geometry, lit);
+  if (lights.light_copies) {
+    check<double>(*lights.light_copies, "light_copies", {K, 4, 4},
+                  "(K,4,4) with K = len(light_lifts)");
+    lit.copies = matrices(*lights.light_copies);
+    require_finite(lit.copies, "light_copies");
+  }
   make_emitters(record.emitters, scene.emitters);
   lit.reach = lights.light_reach;
   lit.geodesic_loop = lights.geodesic_loop;

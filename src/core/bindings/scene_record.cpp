@@ -80,7 +80,10 @@ group: pi); light paths longer than it from an opaque surface are shadowed by th
 Spot lights (optional, together): light_cone float64 (NL,2) per light (cos of the cone's half
 angle, smoothness 1 / ((1 - cos) blend)), light leaving at angle theta from the axis scaled by
 smoothstep((cos theta - cos) * smoothness) as in Cycles (cos -1: no cone); light_axis float64
-(K,4) the unit axis (a model tangent vector) at each lift of a light with a cone.)";
+(K,4) the unit axis (a model tangent vector) at each lift of a light with a cone.
+light_copies (optional) float64 (K,4,4): the group element (model map) that takes its light to each
+lift; a light one of whose lifts is its own (the identity) then has a visibility map (trace's
+visibility_map).)";
 
 const char* const kEmittersDoc =
     R"(Emissive triangles sampled as lights at every shaded point (trace's light_samples points each).
@@ -143,15 +146,17 @@ void bind_scene_record(nb::module_& m) {
       .def_ro("textures", &SurfaceArrays::textures);
 
   nb::class_<LightArrays>(m, "Lights", kLightsDoc)
-      .def(nb::init<Array, Array, Array, OptionalArray, OptionalArray, double, double>(),
+      .def(nb::init<Array, Array, Array, OptionalArray, OptionalArray, OptionalArray, double,
+                    double>(),
            nb::arg("light_lifts").noconvert(), nb::arg("light_of_lift").noconvert(),
            nb::arg("light_radiance").noconvert(), optional("light_cone"), optional("light_axis"),
-           nb::arg("light_reach") = kInf, nb::arg("geodesic_loop") = kInf)
+           optional("light_copies"), nb::arg("light_reach") = kInf, nb::arg("geodesic_loop") = kInf)
       .def_ro("light_lifts", &LightArrays::light_lifts)
       .def_ro("light_of_lift", &LightArrays::light_of_lift)
       .def_ro("light_radiance", &LightArrays::light_radiance)
       .def_ro("light_cone", &LightArrays::light_cone)
       .def_ro("light_axis", &LightArrays::light_axis)
+      .def_ro("light_copies", &LightArrays::light_copies)
       .def_ro("light_reach", &LightArrays::light_reach)
       .def_ro("geodesic_loop", &LightArrays::geodesic_loop);
 

@@ -36,7 +36,7 @@ struct SurfaceArrays {
 
 struct LightArrays {
   Array light_lifts, light_of_lift, light_radiance;
-  OptionalArray light_cone, light_axis;
+  OptionalArray light_cone, light_axis, light_copies;
   double light_reach = kInf, geodesic_loop = kInf;
 };
 

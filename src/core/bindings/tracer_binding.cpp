@@ -8,6 +8,7 @@
 #include <iterator>
 #include <limits>
 #include <string>
+#include <type_traits>
 #include <utility>
 
 #include "bind.hpp"
@@ -24,12 +25,21 @@ struct TracerHandle {
   std::string geometry;
 };
 
+// A visibility map's texels per cube-face edge at most (6 * 4096^2 floats: 400 MB per light).
+constexpr int kMaxMapTexels = 4096;
+
 nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directions,
                double max_distance, int max_crossings, bool shade, nb::object progress,
                bool record_segments, double tolerance, double tolerance_per_distance,
                bool skip_empty, double fog, int light_samples, std::uint64_t seed, int bounces,
-               const std::string& emitter_sampling, int light_budget,
-               const OptionalArray& ray_ids) {
+               const std::string& emitter_sampling, int light_budget, const OptionalArray& ray_ids,
+               int visibility_map, double map_check) {
+  if (visibility_map < 0 || visibility_map > kMaxMapTexels)
+    throw nb::value_error(("visibility_map must be texels per cube-face edge from 0 (none) to " +
+                           std::to_string(kMaxMapTexels))
+                              .c_str());
+  if (!(map_check >= 0.0 && map_check <= 1.0))
+    throw nb::value_error("map_check must be a probability in [0, 1]");
   if (light_budget < 0)
     throw nb::value_error("light_budget must be >= 0 (0: every geodesic to every light)");
   if (light_samples < 1) throw nb::value_error("light_samples must be >= 1");
@@ -76,7 +86,8 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
                              skip_empty,    fog,
                              light_samples, seed,
                              bounces,       EmitterSampling(sampling - std::begin(sampling_names)),
-                             light_budget,  ids.empty() ? nullptr : ids.data()};
+                             light_budget,  visibility_map,
+                             map_check,     ids.empty() ? nullptr : ids.data()};
 
   // The callback runs on this thread with the GIL re-acquired; its exception is kept until the
   // workers have stopped.
@@ -119,31 +130,26 @@ nb::dict trace(TracerHandle& handle, const Array& origins, const Array& directio
   result["end"] = to_numpy(std::move(end), {n, 3});
   result["albedo"] = to_numpy(std::move(albedo), {n, 3});
   result["carried_normal"] = to_numpy(std::move(carried_normal), {n, 3});
-  std::unique_ptr<std::int64_t[]> total(new std::int64_t[1]{std::int64_t(stats.chords)});
-  result["chords"] = to_numpy(std::move(total), {});
-  std::unique_ptr<std::int64_t[]> failures(new std::int64_t[1]{std::int64_t(stats.light_failures)});
-  result["light_failures"] = to_numpy(std::move(failures), {});
-  std::unique_ptr<std::int64_t[]> paths(new std::int64_t[1]{std::int64_t(stats.light_paths)});
-  result["light_paths"] = to_numpy(std::move(paths), {});
-  std::unique_ptr<double[]> energy(new double[1]{stats.light_energy});
-  result["light_energy"] = to_numpy(std::move(energy), {});
-  std::unique_ptr<std::int64_t[]> emitter_paths(
-      new std::int64_t[1]{std::int64_t(stats.emitter_paths)});
-  result["emitter_paths"] = to_numpy(std::move(emitter_paths), {});
-  std::unique_ptr<double[]> emitter_energy(new double[1]{stats.emitter_energy});
-  result["emitter_energy"] = to_numpy(std::move(emitter_energy), {});
-  std::unique_ptr<std::int64_t[]> bounce_paths(
-      new std::int64_t[1]{std::int64_t(stats.bounce_paths)});
-  result["bounce_paths"] = to_numpy(std::move(bounce_paths), {});
-  std::unique_ptr<std::int64_t[]> emitter_hits(
-      new std::int64_t[1]{std::int64_t(stats.emitter_hits)});
-  result["emitter_hits"] = to_numpy(std::move(emitter_hits), {});
-  std::unique_ptr<std::int64_t[]> shadow_walks(
-      new std::int64_t[1]{std::int64_t(stats.shadow_walks)});
-  result["shadow_walks"] = to_numpy(std::move(shadow_walks), {});
-  std::unique_ptr<std::int64_t[]> shadowed_walks(
-      new std::int64_t[1]{std::int64_t(stats.shadowed_walks)});
-  result["shadowed_walks"] = to_numpy(std::move(shadowed_walks), {});
+  const auto scalar = [&](const char* name, auto value) {
+    using T = std::conditional_t<std::is_floating_point_v<decltype(value)>, double, std::int64_t>;
+    std::unique_ptr<T[]> one(new T[1]{T(value)});
+    result[name] = to_numpy(std::move(one), {});
+  };
+  scalar("chords", stats.chords);
+  scalar("light_failures", stats.light_failures);
+  scalar("light_paths", stats.light_paths);
+  scalar("light_energy", stats.light_energy);
+  scalar("emitter_paths", stats.emitter_paths);
+  scalar("emitter_energy", stats.emitter_energy);
+  scalar("bounce_paths", stats.bounce_paths);
+  scalar("emitter_hits", stats.emitter_hits);
+  scalar("shadow_walks", stats.shadow_walks);
+  scalar("shadowed_walks", stats.shadowed_walks);
+  scalar("map_lookups", stats.map_lookups);
+  scalar("map_checks", stats.map_checks);
+  scalar("map_texels", stats.map_texels);
+  scalar("map_checked_light", stats.map_checked_light);
+  scalar("map_error_light", stats.map_error_light);
   if (record_segments) {
     std::size_t s = 0;
     for (const auto& chunk : stats.segments) s += chunk.size() / 6;
@@ -205,6 +211,13 @@ light_budget: shadow walks per shaded point for direct light: the geodesics to t
 copies and to the emitters' samples are weighed by their unshadowed light, the strongest traced
 always and the rest sampled in proportion to it (one stratified draw), each traced one weighted by
 1 / its probability (unbiased); 0: every geodesic is traced (the exact sum).
+visibility_map: texels per cube-face edge of each point light's visibility map (0: none; from
+1 to 4096): the first occluder's distance from the light along the geodesic leaving it in each
+texel's direction, traced on first use and kept across traces with the same tolerances and
+crossing limit. A point light's geodesic from a shaded point is answered by the four texels about
+its direction at the light (the share of them that reach the point, bilinearly weighted) instead
+of a shadow walk. map_check: the probability that an answered geodesic is walked too, to measure
+the map's error (map_checked_light, map_error_light; the light is the map's).
 ray_ids: int64 (N,), the index each ray's random numbers are drawn for (so that a subset of a
 larger trace's rays, as adaptive sampling traces, draws what they drew there); None: its position.
 progress(done, total) is called about every 0.1 s (and at the start and end); returning False
@@ -222,12 +235,16 @@ hit), carried_normal float32 (N,3) the hit's shading normal carried back along t
 origin, as its chart image there (unit in the chart; exact parallel transport in E3, S3 and H3,
 an approximation of the turn about the ray in the marching geometries; 0: no hit), chords int64 () Embree queries of primary rays in all, light_failures int64 () light
 paths known to be missed (Sol's shooting: seeds that did not converge), light_paths int64 () geodesics to lights summed
-at the shaded points, light_energy float64 () their mean radiance times falloff (times fog: light
+at the shaded points (those arriving at their front), light_energy float64 () their mean radiance times falloff (times fog: light
 falls to 1/e over `fog` of its path) summed before cosines and shadows, emitter_paths int64 ()
 and emitter_energy float64 () the same for the emitters' samples (their energy: mean radiance
 times the emitter's cosine times falloff over the sampling density), bounce_paths int64 ()
 geodesics traced for bounces, shadow_walks int64 () shadow walks traced for direct light,
-shadowed_walks int64 () those of them that met a blocker,
+shadowed_walks int64 () those of them that met a blocker, map_lookups int64 () point lights'
+geodesics looked up in visibility maps, map_checks int64 () of them those walked as checks,
+map_texels int64 () texels traced, map_checked_light float64 () the checked geodesics'
+unshadowed light (mean radiance times falloff, cosine, fog and cone) and map_error_light float64
+() its part that the map answered wrongly (times |visibility walked - map's answer|),
 emitter_hits int64 () bounces that met an emitter and added its
 light, and with record_segments segment_starts /
 segment_ends float64 (S,3), the chart endpoints of the queries.)";
@@ -254,7 +271,8 @@ void bind_tracer(nb::module_& m) {
                    "tolerance_per_distance: float = 0.0, skip_empty: bool = True, "
                    "fog: float = float('inf'), light_samples: int = 1, seed: int = 0, "
                    "bounces: int = 0, emitter_sampling: str = 'mis', light_budget: int = 0, "
-                   "ray_ids: numpy.ndarray | None = None) -> "
+                   "ray_ids: numpy.ndarray | None = None, visibility_map: int = 0, "
+                   "map_check: float = 0.0) -> "
                    "dict[str, numpy.ndarray]"),
            nb::arg("origins").noconvert(), nb::arg("directions").noconvert(),
            nb::arg("max_distance"), nb::arg("max_crossings"), nb::arg("shade") = true,
@@ -263,7 +281,7 @@ void bind_tracer(nb::module_& m) {
            nb::arg("skip_empty") = true, nb::arg("fog") = kInf, nb::arg("light_samples") = 1,
            nb::arg("seed") = 0, nb::arg("bounces") = 0, nb::arg("emitter_sampling") = "mis",
            nb::arg("light_budget") = 0, nb::arg("ray_ids").noconvert().none() = nb::none(),
-           kTraceDoc)
+           nb::arg("visibility_map") = 0, nb::arg("map_check") = 0.0, kTraceDoc)
       .def(
           "cancel", [](TracerHandle& t) { t.tracer->cancel(); },
           "Stops a running trace(); callable from any Python thread.")
