@@ -88,6 +88,21 @@ def test_geodesics_against_dop853_of_the_metric(loaded, name):
         np.testing.assert_allclose(vc[i], v_ref, rtol=0, atol=1e-9)
 
 
+def test_a_rays_dense_path_against_dop853_of_the_metric(loaded):
+    """geodesic_path (one dense solution, the benchmark's reference) at several arclengths, against
+    DOP853 of the reference equation run to each of them."""
+    g = loaded["graph_two"].geometry
+    x, d = np.array([0.1, -0.5, 0.05]), np.array([0.2, 1.0, -0.1])
+    P = g.to_model(x)
+    V = g.normalize_tangent(P, g.tangent_to_model(x, d))
+    t = np.array([0.3, 1.2, 2.9])
+    got = g.to_chart(g.geodesic_path(P, V, 3.0)(t))
+    for k in range(3):
+        np.testing.assert_allclose(
+            got[k], dop853(reference_christoffel(g), x, unit(g, x, d), t[k])[0], rtol=0, atol=1e-9
+        )
+
+
 def test_f_zero_is_euclidean(loaded):
     """With no bumps the metric is I, geodesics are chart lines (Python and core)."""
     g = loaded["graph_flat"].geometry

@@ -120,6 +120,12 @@ class Geometry(abc.ABC):
         """Model position and unit velocity at arclength t along the geodesic from the model point P
         with unit tangent V (extended precision is kept where the input has it)."""
 
+    def geodesic_path(self, P, V, length):
+        """The geodesic from the model point P with unit tangent V as a function of arclength s in
+        [0, length] (arrays of s to model points): geodesic() at each s; a geometry whose geodesics
+        are integrated gives one dense solution instead, for callers that ask for many s."""
+        return lambda s: self.geodesic(P[None], V[None], s)[0]
+
     @abc.abstractmethod
     def chart_geodesic(self, x, u, t):
         """Chart position and chart velocity at arclength t from chart point x, chart direction u."""

@@ -247,6 +247,27 @@ class Graph(AffineGeometry):
         xt, ut = self.chart_flow(x, self.tangent_to_chart(P, V), t)
         return self.to_model(xt), np.concatenate([ut, np.zeros(ut.shape[:-1] + (1,))], axis=-1)
 
+    def geodesic_path(self, P, V, length, tolerance=INTEGRATION_TOLERANCE):
+        """One DOP853 solution of the ray to arclength `length`, its dense output (of the method's
+        order) evaluated at any s in [0, length]: one integration where geodesic() would run one
+        per call."""
+        P, V = floats(P), floats(V)
+        x, u = self.to_chart(P), self.tangent_to_chart(P, V)
+
+        def rhs(_, y):
+            return np.concatenate([y[3:], self.acceleration(y[:3], y[3:])])
+
+        sol = solve_ivp(
+            rhs,
+            (0.0, float(length)),
+            np.concatenate([x, u]),
+            method="DOP853",
+            rtol=tolerance,
+            atol=tolerance,
+            dense_output=True,
+        )
+        return lambda s: self.to_model(np.atleast_2d(sol.sol(np.atleast_1d(s))[:3].T))
+
     def exp_at(self, x, w):
         """exp_x(w) in the chart for chart vectors w at chart points x (w != 0)."""
         speed = np.sqrt(np.einsum("...i,...ij,...j->...", w, self.metric(x), w))
