@@ -73,6 +73,18 @@ def test_f12_and_render_blend_render_a_graph_space_in_pseudo_colour(tmp_path):
     np.testing.assert_allclose(bh.rgb(bh.read_exr(out / "graph_0001.exr"), "ViewLayer.Combined."), truth, atol=1e-5)
 
 
+def test_f12_renders_r3(tmp_path):
+    """graph_r3 (R^3, no group) picked like any space: F12 shows what the core renders of the same
+    scene as files, rays running to the distance limit (nothing crossed)."""
+    sc = graph_scene("graph_r3")
+    truth = core_normal_render(tmp_path, sc, "graph_r3")
+    sc.view_layers[0].thurston.use_pass_crossings = True
+    chans = bh.f12(sc, tmp_path / "r3.exr")
+    np.testing.assert_allclose(bh.rgb(chans, "ViewLayer.Combined."), truth, atol=1e-5)
+    assert np.any(truth != 0) and graph_notes(sc)  # (the Lambert default, said in the note)
+    assert np.all(chans["ViewLayer.Crossings.X"] == 0)
+
+
 def test_a_chosen_pseudo_colour_shading_is_kept_and_the_lights_noted():
     sc = graph_scene("graph_flat")
     sc.thurston.shading = "depth"
@@ -88,17 +100,17 @@ def test_a_chosen_pseudo_colour_shading_is_kept_and_the_lights_noted():
     assert len(job.scene.lights) == 1 and not [m for m in job.messages() if NOTE in m]
 
 
-@pytest.mark.parametrize("space", GRAPHS)
-def test_domain_guide_of_the_graph_presets(space):
+@pytest.mark.parametrize("space,half", [(sid, 1.0) for sid in GRAPHS] + [("graph_r3", 3.0)])
+def test_domain_guide_of_the_graph_presets(space, half):
     """The flat 3-torus of period 2: the guide is the cube |x_i| <= 1 (times the scale), its 12 edges
-    and 6 faces."""
+    and 6 faces; R^3 (graph_r3, no group): its region of interest, the cube |x_i| <= 3."""
     scale = 1.5
     bh.fresh_scene(space, scale)
     assert bpy.ops.thurston.domain_guide() == {"FINISHED"}
     obj = bpy.data.objects[domain_guide.OBJECT]
     assert obj["thurston_space"] == space
     V = np.array([v.co for v in obj.data.vertices], float) / scale
-    cube = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    cube = np.array([[x, y, z] for x in (-half, half) for y in (-half, half) for z in (-half, half)], float)
     assert sorted(map(tuple, np.round(V, 6))) == sorted(map(tuple, cube))
     assert len(obj.data.edges) == 12 and len(obj.data.polygons) == 6
 

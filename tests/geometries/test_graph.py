@@ -178,6 +178,34 @@ def test_the_space_files_are_validated():
         spaces.from_data({**data, "graph": {**data["graph"], "bumps": []}}, "typo.toml")
 
 
+def test_an_open_space_file_is_validated():
+    """R^3 (no generators): its cube holds the region and everything the rays reach, the bumps'
+    images lie beyond IMAGE_CUTOFF widths of it; a slope, a period, a bad region, a camera outside
+    the region, a region in a closed space: one clear error each."""
+    data = tomllib.loads(spaces.preset_path("graph_r3").read_text())
+    space = spaces.load("graph_r3")
+    g = space.geometry
+    reach = 3 + space.max_distance
+    assert space.half >= reach + 9 * 0.3 and np.allclose(g.period, 2 * space.half)
+    assert space.max_reach == space.max_distance and space.generators
+    x = np.random.default_rng(5).uniform(-reach, reach, (200, 3))  # f there: the bump alone, no image
+    (b,) = g.bumps
+    alone = b.height * np.exp(-0.5 * np.sum((x - np.asarray(b.centre)) ** 2 / np.asarray(b.width) ** 2, axis=1))
+    np.testing.assert_allclose(g.height(x), alone, rtol=0, atol=1e-17)
+    for change, words in [
+        ({"graph": {**data["graph"], "slope": [0.1, 0, 0]}}, "slope is not supported in R"),
+        ({"graph": {**data["graph"], "period": [2, 2, 2]}}, "give the lattice's generators"),
+        ({"region": [[0, 0, 0], [1, 1, 0]]}, "has no volume"),
+        ({"region": [1, 2, 3]}, "two opposite corners"),
+        ({"region": [[-1, -1, -1], [0, 0, 0]]}, "camera position .* lies outside the region"),
+    ]:
+        with pytest.raises(spaces.SpaceError, match=words):
+            spaces.from_data({**data, **change}, "open.toml")
+    closed = tomllib.loads(spaces.preset_path("graph_local").read_text())
+    with pytest.raises(spaces.SpaceError, match="'region' belongs to an open space"):
+        spaces.from_data({**closed, "region": data["region"]}, "closed.toml")
+
+
 def test_the_registry_holds_the_flat_graph_and_spaces_their_own(loaded):
     assert geometries.get("graph").bumps == ()
     assert len(loaded["graph_two"].geometry.bumps) == 2

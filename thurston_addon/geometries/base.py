@@ -205,6 +205,18 @@ class Geometry(abc.ABC):
         """The falloff of a point light at P seen at distance r along the geodesic (P, V):
         1 / (r^2 |det d exp_P(r V)|) in orthonormal frames."""
 
+    # --- open spaces (a space file without generators: all of the chart, graph's R^3) ------------
+    # Whether the geometry has open spaces (open_torus); a space of another needs a group.
+    open_spaces: bool = False
+
+    def open_torus(self, reach: float):
+        """(geometry, H) for a space that is all of the chart (R^3), seen from points within `reach`
+        of the chart origin (chart, along each axis): the geometry repeated on the lattice 2H Z^3,
+        H >= reach, equal to the chart's own wherever those points' geodesics go (no ray leaves the
+        cube |x_i| <= H, whose torus the spaces layer traces: spaces/open_space.py); ValueError
+        naming what keeps the geometry's parameters from it."""
+        raise ValueError(f"{self.name} has no open spaces: give its space's generators")
+
     # --- parameters (a geometry made from its space file's table: graph) -----------------------
     # The space file's table of the geometry's parameters; None: it takes none.
     parameter_table: str | None = None
