@@ -94,7 +94,7 @@ def test_a_chosen_pseudo_colour_shading_is_kept_and_the_lights_noted():
     job = export.RenderJob(sc, bpy.context.evaluated_depsgraph_get())
     assert job.settings.shading == "depth" and job.scene.lights == []
     (note,) = [m for m in job.messages() if NOTE in m]
-    assert "the depth shading and without the scene's 1 light(s)" in note
+    assert "the depth shading, without the scene's 1 light(s)" in note
     sc.thurston.space_id = "torus"  # a space whose light paths are found: all as given
     job = export.RenderJob(sc, bpy.context.evaluated_depsgraph_get())
     assert len(job.scene.lights) == 1 and not [m for m in job.messages() if NOTE in m]

@@ -559,7 +559,7 @@ def pseudo_colour(space: spaces.Space, scene: scenes.Scene, settings: render.Set
     if g.point_lights or not (lambert or scene.lights):
         return scene, settings, []
     shown = f"the {PSEUDO_COLOUR} shading in place of Lambert" if lambert else f"the {settings.shading} shading"
-    left_out = f" and without the scene's {len(scene.lights)} light(s)" if scene.lights else ""
+    left_out = f", without the scene's {len(scene.lights)} light(s)" if scene.lights else ""
     others = ", ".join(s for s in render.SHADING if s != "lambert")
     note = checks.Note(
         ignored.IGNORED,
