@@ -5,8 +5,10 @@ no ray leaves: rays start in the region of interest (the camera must lie in it) 
 max_distance, which is no longer than their chart length (the geometry's metric is at least the
 chart's), so with H >= the region's reach along each axis plus max_distance they never meet a face,
 and the geometry repeated on 2H Z^3 (open_torus) equals the chart's wherever they go. The region
-of interest (the file's `region`, two opposite corners; default the cube |x_i| <= 1) sizes what a
-domain sizes elsewhere: the tolerances near the camera, the default scene, Blender's guide."""
+of interest (the file's `region`, two opposite corners; default the cube |x_i| <= 1) holds the
+camera and is what Blender's guide draws; the default scene's grid through it, of cubic cells a
+third of its shortest side, sizes what a domain sizes elsewhere (the default scene's tubes, ring
+and ball, the tolerances near the camera)."""
 
 from __future__ import annotations
 
