@@ -5,7 +5,8 @@ settings interleaved); and the chord rule of the qualities (each geometry's chor
 from it.
 
 For one preset of each of the eight geometries (and RP3 # RP3, S2xR's folded quotient, traced
-through its double cover): a scene of balls (icosphere meshes) inside its
+through its double cover; and graph_local, a graph of Gaussians, whose reference is DOP853 at 1e-12
+of the geodesic equation from its metric): a scene of balls (icosphere meshes) inside its
 domain, and rays from points of the domain, a third aimed at a ball's centre, a third at its rim
 (where the chords decide what is hit) and a third anywhere. The reference for each ray is computed
 here in Python: the geodesic in the universal cover from the geometry's own closed form (or its
@@ -63,7 +64,7 @@ from timing import least_interleaved
 from thurston_addon import render, spaces
 from thurston_addon.scenes import Scene, SceneObject
 
-SPACES = ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "rp3_rp3", "sl2"]
+SPACES = ["torus", "poincare", "seifert_weber", "nil", "sol", "genus2xs1", "s2xs1", "rp3_rp3", "sl2", "graph_local"]
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -139,9 +140,10 @@ class Reference:
 
     def trace(self, P, V, length, path=None) -> Ray:
         """The reference of the ray (P, V) over `length`; `path(s)`: the geodesic's model points at
-        arclengths s (default: the geometry's closed form)."""
+        arclengths s (default: the geometry's geodesic_path, its closed form, or for graph one dense
+        DOP853 solution at 1e-12 of the equation from the metric)."""
         g, space = self.space.geometry, self.space
-        path = path or (lambda s: g.geodesic(P[None], V[None], s)[0])
+        path = path or g.geodesic_path(P, V, length + 1.0)  # (refinements look a little beyond)
         t = np.arange(0.0, length + self.step, self.step)
         X = path(t)
         Y, _, M = space.move_inside(X)

@@ -88,6 +88,21 @@ def test_geodesics_against_dop853_of_the_metric(loaded, name):
         np.testing.assert_allclose(vc[i], v_ref, rtol=0, atol=1e-9)
 
 
+def test_a_rays_dense_path_against_dop853_of_the_metric(loaded):
+    """geodesic_path (one dense solution, the benchmark's reference) at several arclengths, against
+    DOP853 of the reference equation run to each of them."""
+    g = loaded["graph_two"].geometry
+    x, d = np.array([0.1, -0.5, 0.05]), np.array([0.2, 1.0, -0.1])
+    P = g.to_model(x)
+    V = g.normalize_tangent(P, g.tangent_to_model(x, d))
+    t = np.array([0.3, 1.2, 2.9])
+    got = g.to_chart(g.geodesic_path(P, V, 3.0)(t))
+    for k in range(3):
+        np.testing.assert_allclose(
+            got[k], dop853(reference_christoffel(g), x, unit(g, x, d), t[k])[0], rtol=0, atol=1e-9
+        )
+
+
 def test_f_zero_is_euclidean(loaded):
     """With no bumps the metric is I, geodesics are chart lines (Python and core)."""
     g = loaded["graph_flat"].geometry
@@ -161,6 +176,34 @@ def test_the_space_files_are_validated():
         spaces.from_data({**data, "graph": bad}, "flat_bump.toml")
     with pytest.raises(spaces.SpaceError, match="unknown keys"):
         spaces.from_data({**data, "graph": {**data["graph"], "bumps": []}}, "typo.toml")
+
+
+def test_an_open_space_file_is_validated():
+    """R^3 (no generators): its cube holds the region and everything the rays reach, the bumps'
+    images lie beyond IMAGE_CUTOFF widths of it; a slope, a period, a bad region, a camera outside
+    the region, a region in a closed space: one clear error each."""
+    data = tomllib.loads(spaces.preset_path("graph_r3").read_text())
+    space = spaces.load("graph_r3")
+    g = space.geometry
+    reach = 3 + space.max_distance
+    assert space.half >= reach + 9 * 0.3 and np.allclose(g.period, 2 * space.half)
+    assert space.max_reach == space.max_distance and space.generators
+    x = np.random.default_rng(5).uniform(-reach, reach, (200, 3))  # f there: the bump alone, no image
+    (b,) = g.bumps
+    alone = b.height * np.exp(-0.5 * np.sum((x - np.asarray(b.centre)) ** 2 / np.asarray(b.width) ** 2, axis=1))
+    np.testing.assert_allclose(g.height(x), alone, rtol=0, atol=1e-17)
+    for change, words in [
+        ({"graph": {**data["graph"], "slope": [0.1, 0, 0]}}, "slope is not supported in R"),
+        ({"graph": {**data["graph"], "period": [2, 2, 2]}}, "give the lattice's generators"),
+        ({"region": [[0, 0, 0], [1, 1, 0]]}, "has no volume"),
+        ({"region": [1, 2, 3]}, "two opposite corners"),
+        ({"region": [[-1, -1, -1], [0, 0, 0]]}, "camera position .* lies outside the region"),
+    ]:
+        with pytest.raises(spaces.SpaceError, match=words):
+            spaces.from_data({**data, **change}, "open.toml")
+    closed = tomllib.loads(spaces.preset_path("graph_local").read_text())
+    with pytest.raises(spaces.SpaceError, match="'region' belongs to an open space"):
+        spaces.from_data({**closed, "region": data["region"]}, "closed.toml")
 
 
 def test_the_registry_holds_the_flat_graph_and_spaces_their_own(loaded):

@@ -30,6 +30,7 @@ BUILT_IN = {
     "graph_local": "graph",
     "graph_global": "graph",
     "graph_two": "graph",
+    "graph_r3": "graph",
 }
 
 # Geometries the shared sweeps leave out, with why: graph spaces render in the pseudo-colour modes

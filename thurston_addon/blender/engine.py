@@ -108,8 +108,10 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         try:
             space = export.load_space(bscene.thurston)
             scene = export.export_scene(depsgraph, scale, [], meshes=self._meshes)
+            settings = export.render_settings(bscene.thurston, 1, 1)  # the size is not used
+            scene, _, _ = export.pseudo_colour(space, scene, settings)
             export.check_scale(space, scene, scale)
-            reach = render.light_reach_for(space, export.render_settings(bscene.thurston, 1, 1))  # the size is not used
+            reach = render.light_reach_for(space, settings)
             self._viewport_world = (space, render.make_tracer(space, scene, bscene.thurston.threads, reach))
         except (export.ExportError, render.RenderError, scenes.SceneError) as exc:
             self._viewport_world = exc
@@ -181,6 +183,7 @@ class ThurstonRenderEngine(bpy.types.RenderEngine):
         samples = settings.samples_per_pixel
         # draft accuracy; the samples per pixel stay those chosen (the set count, or the quality's)
         settings = replace(settings, quality="draft", samples=samples)
+        _, settings, _ = export.pseudo_colour(space, scenes.Scene(), settings)  # (its note: F12's report)
 
         def frame(level, sample, cancelled):
             sized = replace(settings, width=max(1, w // level), height=max(1, h // level))

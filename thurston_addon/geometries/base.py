@@ -120,6 +120,12 @@ class Geometry(abc.ABC):
         """Model position and unit velocity at arclength t along the geodesic from the model point P
         with unit tangent V (extended precision is kept where the input has it)."""
 
+    def geodesic_path(self, P, V, length):
+        """The geodesic from the model point P with unit tangent V as a function of arclength s in
+        [0, length] (arrays of s to model points): geodesic() at each s; a geometry whose geodesics
+        are integrated gives one dense solution instead, for callers that ask for many s."""
+        return lambda s: self.geodesic(P[None], V[None], s)[0]
+
     @abc.abstractmethod
     def chart_geodesic(self, x, u, t):
         """Chart position and chart velocity at arclength t from chart point x, chart direction u."""
@@ -198,6 +204,18 @@ class Geometry(abc.ABC):
     def falloff_along(self, P, V, r):
         """The falloff of a point light at P seen at distance r along the geodesic (P, V):
         1 / (r^2 |det d exp_P(r V)|) in orthonormal frames."""
+
+    # --- open spaces (a space file without generators: all of the chart, graph's R^3) ------------
+    # Whether the geometry has open spaces (open_torus); a space of another needs a group.
+    open_spaces: bool = False
+
+    def open_torus(self, reach: float):
+        """(geometry, H) for a space that is all of the chart (R^3), seen from points within `reach`
+        of the chart origin (chart, along each axis): the geometry repeated on the lattice 2H Z^3,
+        H >= reach, equal to the chart's own wherever those points' geodesics go (no ray leaves the
+        cube |x_i| <= H, whose torus the spaces layer traces: spaces/open_space.py); ValueError
+        naming what keeps the geometry's parameters from it."""
+        raise ValueError(f"{self.name} has no open spaces: give its space's generators")
 
     # --- parameters (a geometry made from its space file's table: graph) -----------------------
     # The space file's table of the geometry's parameters; None: it takes none.

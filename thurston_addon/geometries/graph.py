@@ -6,8 +6,7 @@ f : R^3 -> R in R^4, pulled back to R^3:
 a sum of Gaussian bumps (centre c, height h, width w per axis) and an optional constant slope s.
 With `period` (L_x, L_y, L_z) the bumps repeat on the lattice L_i Z (f is then periodic and the space
 a flat 3-torus of that lattice with a non-homogeneous metric; the slope must be 0 there); without,
-f lives on R^3 alone, which the geometry traces (the tests' round bump) but no space file holds yet:
-the spaces layer needs a group and a compact domain.
+f lives on R^3 alone: a space file without generators is R^3 (open_torus, spaces/open_space.py).
 
 Closed forms: with y = x - c and a_i = y_i / w_i^2, one bump G = h exp(-sum y_i a_i / 2) has
 grad G = -G a and Hess G = G (a a^T - diag(1 / w^2)); g^-1 = I - grad f grad f^T / (1 + |grad f|^2)
@@ -57,6 +56,7 @@ class Graph(AffineGeometry):
     # The geodesics to a light have no closed form and shooting for them costs some 30 ms a copy
     # per shaded point: graph spaces render in the pseudo-colour shading modes only, without lights.
     point_lights = False
+    open_spaces = True  # a space file without generators is R^3 (spaces/open_space.py)
 
     def __init__(self, bumps=(), slope=(0.0, 0.0, 0.0), period=None):
         self.bumps = tuple(bumps)
@@ -100,6 +100,20 @@ class Graph(AffineGeometry):
             if np.any(slope != 0):
                 raise ValueError(f"{where}: slope must be 0 with a period (a sloped f is not periodic)")
         return Graph(bumps, slope, period)
+
+    def open_torus(self, reach):
+        """R^3's f as the period 2H of the lattice: H = max(reach, the farthest bump centre along an
+        axis) + IMAGE_CUTOFF times the widest bump. Along each axis a point within reach and a
+        bump's image n != 0 are then more than 2 IMAGE_CUTOFF widths apart, so the images add below
+        1e-17 |h| there. ValueError where f is periodic already or has a slope."""
+        if self.period is not None:
+            raise ValueError("a [graph] period makes f periodic: give the lattice's generators, or no period for R^3")
+        if np.any(self.slope != 0):
+            raise ValueError("a slope is not supported in R^3 (a space file without generators): remove it")
+        far = float(np.abs(self._centres).max()) if len(self.bumps) else 0.0
+        widest = float(self._widths.max()) if len(self.bumps) else 0.0
+        half = max(float(reach), far) + IMAGE_CUTOFF * widest
+        return Graph(self.bumps, self.slope, [2 * half] * 3), half
 
     def _image_counts(self):
         """m (bumps, 3): the periodic images |n_i| <= m_i summed per bump (0: no period)."""
@@ -246,6 +260,27 @@ class Graph(AffineGeometry):
         x = self.to_chart(P)
         xt, ut = self.chart_flow(x, self.tangent_to_chart(P, V), t)
         return self.to_model(xt), np.concatenate([ut, np.zeros(ut.shape[:-1] + (1,))], axis=-1)
+
+    def geodesic_path(self, P, V, length, tolerance=INTEGRATION_TOLERANCE):
+        """One DOP853 solution of the ray to arclength `length`, its dense output (of the method's
+        order) evaluated at any s in [0, length]: one integration where geodesic() would run one
+        per call."""
+        P, V = floats(P), floats(V)
+        x, u = self.to_chart(P), self.tangent_to_chart(P, V)
+
+        def rhs(_, y):
+            return np.concatenate([y[3:], self.acceleration(y[:3], y[3:])])
+
+        sol = solve_ivp(
+            rhs,
+            (0.0, float(length)),
+            np.concatenate([x, u]),
+            method="DOP853",
+            rtol=tolerance,
+            atol=tolerance,
+            dense_output=True,
+        )
+        return lambda s: self.to_model(np.atleast_2d(sol.sol(np.atleast_1d(s))[:3].T))
 
     def exp_at(self, x, w):
         """exp_x(w) in the chart for chart vectors w at chart points x (w != 0)."""

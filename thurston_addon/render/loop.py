@@ -147,6 +147,11 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
             "object, crossings): their light paths are not traced; choose one of them"
         )
     reach = settings.max_distance or space.max_distance
+    if reach > space.max_reach:
+        raise RenderError(
+            f"max distance {reach:g} is longer than {space.id!r} allows ({space.max_reach:g}: an open space's rays "
+            "stay within the cube it is traced in); give at most that, or a larger max_distance in its file"
+        )
     if not (0 <= camera.clip_start < min(reach, camera.clip_end or math.inf)):
         raise RenderError(
             f"camera clip start {camera.clip_start} must be at least 0 and less than the clip end "

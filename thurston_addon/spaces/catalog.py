@@ -12,6 +12,7 @@ from ..geometries import faces
 from . import families, snappy_census
 from .coordinate import CoordinateSpace
 from .dirichlet import DirichletSpace
+from .open_space import OpenSpace, opens
 from .shells import FoldedShellSpace, ShellSpace
 from .space import Space, read_geometry
 from .values import SpaceError
@@ -32,6 +33,7 @@ SPACE_KEYS = (
     "camera",
     "generator",
     "graph",  # the graph geometry's height function (geometries/graph.py)
+    "region",  # an open space's region of interest (spaces/open_space.py)
 )
 CAMERA_KEYS = ("position", "forward", "up", "fov")
 GENERATOR_KEYS = ("name", "matrix", "face", "antipodal")
@@ -63,6 +65,10 @@ def from_data(data: dict, source: str) -> Space:
             f"|x| = R, which only a geometry whose faces are spheres has; give {data.get('geometry')} "
             "generators a 'matrix'"
         )
+    if opens(data, source):
+        return OpenSpace(data, source)
+    if "region" in data:
+        raise SpaceError(f"{source}: 'region' belongs to an open space (a graph file without generators): remove it")
     given = isinstance(gens, list) and any(isinstance(g, dict) and "face" in g for g in gens)
     if not given:
         return DirichletSpace(data, source)

@@ -3,6 +3,7 @@ and the walk of points into it (the Space base class of the kinds of space)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -30,11 +31,13 @@ class Space:
     DirichletSpace computes it from the generators, CoordinateSpace takes it from the file."""
 
     fold: Fold | None = None  # a folded space's fold; the tracer's domain is then its double cover's
+    # The longest distance a render's rays may run (an open space's: its rays stay in its cube)
+    max_reach: float = math.inf
 
     def __init__(self, data: dict, source: str):
         self.source = source
         where = source
-        self.geometry = read_geometry(data, where)
+        self.geometry = self._read_geometry(data, where)
         self.id = text(data, "id", Path(source).stem, where) or Path(source).stem
         self.name = text(data, "name", self.id, where)
         self.description = text(data, "description", "", where)
@@ -63,6 +66,9 @@ class Space:
             )
         self.camera = self._camera(data.get("camera", {}), f"{where}: camera")
         self._build_domain(data)
+
+    def _read_geometry(self, data: dict, where: str):
+        return read_geometry(data, where)
 
     def _build_domain(self, data: dict):
         raise NotImplementedError

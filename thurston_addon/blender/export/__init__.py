@@ -543,6 +543,34 @@ def _superseded(notes: list[checks.Note], caught: list[checks.Note]) -> list[che
     return [n for n in notes if n.kind not in (checks.CAMERA_OUTSIDE, CAMERA_OUTSIDE_ANIMATED)]
 
 
+# What a Lambert render shows in a space whose geometry finds no light paths: the normals (as the
+# images of docs/graph.md)
+PSEUDO_COLOUR = "normal"
+
+
+def pseudo_colour(space: spaces.Space, scene: scenes.Scene, settings: render.Settings):
+    """(scene, settings, notes) as the space renders them. A geometry whose point_lights is false
+    (the graphs of Gaussians: the geodesics from a surface to a light have no closed form, and
+    shooting for them per shaded point is far too slow) renders in the pseudo-colour shadings only:
+    Lambert becomes PSEUDO_COLOUR and the lights are left out, said in one note. Elsewhere, or
+    where nothing changes, all as given."""
+    g = space.geometry
+    lambert = settings.shading == "lambert"
+    if g.point_lights or not (lambert or scene.lights):
+        return scene, settings, []
+    shown = f"the {PSEUDO_COLOUR} shading in place of Lambert" if lambert else f"the {settings.shading} shading"
+    left_out = f", without the scene's {len(scene.lights)} light(s)" if scene.lights else ""
+    others = ", ".join(s for s in render.SHADING if s != "lambert")
+    note = checks.Note(
+        ignored.IGNORED,
+        f"{g.name} spaces render in pseudo-colour only: light paths are not found in this metric (its "
+        f"geodesics to a light have no closed form), so the image shows {shown}{left_out} (Shading in "
+        f"the Thurston panel picks another: {others})",
+    )
+    unlit = scenes.Scene(scene.objects, [], scene.camera)
+    return unlit, replace(settings, shading=PSEUDO_COLOUR if lambert else settings.shading), [note]
+
+
 class RenderJob:
     """A render of the Blender scene: exported, checked and compiled on the calling thread (Blender
     data is read there), traced by run() on any thread. `notes` gathers everything the user should
@@ -576,11 +604,6 @@ class RenderJob:
                     "nothing to render: the scene has no visible mesh objects (the domain guide does not count)"
                 )
             self.camera = export_camera(bscene, depsgraph, settings.scale, w, h, camera_object)
-            check_scale(self.space, self.scene, self.scale, self.camera)
-            try:  # here, so that the error names the camera object (an animated one, at this frame)
-                render.camera_frame(self.space, self.camera)
-            except render.RenderError as exc:
-                raise ExportError(f"camera {(camera_object or bscene.camera).name!r}: {exc}") from None
             self.settings = render_settings(
                 settings,
                 w,
@@ -593,6 +616,13 @@ class RenderJob:
                 stereo=export_stereo(bscene, cam) if stereo == "scene" else stereo,
             )
             self.views = views_of(bscene, self.settings.stereo)
+            self.scene, self.settings, unlit = pseudo_colour(self.space, self.scene, self.settings)
+            self.notes += unlit
+            check_scale(self.space, self.scene, self.scale, self.camera)
+            try:  # here, so that the error names the camera object (an animated one, at this frame)
+                render.camera_frame(self.space, self.camera)
+            except render.RenderError as exc:
+                raise ExportError(f"camera {(camera_object or bscene.camera).name!r}: {exc}") from None
             lambert = self.settings.shading == "lambert"
             self.notes += [
                 _camera_note(n, cam) for n in checks.before_render(self.space, self.scene, self.camera, lambert)
