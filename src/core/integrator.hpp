@@ -207,9 +207,11 @@ inline typename KernelTracer<Kernel>::Reflected KernelTracer<Kernel>::illuminati
 // geodesics, unshadowed light c.term) from the map and returns true; false where it has none, or
 // where c is longer than the map's walks (then c is walked). The four texels about the geodesic's
 // direction at the light each say lit where the first occluder along theirs lies beyond the
-// shaded point, less a margin for the texel's offset on the surface (the geodesics' spread over
-// 1.5 texels, 1 / sqrt(falloff) per radian, over the surface's slope seen from the light, at most
-// 10); the answer m is their bilinear mean (percentage-closer filtering: a shadow's edge is
+// shaded point, less a margin for the texel's offset on the surface (the geodesics' spread over a
+// texel, 1 / sqrt(falloff) per radian, times the surface's slope seen from the light, at most 3:
+// the least bias measured, a wider margin letting light through occluders just in front, a
+// narrower shadowing lit surfaces; tests/render/test_visibility_map.py); the answer m is their
+// bilinear mean (percentage-closer filtering: a shadow's edge is
 // resolved to the texels, softened across one), and m c.term is added to `sum`. With probability
 // options.map_check c is also walked, as a check (buffers.checks): how far the walk's visibility
 // is from m, times c's light, is the map's error there (TraceStats), not added to the light.
@@ -230,9 +232,9 @@ inline bool KernelTracer<Kernel>::map_visibility(const Vertex& v, std::size_t li
   const VisibilityMap::Footprint near = map->footprint(u);
   const double incidence = std::abs(kernel_.dot(v.X, v.N, c.path.direction));
   const double slope = std::min(
-      std::sqrt(std::max(1.0 - incidence * incidence, 0.0)) / std::max(incidence, 1e-12), 10.0);
-  const double margin = 1.5 * map->spacing() / std::sqrt(c.path.falloff) * slope +
-                        1e-6 * (1.0 + d) + 2.0 * kSelfSkip * scale_;
+      std::sqrt(std::max(1.0 - incidence * incidence, 0.0)) / std::max(incidence, 1e-12), 3.0);
+  const double margin = map->spacing() / std::sqrt(c.path.falloff) * slope + 1e-6 * (1.0 + d) +
+                        2.0 * kSelfSkip * scale_;
   double m = 0.0;
   for (int k = 0; k < 4; ++k) {
     bool traced;

@@ -223,6 +223,15 @@ class ThurstonSettings(bpy.types.PropertyGroup):
         "lights' copies always, the rest sampled in proportion to their light (unbiased); 0: every "
         "geodesic (the exact sum); -1: automatic (8 with bounces, else the exact sum)",
     )
+    light_map: bpy.props.IntProperty(
+        name="Light Map",
+        default=-1,
+        min=-1,
+        max=render.MAX_MAP_TEXELS,
+        description="Texels per cube-face edge of each point light's visibility map, which answers whether "
+        "light reaches a point along each geodesic in place of its shadow walk; 0: none, every geodesic "
+        "walked; -1: automatic (E3, S3 and H3: a texel per pixel angle at standard quality; else none)",
+    )
     bounces: bpy.props.IntProperty(
         name="Bounces",
         default=render.Settings.bounces,

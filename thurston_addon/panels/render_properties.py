@@ -81,6 +81,7 @@ class THURSTON_PT_render(_UnderThurston, bpy.types.Panel):
         col.prop(s, "light_reach")
         col.prop(s, "light_samples")
         col.prop(s, "light_paths")
+        col.prop(s, "light_map")
         col.prop(s, "bounces")
         col.prop(s, "threads")
         col.prop(s, "passes")

@@ -106,6 +106,7 @@ def render_settings(
         light_reach=settings.light_reach / settings.scale or None,
         light_samples=settings.light_samples,
         light_paths=None if settings.light_paths < 0 else settings.light_paths,
+        light_map=None if settings.light_map < 0 else settings.light_map,
         bounces=settings.bounces,
         threads=settings.threads,
         tolerance=settings.tolerance / settings.scale or None,
