@@ -22,6 +22,75 @@ def _dot(a, b):
     return np.einsum("...i,...i->...", a, b)
 
 
+# --- H3's isometries as spinors: SO+(3,1) = SL(2, C) / ±1 ----------------------------------------
+# A model point X = (X1, X2, X3, X0) is the Hermitian matrix H(X) = [[X0 + X3, X1 - i X2],
+# [X1 + i X2, X0 - X3]] (det H = -<X, X>), and A in SL(2, C) acts by H -> A H A^†. Everything
+# broadcasts over leading axes.
+_MIRROR = np.diag([1.0, 1.0, -1.0, 1.0])
+# [k, l]: the model vector (complexified) of the matrix unit E_kl, whose image A E_kl A^† has the
+# entries (i, j) A_ik conj(A_jl)
+_UNITS = np.array([[[0, 0, 0.5, 0.5], [0.5, 0.5j, 0, 0]], [[0.5, -0.5j, 0, 0], [0, 0, -0.5, 0.5]]])
+
+
+def _hermitian(X):
+    """H(X) (..., 2, 2) of vectors X (..., 4) (complexified: linear in X)."""
+    X1, X2, X3, X0 = np.moveaxis(X, -1, 0)
+    return np.stack([np.stack([X0 + X3, X1 - 1j * X2], -1), np.stack([X1 + 1j * X2, X0 - X3], -1)], -2)
+
+
+def spinor_of_lorentz(M) -> np.ndarray:
+    """A in SL(2, C) (up to sign) whose action is the orientation- and time-preserving Lorentz
+    matrix M: its entries divided from the products A_ik conj(A_jl) that M's images of the matrix
+    units hold, by the largest |A_jl| (so each entry keeps M's relative rounding); then brought to
+    determinant 1 by the least change of its entries (one Newton step: det B = B00 B11 - B01 B10
+    cancels terms of size |M| down to 1, so B / sqrt(det B) would scale every entry by the
+    rounding of |M|, eps |M| relative; the step moves each entry by eps of its size)."""
+    M = np.asarray(M, float)
+    images = _hermitian(np.einsum("...ab,klb->...kla", M, _UNITS))  # [..., k, l, i, j]
+    squares = np.einsum("...lljj->...jl", images).real  # |A_jl|^2
+    flat = squares.reshape(squares.shape[:-2] + (4,))
+    jl = np.argmax(flat, axis=-1)
+    j, l = jl // 2, jl % 2
+    # B[..., i, k] = (A E_kl A^†)_ij / |A_jl|: A up to a phase
+    picked = np.take_along_axis(images, l[..., None, None, None, None], axis=-3)[..., 0, :, :]  # [..., k, i, j]
+    picked = np.take_along_axis(picked, j[..., None, None, None], axis=-1)[..., 0]  # [..., k, i]
+    B = np.swapaxes(picked, -1, -2) / np.sqrt(np.take_along_axis(flat, jl[..., None], axis=-1))[..., None]
+    det = B[..., 0, 0] * B[..., 1, 1] - B[..., 0, 1] * B[..., 1, 0]
+    B = B / np.sqrt(det / np.abs(det))[..., None, None]  # the phase that makes det B real (about 1)
+    det = B[..., 0, 0] * B[..., 1, 1] - B[..., 0, 1] * B[..., 1, 0]
+    adjugate = np.stack([np.stack([B[..., 1, 1], -B[..., 0, 1]], -1), np.stack([-B[..., 1, 0], B[..., 0, 0]], -1)], -2)
+    step = (1.0 - det) / np.sum(np.abs(B) ** 2, axis=(-2, -1))
+    return B + step[..., None, None] * np.conj(np.swapaxes(adjugate, -1, -2))
+
+
+def lorentz_of_spinor(A) -> np.ndarray:
+    """The Lorentz matrices (..., 4, 4) of the actions H -> A H A^† (column e: the image of e)."""
+    A = np.asarray(A, complex)
+    H = np.einsum("...ab,ebc,...dc->...ead", A, _hermitian(np.eye(4)), np.conj(A))  # [..., e, 2, 2]
+    columns = np.stack(
+        [
+            H[..., 1, 0].real,
+            H[..., 1, 0].imag,
+            0.5 * (H[..., 0, 0] - H[..., 1, 1]).real,
+            0.5 * (H[..., 0, 0] + H[..., 1, 1]).real,
+        ],
+        -1,
+    )
+    return np.swapaxes(columns, -1, -2)
+
+
+def repaired_lorentz(M) -> np.ndarray:
+    """Lorentz matrices (..., 4, 4) repaired through their spinors; for an orientation-reversing
+    M (whose spinor's matrix then lies far from it), that of M P times P, P the mirror in x3 = 0.
+    (Which one M is cannot be told from det M: its terms reach |M|^4, so its rounding swamps the
+    ±1 past |M| = 10^4.)"""
+    M = np.asarray(M, float)
+    with np.errstate(invalid="ignore"):  # (the wrong orientation's spinor may be NaN)
+        kept, mirrored = (lorentz_of_spinor(spinor_of_lorentz(M @ P)) @ P for P in (np.eye(4), _MIRROR))
+        off = [np.nan_to_num(np.abs(R - M).max(axis=(-2, -1)), nan=np.inf) for R in (kept, mirrored)]
+    return np.where((off[0] <= off[1])[..., None, None], kept, mirrored)
+
+
 class ProjectiveGeometry(SharedGeometry):
     """Base class: subclasses set `name`, `curvature` and the form `form` (diagonal of the
     ambient bilinear form restricted as the metric sees it)."""
@@ -226,15 +295,20 @@ class ProjectiveGeometry(SharedGeometry):
         return key + tuple(np.round(M[:3, :3].ravel(), 5)) if self.curvature == 0 else key
 
     def reorthonormalize(self, M):
-        """Nearest isometry to an almost-isometry M (removes accumulated rounding). M is split into
-        the translation taking the origin to M's image of it, computed exactly, and a rotation about
-        the origin, repaired by SVD; Gram-Schmidt on large Lorentz matrices would lose digits."""
+        """Nearest isometry to an almost-isometry M (removes accumulated rounding). E3: the linear
+        part repaired by SVD. H3: through M's spinor in SL(2, C), which keeps every entry to its own
+        relative rounding (a repair of M itself, Gram-Schmidt or T^-1 M, computes a rotation from
+        differences of entries of size |M|^2, so it errs by eps |M|^2 relative: 1e-10 at |M| = 1000,
+        and past |M| = 10^5 its SVD fails). S3: M split into the translation taking the origin to
+        M's image of it, computed exactly, and a rotation about the origin, repaired by SVD."""
         M = np.array(M, float)
         if self.curvature == 0:
             U, _, Vt = np.linalg.svd(M[:3, :3])
             M[:3, :3] = U @ Vt
             M[3] = [0, 0, 0, 1]
             return M
+        if self.curvature < 0:
+            return repaired_lorentz(M)
         T = self.translation_to(self.normalize_point(M[:, 3]))
         J = np.diag(self.form)
         R = (J @ T.T @ J) @ M  # T^-1 M, nearly a rotation about the origin

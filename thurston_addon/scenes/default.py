@@ -8,6 +8,8 @@ import numpy as np
 
 from .model import PointLight, Scene, SceneObject
 
+TUBE_HALVINGS = 8  # a tube that leaves the chart is made this many times thinner at most
+
 
 def default_scene(space) -> Scene:
     """The domain drawn as thin tubes coloured by class (as in the paper's figures: edges by edge
@@ -36,13 +38,9 @@ def default_scene(space) -> Scene:
     # trimesh merges a mesh's vertices on a grid of 1e-8 in int64: a domain spanning more than about
     # 1e6 (S2xR's wide shells) has its meshes built at a power-of-two scale (exact) and scaled back
     unit = 1.0 if size < 1e6 else 2.0 ** round(math.log2(size))
+    around = {space.geometry.element_key(M) for M in space.neighbourhood(1)}
     for c, segments in enumerate(space.outline(inset=2 * radius)):
-        tubes = trimesh.util.concatenate(
-            [
-                trimesh.creation.cylinder(radius=radius / unit, segment=[p / unit, q / unit], sections=10)
-                for p, q in segments
-            ]
-        )
+        tubes = trimesh.util.concatenate([_tube(space, p, q, radius, unit, around) for p, q in segments])
         objects.append(SceneObject(f"edges {c}", tubes.vertices * unit, tubes.faces, palette[c % len(palette)]))
     inr = space.chart_inradius
     cam = space.camera
@@ -87,3 +85,22 @@ def default_scene(space) -> Scene:
         falloff = float(np.sum(g.falloff(d)))
     light = PointLight(position, np.ones(3), 0.5 / falloff)
     return Scene(objects=objects, lights=[light])
+
+
+def _tube(space, p, q, radius, unit, around: set):
+    """A tube from p to q, thinner where one of the given radius would leave the chart or the
+    copies of the domain around it (`around`: their element keys), of which the render shows
+    only those (a many-sided polygon's corners in H2xR's and SL2~'s disk lie within a tube's
+    width of its rim: genus 3's at Klein radius 0.9974)."""
+    import trimesh
+
+    g = space.geometry
+    for _ in range(TUBE_HALVINGS):
+        tube = trimesh.creation.cylinder(radius=radius / unit, segment=[p / unit, q / unit], sections=10)
+        V = tube.vertices * unit
+        if np.all(g.in_chart(V)):
+            homes = space.move_inside(g.to_model(V))[2]
+            if all(g.element_key(g.reorthonormalize(np.linalg.inv(M))) in around for M in homes):
+                break
+        radius /= 2
+    return tube
