@@ -27,15 +27,24 @@ def _dot(a, b):
 # [X1 + i X2, X0 - X3]] (det H = -<X, X>), and A in SL(2, C) acts by H -> A H A^†. Everything
 # broadcasts over leading axes.
 _MIRROR = np.diag([1.0, 1.0, -1.0, 1.0])
-# [k, l]: the model vector (complexified) of the matrix unit E_kl, whose image A E_kl A^† has the
-# entries (i, j) A_ik conj(A_jl)
-_UNITS = np.array([[[0, 0, 0.5, 0.5], [0.5, 0.5j, 0, 0]], [[0.5, -0.5j, 0, 0], [0, 0, -0.5, 0.5]]])
 
 
 def _hermitian(X):
     """H(X) (..., 2, 2) of vectors X (..., 4) (complexified: linear in X)."""
     X1, X2, X3, X0 = np.moveaxis(X, -1, 0)
     return np.stack([np.stack([X0 + X3, X1 - 1j * X2], -1), np.stack([X1 + 1j * X2, X0 - X3], -1)], -2)
+
+
+# Both directions are linear, so each is one complex matrix (16, 16). _IMAGES: M's entries -> the
+# images A E_kl A^† [k, l, i, j] of the matrix units (E_kl = H(_UNITS[k, l])), whose entries are
+# A_ik conj(A_jl). _LORENTZ: those products [i, k, j, l] -> M [a, e], whose column e is the vector
+# of A H(e) A^†, its coordinate a the real part of sum_ij _READ[a, i, j] H_ij.
+_UNITS = np.array([[[0, 0, 0.5, 0.5], [0.5, 0.5j, 0, 0]], [[0.5, -0.5j, 0, 0], [0, 0, -0.5, 0.5]]])
+_IMAGES = _hermitian(np.einsum("mab,klb->mkla", np.eye(16).reshape(16, 4, 4), _UNITS)).reshape(16, 16)
+_READ = np.array([[[0, 0], [1, 0]], [[0, 0], [-1j, 0]], [[0.5, 0], [0, -0.5]], [[0.5, 0], [0, 0.5]]])
+_LORENTZ = np.einsum("aij,ekl->ikjlae", _READ, _hermitian(np.eye(4))).reshape(16, 16)
+_J, _L = np.array([0, 0, 1, 1]), np.array([0, 1, 0, 1])  # the entries (j, l) of A, in turn
+_I2, _K2 = np.array([[0, 0], [1, 1]]), np.array([[0, 1], [0, 1]])  # [i, k] of a 2 x 2 matrix
 
 
 def spinor_of_lorentz(M) -> np.ndarray:
@@ -46,37 +55,25 @@ def spinor_of_lorentz(M) -> np.ndarray:
     cancels terms of size |M| down to 1, so B / sqrt(det B) would scale every entry by the
     rounding of |M|, eps |M| relative; the step moves each entry by eps of its size)."""
     M = np.asarray(M, float)
-    images = _hermitian(np.einsum("...ab,klb->...kla", M, _UNITS))  # [..., k, l, i, j]
-    squares = np.einsum("...lljj->...jl", images).real  # |A_jl|^2
-    flat = squares.reshape(squares.shape[:-2] + (4,))
-    jl = np.argmax(flat, axis=-1)
-    j, l = jl // 2, jl % 2
-    # B[..., i, k] = (A E_kl A^†)_ij / |A_jl|: A up to a phase
-    picked = np.take_along_axis(images, l[..., None, None, None, None], axis=-3)[..., 0, :, :]  # [..., k, i, j]
-    picked = np.take_along_axis(picked, j[..., None, None, None], axis=-1)[..., 0]  # [..., k, i]
-    B = np.swapaxes(picked, -1, -2) / np.sqrt(np.take_along_axis(flat, jl[..., None], axis=-1))[..., None]
-    det = B[..., 0, 0] * B[..., 1, 1] - B[..., 0, 1] * B[..., 1, 0]
-    B = B / np.sqrt(det / np.abs(det))[..., None, None]  # the phase that makes det B real (about 1)
-    det = B[..., 0, 0] * B[..., 1, 1] - B[..., 0, 1] * B[..., 1, 0]
-    adjugate = np.stack([np.stack([B[..., 1, 1], -B[..., 0, 1]], -1), np.stack([-B[..., 1, 0], B[..., 0, 0]], -1)], -2)
-    step = (1.0 - det) / np.sum(np.abs(B) ** 2, axis=(-2, -1))
-    return B + step[..., None, None] * np.conj(np.swapaxes(adjugate, -1, -2))
+    images = (M.reshape(-1, 16) @ _IMAGES).reshape(-1, 2, 2, 2, 2)  # [n, k, l, i, j]
+    squares = images[:, _L, _L, _J, _J].real  # |A_jl|^2
+    n, c = np.arange(len(images)), np.argmax(squares, axis=1)
+    B = images[n[:, None, None], _K2, _L[c][:, None, None], _I2, _J[c][:, None, None]]  # A up to a phase
+    B = B / np.sqrt(squares[n, c])[:, None, None]
+    det = B[:, 0, 0] * B[:, 1, 1] - B[:, 0, 1] * B[:, 1, 0]
+    B = B / np.sqrt(det / np.abs(det))[:, None, None]  # the phase that makes det B real (about 1)
+    det = B[:, 0, 0] * B[:, 1, 1] - B[:, 0, 1] * B[:, 1, 0]
+    adjugate_h = np.conj(np.stack([B[:, 1, 1], -B[:, 1, 0], -B[:, 0, 1], B[:, 0, 0]], -1)).reshape(-1, 2, 2)
+    A = B + ((1.0 - det) / np.sum(np.abs(B) ** 2, axis=(1, 2)))[:, None, None] * adjugate_h
+    return A.reshape(M.shape[:-2] + (2, 2))
 
 
 def lorentz_of_spinor(A) -> np.ndarray:
-    """The Lorentz matrices (..., 4, 4) of the actions H -> A H A^† (column e: the image of e)."""
+    """The Lorentz matrices (..., 4, 4) of the actions H -> A H A^†."""
     A = np.asarray(A, complex)
-    H = np.einsum("...ab,ebc,...dc->...ead", A, _hermitian(np.eye(4)), np.conj(A))  # [..., e, 2, 2]
-    columns = np.stack(
-        [
-            H[..., 1, 0].real,
-            H[..., 1, 0].imag,
-            0.5 * (H[..., 0, 0] - H[..., 1, 1]).real,
-            0.5 * (H[..., 0, 0] + H[..., 1, 1]).real,
-        ],
-        -1,
-    )
-    return np.swapaxes(columns, -1, -2)
+    flat = A.reshape(-1, 2, 2)
+    products = np.einsum("nik,njl->nikjl", flat, np.conj(flat)).reshape(-1, 16)
+    return (products @ _LORENTZ).real.reshape(A.shape[:-2] + (4, 4))
 
 
 def repaired_lorentz(M) -> np.ndarray:
@@ -85,10 +82,16 @@ def repaired_lorentz(M) -> np.ndarray:
     (Which one M is cannot be told from det M: its terms reach |M|^4, so its rounding swamps the
     ±1 past |M| = 10^4.)"""
     M = np.asarray(M, float)
-    with np.errstate(invalid="ignore"):  # (the wrong orientation's spinor may be NaN)
-        kept, mirrored = (lorentz_of_spinor(spinor_of_lorentz(M @ P)) @ P for P in (np.eye(4), _MIRROR))
-        off = [np.nan_to_num(np.abs(R - M).max(axis=(-2, -1)), nan=np.inf) for R in (kept, mirrored)]
-    return np.where((off[0] <= off[1])[..., None, None], kept, mirrored)
+    flat = M.reshape(-1, 4, 4)
+    with np.errstate(invalid="ignore", divide="ignore"):  # (the wrong orientation's spinor may be NaN)
+        repaired = lorentz_of_spinor(spinor_of_lorentz(flat))
+        off = np.nan_to_num(np.abs(repaired - flat).max(axis=(-2, -1)), nan=np.inf)
+        far = ~(off <= 1e-6 * np.abs(flat).max(axis=(-2, -1)))
+        if far.any():
+            mirrored = lorentz_of_spinor(spinor_of_lorentz(flat[far] @ _MIRROR)) @ _MIRROR
+            nearer = np.nan_to_num(np.abs(mirrored - flat[far]).max(axis=(-2, -1)), nan=np.inf) < off[far]
+            repaired[np.flatnonzero(far)[nearer]] = mirrored[nearer]
+    return repaired.reshape(M.shape)
 
 
 class ProjectiveGeometry(SharedGeometry):
