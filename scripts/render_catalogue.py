@@ -2,7 +2,8 @@
 docs/catalogue/<name>.png, and print docs/catalogue.md's table with each one's invariants: the
 geometry, the volume (checked on load against the closed form or SnapPy's), the faces of the
 domain, the group order (S3) and the first homology computed from the domain (Dirichlet spaces).
-Run: .venv/bin/python scripts/render_catalogue.py [--size 240x135] [--quality standard]"""
+Run: .venv/bin/python scripts/render_catalogue.py [--size 240x135] [--quality standard] [NAME ...]
+(names: only those members, their rows printed for the table)"""
 
 from __future__ import annotations
 
@@ -33,6 +34,8 @@ MEMBERS = [
     "sol(3,1,2,1)",
     "surface_x_circle(2)",
     "unit_tangent(2)",
+    "surface_x_circle(3)",
+    "unit_tangent(3)",
     "snappy:m003(-3,1)",
     "snappy:m004(5,1)",
 ]
@@ -42,13 +45,14 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--size", default="240x135")
     ap.add_argument("--quality", default="standard")
+    ap.add_argument("names", nargs="*", help="only these members (default: all of them)")
     args = ap.parse_args()
     w, h = map(int, args.size.split("x"))
     OUT.mkdir(parents=True, exist_ok=True)
     rows = ["| name | geometry | volume | faces | group order | H1 | default view |", "|---|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory() as cache:
         os.environ["THURSTON_CACHE_DIR"] = cache
-        for name in MEMBERS:
+        for name in args.names or MEMBERS:
             space = spaces.load(name)
             result = render.render(
                 space, default_scene(space), render.Settings(width=w, height=h, quality=args.quality)

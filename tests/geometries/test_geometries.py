@@ -366,6 +366,23 @@ def test_h3_reorthonormalize_keeps_large_isometries_accurate(d):
     assert np.abs(geom.to_chart(R @ P) - x).max() < max(1e-9, 100 * err_T)
 
 
+@pytest.mark.parametrize("mirrored", [False, True])
+def test_h3_reorthonormalize_keeps_far_isometries_to_their_rounding(mirrored, rng):
+    """Far isometries (entries up to 10^6, as the walks through a genus-3 surface's cover reach
+    them in H2xR's disk) come back from a perturbation of 1e-15 of each entry to within 1e-12 of
+    their size, orientation-reversing ones too: a repair that computes the rotation part from the
+    matrix (T^-1 M, Gram-Schmidt) errs by eps |M|^2, 10^-4 here. The isometries are built in
+    closed form: a translation by d after a rotation (and a mirror)."""
+    geom = geometries.get("H3")
+    for d in (3.0, 8.0, 14.0):
+        T = geom.translation([0.3, -0.5, 0.8], d) @ geom.rotation([1.0, 2.0, 3.0], 0.7)
+        if mirrored:
+            T = T @ np.diag([1.0, -1.0, 1.0, 1.0])
+        R = geom.reorthonormalize(T * (1 + 1e-15 * rng.normal(size=(4, 4))))
+        assert np.abs(R - T).max() <= 1e-12 * np.abs(T).max()
+        assert geom.is_isometry(R, tol=1e-12)
+
+
 def test_is_isometry_rejects_non_isometries(name, geom):
     M = np.eye(4)
     M[0, 0] = 1.01

@@ -164,12 +164,40 @@ def test_genus_g_bundles(family, g):
 
 
 @pytest.mark.slow
-def test_a_genus_three_view_hits_the_scene(tmp_path):
+@pytest.mark.parametrize("family", ["surface_x_circle", "unit_tangent"])
+def test_a_genus_three_view_hits_the_scene(family, tmp_path, capsys):
+    """The default view at the default light reach, whose walk to the light's copies passes
+    21000 (H2xR) and 31000 (SL2~) of them (render/lights.py's limit), with every tube of the
+    default scene inside the copies of the domain the render shows (no warning)."""
     out = tmp_path / "view.exr"
-    argv = ["render", "--space", "unit_tangent(3)", "--size", "24x16", "--samples", "1", "--light-reach", "3"]
+    argv = ["render", "--space", f"{family}(3)", "--size", "24x16", "--samples", "1"]
     assert cli.main([*argv, "--out", str(out)]) == 0
+    assert "warning" not in capsys.readouterr().err
     pixels = oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[..., :3]
     assert np.isfinite(pixels).all() and (pixels.sum(axis=-1) > 0).mean() > 0.5  # lit surfaces, most of the view
+
+
+@pytest.mark.parametrize("g", [3, pytest.param(4, marks=pytest.mark.slow)])
+def test_rays_meet_a_wall_beyond_a_face_at_the_closed_form_depth(g):
+    """(genus-g surface) x S¹: a wall on the chord x = -1/2 of the disk, behind the camera at the
+    centre; rays ahead leave through the side x = tanh r_in and meet the wall's copy under the side
+    translation by 2 r_in, the geodesic perpendicular to the x axis at distance δ = 2 r_in -
+    atanh(1/2). A horizontal geodesic at angle a meets it at h, tanh δ = tanh h cos a (the right
+    triangle), so at depth h sqrt(1 + w^2) rising w per unit (the trace's words reach entries of 10^3)."""
+    space = spaces.load(f"surface_x_circle({g})")
+    geometry = space.geometry
+    r = math.acosh(1 / math.tan(math.pi / (4 * g)))
+    wall = np.array([[-0.5, -0.6, -1.0], [-0.5, 0.6, -1.0], [-0.5, 0.6, 1.0], [-0.5, -0.6, 1.0]])
+    scene = Scene(objects=[SceneObject("wall", wall, np.array([[0, 1, 2], [0, 2, 3]]), (0.5,) * 3)], lights=[])
+    tracer = render.make_tracer(space, scene, threads=1, light_reach=1.0)
+    a, w = np.array([-0.01, 0.0, 0.01]), 0.1
+    o, d = np.zeros((3, 3)), np.stack([np.cos(a), np.sin(a), np.full(3, w)], 1)
+    P = geometry.to_model(o)
+    out = tracer.trace(P, geometry.normalize_tangent(P, geometry.tangent_to_model(o, d)), 10.0, 40, shade=False)
+    h = np.arctanh(np.tanh(2 * r - math.atanh(0.5)) / np.cos(a))
+    assert (out["stop"] == 0).all() and (out["object"] == 0).all()
+    np.testing.assert_allclose(out["depth"], h * math.hypot(1, w), rtol=1e-9)
+    np.testing.assert_allclose(out["position"][:, 0], -0.5, atol=1e-9)  # on the wall, in the domain
 
 
 def test_genus_below_two_is_refused():

@@ -155,6 +155,11 @@ class Geometry(abc.ABC):
         """The exact isometry nearest the almost-isometry M (removes accumulated rounding)."""
 
     @abc.abstractmethod
+    def repair_products(self, M):
+        """Products of isometries (..., 4, 4), as walks through the cover build them step by step,
+        made exact again where this geometry's products drift (H2xR's), else unchanged."""
+
+    @abc.abstractmethod
     def point_coordinates(self, X):
         """Coordinates (rows) of model points X in which distinct points differ by more than a few
         digits of rounding (the copies of a light are told apart by them): the direction of the

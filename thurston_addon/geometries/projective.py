@@ -22,6 +22,78 @@ def _dot(a, b):
     return np.einsum("...i,...i->...", a, b)
 
 
+# --- H3's isometries as spinors: SO+(3,1) = SL(2, C) / ±1 ----------------------------------------
+# A model point X = (X1, X2, X3, X0) is the Hermitian matrix H(X) = [[X0 + X3, X1 - i X2],
+# [X1 + i X2, X0 - X3]] (det H = -<X, X>), and A in SL(2, C) acts by H -> A H A^†. Everything
+# broadcasts over leading axes.
+_MIRROR = np.diag([1.0, 1.0, -1.0, 1.0])
+
+
+def _hermitian(X):
+    """H(X) (..., 2, 2) of vectors X (..., 4) (complexified: linear in X)."""
+    X1, X2, X3, X0 = np.moveaxis(X, -1, 0)
+    return np.stack([np.stack([X0 + X3, X1 - 1j * X2], -1), np.stack([X1 + 1j * X2, X0 - X3], -1)], -2)
+
+
+# Both directions are linear, so each is one complex matrix (16, 16). _IMAGES: M's entries -> the
+# images A E_kl A^† [k, l, i, j] of the matrix units (E_kl = H(_UNITS[k, l])), whose entries are
+# A_ik conj(A_jl). _LORENTZ: those products [i, k, j, l] -> M [a, e], whose column e is the vector
+# of A H(e) A^†, its coordinate a the real part of sum_ij _READ[a, i, j] H_ij.
+_UNITS = np.array([[[0, 0, 0.5, 0.5], [0.5, 0.5j, 0, 0]], [[0.5, -0.5j, 0, 0], [0, 0, -0.5, 0.5]]])
+_IMAGES = _hermitian(np.einsum("mab,klb->mkla", np.eye(16).reshape(16, 4, 4), _UNITS)).reshape(16, 16)
+_READ = np.array([[[0, 0], [1, 0]], [[0, 0], [-1j, 0]], [[0.5, 0], [0, -0.5]], [[0.5, 0], [0, 0.5]]])
+_LORENTZ = np.einsum("aij,ekl->ikjlae", _READ, _hermitian(np.eye(4))).reshape(16, 16)
+_J, _L = np.array([0, 0, 1, 1]), np.array([0, 1, 0, 1])  # the entries (j, l) of A, in turn
+_I2, _K2 = np.array([[0, 0], [1, 1]]), np.array([[0, 1], [0, 1]])  # [i, k] of a 2 x 2 matrix
+
+
+def spinor_of_lorentz(M) -> np.ndarray:
+    """A in SL(2, C) (up to sign) whose action is the orientation- and time-preserving Lorentz
+    matrix M: its entries divided from the products A_ik conj(A_jl) that M's images of the matrix
+    units hold, by the largest |A_jl| (so each entry keeps M's relative rounding); then brought to
+    determinant 1 by the least change of its entries (one Newton step: det B = B00 B11 - B01 B10
+    cancels terms of size |M| down to 1, so B / sqrt(det B) would scale every entry by the
+    rounding of |M|, eps |M| relative; the step moves each entry by eps of its size)."""
+    M = np.asarray(M, float)
+    images = (M.reshape(-1, 16) @ _IMAGES).reshape(-1, 2, 2, 2, 2)  # [n, k, l, i, j]
+    squares = images[:, _L, _L, _J, _J].real  # |A_jl|^2
+    n, c = np.arange(len(images)), np.argmax(squares, axis=1)
+    B = images[n[:, None, None], _K2, _L[c][:, None, None], _I2, _J[c][:, None, None]]  # A up to a phase
+    B = B / np.sqrt(squares[n, c])[:, None, None]
+    det = B[:, 0, 0] * B[:, 1, 1] - B[:, 0, 1] * B[:, 1, 0]
+    B = B / np.sqrt(det / np.abs(det))[:, None, None]  # the phase that makes det B real (about 1)
+    det = B[:, 0, 0] * B[:, 1, 1] - B[:, 0, 1] * B[:, 1, 0]
+    adjugate_h = np.conj(np.stack([B[:, 1, 1], -B[:, 1, 0], -B[:, 0, 1], B[:, 0, 0]], -1)).reshape(-1, 2, 2)
+    A = B + ((1.0 - det) / np.sum(np.abs(B) ** 2, axis=(1, 2)))[:, None, None] * adjugate_h
+    return A.reshape(M.shape[:-2] + (2, 2))
+
+
+def lorentz_of_spinor(A) -> np.ndarray:
+    """The Lorentz matrices (..., 4, 4) of the actions H -> A H A^†."""
+    A = np.asarray(A, complex)
+    flat = A.reshape(-1, 2, 2)
+    products = np.einsum("nik,njl->nikjl", flat, np.conj(flat)).reshape(-1, 16)
+    return (products @ _LORENTZ).real.reshape(A.shape[:-2] + (4, 4))
+
+
+def repaired_lorentz(M) -> np.ndarray:
+    """Lorentz matrices (..., 4, 4) repaired through their spinors; for an orientation-reversing
+    M (whose spinor's matrix then lies far from it), that of M P times P, P the mirror in x3 = 0.
+    (Which one M is cannot be told from det M: its terms reach |M|^4, so its rounding swamps the
+    ±1 past |M| = 10^4.)"""
+    M = np.asarray(M, float)
+    flat = M.reshape(-1, 4, 4)
+    with np.errstate(invalid="ignore", divide="ignore"):  # (the wrong orientation's spinor may be NaN)
+        repaired = lorentz_of_spinor(spinor_of_lorentz(flat))
+        off = np.nan_to_num(np.abs(repaired - flat).max(axis=(-2, -1)), nan=np.inf)
+        far = ~(off <= 1e-6 * np.abs(flat).max(axis=(-2, -1)))
+        if far.any():
+            mirrored = lorentz_of_spinor(spinor_of_lorentz(flat[far] @ _MIRROR)) @ _MIRROR
+            nearer = np.nan_to_num(np.abs(mirrored - flat[far]).max(axis=(-2, -1)), nan=np.inf) < off[far]
+            repaired[np.flatnonzero(far)[nearer]] = mirrored[nearer]
+    return repaired.reshape(M.shape)
+
+
 class ProjectiveGeometry(SharedGeometry):
     """Base class: subclasses set `name`, `curvature` and the form `form` (diagonal of the
     ambient bilinear form restricted as the metric sees it)."""
@@ -226,15 +298,20 @@ class ProjectiveGeometry(SharedGeometry):
         return key + tuple(np.round(M[:3, :3].ravel(), 5)) if self.curvature == 0 else key
 
     def reorthonormalize(self, M):
-        """Nearest isometry to an almost-isometry M (removes accumulated rounding). M is split into
-        the translation taking the origin to M's image of it, computed exactly, and a rotation about
-        the origin, repaired by SVD; Gram-Schmidt on large Lorentz matrices would lose digits."""
+        """Nearest isometry to an almost-isometry M (removes accumulated rounding). E3: the linear
+        part repaired by SVD. H3: through M's spinor in SL(2, C), which keeps every entry to its own
+        relative rounding (a repair of M itself, Gram-Schmidt or T^-1 M, computes a rotation from
+        differences of entries of size |M|^2, so it errs by eps |M|^2 relative: 1e-10 at |M| = 1000,
+        and past |M| = 10^5 its SVD fails). S3: M split into the translation taking the origin to
+        M's image of it, computed exactly, and a rotation about the origin, repaired by SVD."""
         M = np.array(M, float)
         if self.curvature == 0:
             U, _, Vt = np.linalg.svd(M[:3, :3])
             M[:3, :3] = U @ Vt
             M[3] = [0, 0, 0, 1]
             return M
+        if self.curvature < 0:
+            return repaired_lorentz(M)
         T = self.translation_to(self.normalize_point(M[:, 3]))
         J = np.diag(self.form)
         R = (J @ T.T @ J) @ M  # T^-1 M, nearly a rotation about the origin

@@ -44,6 +44,10 @@ class SharedGeometry(Geometry):
         Xt, Vt = self.geodesic(X, V, t)
         return self.to_chart(Xt), self.tangent_to_chart(Xt, Vt)
 
+    def repair_products(self, M):
+        """Unchanged: the products of these isometries keep their relative rounding."""
+        return M
+
     def point_coordinates(self, X):
         """The model vector's direction (a point's model vectors may differ by a factor: projective
         models), known to ~1e-16 of its size however far the point."""

@@ -84,7 +84,7 @@ def _walk_cover_copies(space: Space, L, reach: float) -> np.ndarray:
         for k, M in zip(_copy_keys(g, g.normalize_point(products @ L)), products):
             candidates.setdefault(k, M)
         fresh = [k for k in candidates if k not in found]
-        new = np.array([candidates[k] for k in fresh]).reshape(-1, 4, 4)
+        new = g.repair_products(np.array([candidates[k] for k in fresh]).reshape(-1, 4, 4))
         distance = g.domain_distance(g.normalize_point(new @ L), space.domain)
         walk = distance <= reach + rho + 1e-9
         found.update(k for k, w in zip(fresh, walk) if w)
@@ -102,7 +102,8 @@ def _walk_cover_copies(space: Space, L, reach: float) -> np.ndarray:
     return kept[~np.any(np.triu(near, 1), axis=0)]
 
 
-LIGHT_TILE_LIMIT = 20000  # tiles a light reach may need (an H3 reach of a few domain sizes has more)
+LIGHT_TILE_LIMIT = 50000  # tiles a light reach may need (an H3 reach of a few domain sizes has more; the
+# default reach of genus 3's bundles walks 21000 (H2xR) and 31000 (SL2~) copies, in a few seconds)
 
 
 def light_tiles(space: Space, reach: float) -> np.ndarray:

@@ -8,6 +8,8 @@ import numpy as np
 
 from .model import PointLight, Scene, SceneObject
 
+TUBE_HALVINGS = 8  # the most times a tube that would leave the chart or the copies around the domain is halved
+
 
 def default_scene(space) -> Scene:
     """The domain drawn as thin tubes coloured by class (as in the paper's figures: edges by edge
@@ -36,13 +38,9 @@ def default_scene(space) -> Scene:
     # trimesh merges a mesh's vertices on a grid of 1e-8 in int64: a domain spanning more than about
     # 1e6 (S2xR's wide shells) has its meshes built at a power-of-two scale (exact) and scaled back
     unit = 1.0 if size < 1e6 else 2.0 ** round(math.log2(size))
+    around = {space.geometry.element_key(M) for M in space.neighbourhood(1)}
     for c, segments in enumerate(space.outline(inset=2 * radius)):
-        tubes = trimesh.util.concatenate(
-            [
-                trimesh.creation.cylinder(radius=radius / unit, segment=[p / unit, q / unit], sections=10)
-                for p, q in segments
-            ]
-        )
+        tubes = trimesh.util.concatenate(_tubes(space, segments, radius, unit, around))
         objects.append(SceneObject(f"edges {c}", tubes.vertices * unit, tubes.faces, palette[c % len(palette)]))
     inr = space.chart_inradius
     cam = space.camera
@@ -87,3 +85,33 @@ def default_scene(space) -> Scene:
         falloff = float(np.sum(g.falloff(d)))
     light = PointLight(position, np.ones(3), 0.5 / falloff)
     return Scene(objects=objects, lights=[light])
+
+
+def _tubes(space, segments, radius, unit, around: set) -> list:
+    """Tubes along the segments (p, q), each halved in radius while it would leave the chart or
+    the copies of the domain around it (`around`: their element keys), of which the render shows
+    only those (a many-sided polygon's corners in H2xR's and SL2~'s disk lie within a tube's
+    width of its rim: genus 3's at Klein radius 0.9974). All vertices are brought in at once."""
+    import trimesh
+
+    g = space.geometry
+    radii = np.full(len(segments), radius)
+    tubes = [None] * len(segments)
+    todo = np.arange(len(segments))
+    for _ in range(TUBE_HALVINGS):
+        if not len(todo):
+            break
+        for i in todo:
+            p, q = segments[i]
+            tubes[i] = trimesh.creation.cylinder(radius=radii[i] / unit, segment=[p / unit, q / unit], sections=10)
+        V = np.concatenate([tubes[i].vertices for i in todo]) * unit
+        owner = np.repeat(todo, [len(tubes[i].vertices) for i in todo])
+        ok = g.in_chart(V)
+        # the isometries that bring the vertices in: few distinct, one per face or corner crossed
+        homes = space.move_inside(g.to_model(V[ok]))[2].reshape(-1, 16)
+        distinct, inverse = np.unique(homes, axis=0, return_inverse=True)
+        known = [g.element_key(g.reorthonormalize(np.linalg.inv(M))) in around for M in distinct.reshape(-1, 4, 4)]
+        ok[ok] = np.array(known, bool)[inverse.ravel()]
+        todo = np.unique(owner[~ok])
+        radii[todo] /= 2
+    return tubes
