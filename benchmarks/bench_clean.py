@@ -5,8 +5,9 @@ For each space's default scene and view, (a) direct light and (b) path traced (-
 previous build's render at its default settings (the exact light sum) with --direct-target samples
 per pixel (direct; the standard quality's 4) or --bounce-target (path traced; 16) sets the target
 error. Then for each of this build's ways to a clean image, the render time it needs to reach that
-error: the exact light sum (light_paths 0: the previous build's image), sampled light (light_paths
-2, 4, 8), and the best of those (by time to the target) with adaptive sampling (noise_threshold
+error: the exact light sum (light_paths 0 and light_map 0: the previous build's image), sampled
+light (light_paths 2, 4, 8), this build's defaults where they use visibility maps (E3, S3, H3: the
+point lights' geodesics looked up, with bounces the emitters' sampled as before), and the best of those (by time to the target) with adaptive sampling (noise_threshold
 --adaptive-fraction x the target error), with denoising (OIDN) and with both. Per way the samples
 per pixel are searched over 1, 2, 4, 8, ... until two neighbouring counts bracket the target; the
 time to it is interpolated between them as error ~ time^-p, p through the two points (1/2 where the
@@ -49,6 +50,9 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parents[1]
+# The exact light sum: every geodesic's shadow walk (no sampling, no visibility maps; the key of a
+# cached reference says light_paths 0 for it, as before the maps)
+EXACT = dict(light_paths=0, light_map=0)
 REFERENCE_SEEDS = (1_000_000, 2_000_000)  # far beyond the tests' seeds (sample k draws from seed + k)
 THREADS = 2
 
@@ -79,6 +83,12 @@ class Renderer:
             reach = self.render.light_reach_for(space, self.render.Settings())
             self.made[sid] = space, scene, self.render.make_tracer(space, scene, THREADS, reach)
         return self.made[sid]
+
+    def maps(self, sid) -> bool:
+        """Whether this build lights the space's default scene with visibility maps by default."""
+        space = self._space(sid)[0]
+        settings = self.render.Settings()
+        return hasattr(settings, "map_texels") and settings.map_texels(space, 1e-3) > 0
 
     def __call__(self, sid, size, samples, bounces, seed=0, **options):
         """((CPU seconds, wall seconds), colour) of one render; options: this build's settings
@@ -152,10 +162,10 @@ class Reference:
             self.cached = True
             return
         if deterministic:  # one render: nothing random to average out
-            (_, self.seconds), color = new(sid, size, samples, bounces, REFERENCE_SEEDS[0], light_paths=0)
+            (_, self.seconds), color = new(sid, size, samples, bounces, REFERENCE_SEEDS[0], **EXACT)
             self.image, self.variance = brightness(color), 0.0
         else:
-            halves = [new(sid, size, samples // 2, bounces, seed, light_paths=0) for seed in REFERENCE_SEEDS]
+            halves = [new(sid, size, samples // 2, bounces, seed, **EXACT) for seed in REFERENCE_SEEDS]
             a, b = (brightness(c) for _, c in halves)
             self.seconds = sum(s[1] for s, _ in halves)
             self.image, self.variance = (a + b) / 2, float(np.mean((a - b) ** 2) / 4)
@@ -229,7 +239,10 @@ def interleave(searches, measure):
 
 def label(options):
     lp = options.get("light_paths", 0)
-    parts = ["exact light" if lp == 0 else f"light_paths {lp}"]
+    if options.get("light_map", None) is None:
+        parts = ["visibility maps" + (f", light_paths {lp}" if lp else "")]
+    else:
+        parts = ["exact light" if lp == 0 else f"light_paths {lp}"]
     if options.get("noise_threshold"):
         parts.append(f"adaptive {options['noise_threshold']:.2g}")
     if options.get("denoise"):
@@ -261,7 +274,7 @@ def measure_part(sid, part, args, new, old, out):
     t_old1, c_old = old(sid, size, n_old, bounces)
     t_old1 = t_old1[clock]
     target = ref.error(c_old)
-    t_exact, c_exact = new(sid, size, n_old, bounces, light_paths=0)
+    t_exact, c_exact = new(sid, size, n_old, bounces, **EXACT)
     t_exact = t_exact[clock]
     same = float(np.max(np.abs(c_exact - c_old)))
     limit = args.limit * t_old1
@@ -269,13 +282,15 @@ def measure_part(sid, part, args, new, old, out):
     def render_ladder(options):
         return lambda n: (lambda t_c: (t_c[0][clock], ref.error(t_c[1])))(new(sid, size, n, bounces, **options))
 
-    ways = {f"light_paths {lp}": dict(light_paths=lp) for lp in args.light_paths}
+    ways = {f"light_paths {lp}": dict(light_paths=lp, light_map=0) for lp in args.light_paths}
+    if new.maps(sid):  # this build's default: the visibility maps (with bounces, sampled emitters too)
+        ways["visibility maps"] = {}
     searches = {name: search(target, limit) for name in ways}
     measure = lambda name, n: render_ladder(ways[name])(n)
     found = interleave(searches, measure)
     e_exact = ref.error(c_exact)  # the previous build's error where the images agree
     found["exact light"] = (t_exact, "=" if e_exact <= target * 1.001 else ">", {n_old: (t_exact, e_exact)})
-    ways["exact light"] = dict(light_paths=0)
+    ways["exact light"] = EXACT
     light = min(found, key=lambda name: found[name][0] if found[name][1] != ">" else math.inf)
     best = ways[light]
     threshold = args.adaptive_fraction * target
@@ -307,7 +322,7 @@ def measure_part(sid, part, args, new, old, out):
     )
     for name in [*ways, *combos]:
         seconds, bound, points = found[name]
-        what = label(ways.get(name) or combos[name])
+        what = label(ways[name] if name in ways else combos[name])
         ladder = "  ".join(f"{n}:{t:.2f}s/{e:.4f}" for n, (t, e) in sorted(points.items()))
         print(f"{tag}   {what:<40} {ladder:<70} -> {bound}{seconds:.2f} s, {cell(t_old, found[name])}", flush=True)
     row = dict(

@@ -85,6 +85,7 @@ def test_light_map_settings():
     space = spaces.load("poincare")
     assert render.Settings(quality="draft").map_texels(space, math.radians(90) / 640) == 407
     assert render.Settings().map_texels(space, math.radians(90) / 640) == 815
+    assert render.Settings().map_texels(space, math.radians(90) / 640, lights=1000) == 150  # 512 MiB
     assert render.Settings(light_map=0).map_texels(space, 1e-3) == 0
     assert render.Settings().map_texels(spaces.load("nil"), 1e-3) == 0  # the flow to the light per lookup
     assert render.Settings(shading="normal").map_texels(space, 1e-3) == 0

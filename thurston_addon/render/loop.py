@@ -169,7 +169,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     _, _, w, h = settings.window  # the pixels rendered
     pixel_angle = PROJECTIONS[settings.projection].width_angle(camera) / W
     tolerances = settings.tolerances(space, pixel_angle)
-    map_texels = settings.map_texels(space, pixel_angle)
+    map_texels = settings.map_texels(space, pixel_angle, len(scene.lights))
     shade = settings.shading == "lambert"
     # (jitter, shade, is colour sample): the centre pass first where no colour sample gives it
     jobs = [(o, shade, True) for o in offsets]

@@ -44,6 +44,8 @@ PATH_TRACED_LIGHT_PATHS = 8
 # The visibility maps' automatic texels per face edge (Settings.map_texels) are kept within these;
 # the share of the answered geodesics also walked to measure the maps' error.
 MAP_TEXELS = (64, 2048)
+MAP_BYTES_PER_TEXEL = 24  # per texels^2: six faces of float32 distances
+MAP_MEMORY = 512 * 2**20  # the automatic maps of a scene's point lights at most
 MAP_CHECK = 1 / 256
 MAX_MAP_TEXELS = 4096  # the core's limit
 # `thurston trace` has no pixels: its qualities use the pixel of the default view (640 pixels
@@ -205,17 +207,20 @@ class Settings:
             return self.light_paths
         return PATH_TRACED_LIGHT_PATHS if self.bounces else 0
 
-    def map_texels(self, space: Space, pixel_angle: float) -> int:
+    def map_texels(self, space: Space, pixel_angle: float, lights: int = 1) -> int:
         """Texels per cube-face edge of the point lights' visibility maps: the given count, else
         where geodesics are straight in the chart (E3, S3, H3) a texel the quality's texel_pixels
-        pixels wide (at a face's centre, 2 / texels radians), within MAP_TEXELS; none in the other
-        geometries, whose lookup needs the geodesic flowed to the light (docs/lighting.md,
-        "Visibility maps")."""
+        pixels wide (at a face's centre, 2 / texels radians), within MAP_TEXELS and the `lights`
+        maps' MAP_MEMORY; none in the other geometries, whose lookup needs the geodesic flowed to
+        the light (docs/lighting.md, "Visibility maps")."""
         if self.light_map is not None:
             return self.light_map
         if not space.geometry.projective or self.shading != "lambert":
             return 0
-        texels = 2.0 / (QUALITY[self.quality].texel_pixels * pixel_angle)
+        texels = min(
+            2.0 / (QUALITY[self.quality].texel_pixels * pixel_angle),
+            math.sqrt(MAP_MEMORY / (MAP_BYTES_PER_TEXEL * max(lights, 1))),
+        )
         return int(min(max(round(texels), MAP_TEXELS[0]), MAP_TEXELS[1]))
 
     @property

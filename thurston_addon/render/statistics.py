@@ -75,9 +75,9 @@ def light_summary(s: dict) -> str:
     )
     if s["light_map"]:
         estimate = (
-            f"the point lights' from visibility maps of {s['light_map']}x{s['light_map']} texels a cube face "
-            f"(--light-map), their error {s['map_error']:.2%} of the light of {s['map_checks']} geodesics walked "
-            f"to check them"
+            f"the point lights' answered by visibility maps of {s['light_map']}x{s['light_map']} texels a cube "
+            f"face (--light-map), wrong on {s['map_error']:.2%} of the light of the {s['map_checks']} geodesics "
+            f"walked to check them"
             + ("" if not s["light_budget"] and not s["emitter_triangles"] else f"; the rest {estimate}")
         )
     return (
@@ -167,8 +167,10 @@ def light_stats(space: Space, settings: Settings, tracer, counts: dict, shaded: 
     return {
         "light_copies": tracer.num_light_lifts,
         "light_paths_per_point": paths / shaded if shaded else 0.0,
-        # how the direct light was estimated: every geodesic's shadow walk, or a sample of them
-        "light_estimate": "sampled" if settings.light_budget else "exact sum",
+        # how the direct light was estimated: the point lights' from visibility maps or not, and
+        # the geodesics walked: every one, or a sample of them
+        "light_estimate": ("visibility maps, " if counts["map_lookups"] else "")
+        + ("sampled" if settings.light_budget else "exact sum"),
         "light_budget": settings.light_budget,
         "shadow_walks_per_point": shadow_walks / shaded if shaded else 0.0,
         "shadowed_fraction": shadowed / shadow_walks if shadow_walks else 0.0,  # walks that met a blocker
