@@ -123,13 +123,20 @@ def cmd_render(args):
     given = {"position": args.camera_position, "forward": args.camera_forward, "up": args.camera_up, "fov": args.fov}
     camera = dataclasses.replace(cam, **{k: v for k, v in given.items() if v is not None})
     w, h = args.size
+    shading = args.shading or ("lambert" if space.geometry.point_lights else "normal")
+    if not args.shading and shading != "lambert":
+        print(
+            f"thurston: {space.geometry.name} spaces render in pseudo-colour (here --shading normal): their "
+            "geodesics to a light have no closed form, so light paths are not traced",
+            file=sys.stderr,
+        )
     settings = render.Settings(
         width=w,
         height=h,
         projection=args.projection,
         quality=args.quality,
         samples=args.samples,
-        shading=args.shading,
+        shading=shading,
         max_distance=args.max_distance,
         max_crossings=args.max_crossings,
         fog=args.fog,
@@ -453,7 +460,12 @@ def build_parser():
         help="denoise the colour with Intel Open Image Denoise (RT filter, albedo and normal guides); "
         "the colour before it is the EXR's Noisy Image; needs the 'denoise' extra (pyoidn)",
     )
-    r.add_argument("--shading", choices=render.SHADING, default="lambert")
+    r.add_argument(
+        "--shading",
+        choices=render.SHADING,
+        help="lambert (lit), or a pseudo-colour: normal, depth, position, object, crossings (default: lambert; "
+        "normal in spaces whose light paths are not traced: the graphs of Gaussians)",
+    )
     r.add_argument("--fog", type=float, help="distance at which colour falls to 1/e")
     r.add_argument(
         "--light-reach",

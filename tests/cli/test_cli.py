@@ -671,3 +671,16 @@ def test_render_warns_what_makes_the_image_dark(tmp_path, capsys):
         capsys,
     )
     assert code == 0 and "warning: no light reaches any surface the camera sees" in err
+
+
+def test_a_graph_space_renders_in_pseudo_colour_by_default_and_refuses_lambert(tmp_path, capsys):
+    """A graph of Gaussians has no light paths: without --shading it renders the normal shading (the
+    same image as asked for), saying so; --shading lambert is refused with the reason."""
+    common = ["render", "--space", "graph_local", "--size", "32x18", "--quality", "draft"]
+    code, _, err = run([*common, "--out", tmp_path / "a.exr"], capsys)
+    assert code == 0 and "render in pseudo-colour (here --shading normal)" in err
+    code, _, _ = run([*common, "--shading", "normal", "--out", tmp_path / "b.exr"], capsys)
+    assert code == 0
+    np.testing.assert_array_equal(read_image(tmp_path / "a.exr")[1], read_image(tmp_path / "b.exr")[1])
+    code, _, err = run([*common, "--shading", "lambert", "--out", tmp_path / "c.png"], capsys)
+    assert code != 0 and "pseudo-colour shadings only" in err
