@@ -392,11 +392,11 @@ def test_lit_colour_sums_every_copy_along_every_geodesic(space_id):
     for w in (w for f in found for w in f):
         r = math.sqrt(w @ G @ w)
         fall = falloff(name, x, w)
-        energy += power * fall
+        energy += power * fall * (n @ G @ w > 0)  # (the paths to the point's front are counted)
         terms.append(max(n @ G @ w / r, 0.0) * power * fall)
     terms = np.array(terms)
     rtol = 3e-4 if name == "Sol" else 2e-5  # Sol's falloffs; else the float32 colour
-    assert out["light_paths"] == len(terms) and np.count_nonzero(terms) >= 2
+    assert out["light_paths"] == np.count_nonzero(terms) >= 2
     assert float(out["light_energy"]) == pytest.approx(energy, rel=rtol)
     np.testing.assert_allclose(colour, GLOW + RHO * terms.sum(), rtol=rtol)
     print(f"{len(terms)} geodesics; smallest term / colour", RHO * terms[terms > 0].min() / colour.max())

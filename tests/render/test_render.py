@@ -621,6 +621,20 @@ def test_sample_offsets_cover_each_stratum_once_and_average_to_the_centre(n):
     assert len({tuple(p) for p in o}) == n  # no sample counted twice
 
 
+@pytest.mark.parametrize("n", [16, 32, 64, 256])
+def test_every_prefix_of_the_sample_offsets_spreads_over_the_pixel(n):
+    """Adaptive sampling and the time limit stop a pixel after a prefix of its samples: every even
+    prefix averages to the pixel's centre (mirror pairs), and the first 4 lie in the four quadrants,
+    the first 16 in 16 of the 4 x 4 cells or within one cell of each empty one (farthest-point order).
+    In stratum order a prefix of 4 of n samples lay in one strip of the pixel: its error grew with n."""
+    o = np.array(render.sample_offsets(n))
+    for k in range(2, n + 1, 2):
+        np.testing.assert_allclose(o[:k].mean(axis=0), [0.5, 0.5], rtol=0, atol=1e-12)
+    assert {(int(x * 2), int(y * 2)) for x, y in o[:4]} == {(0, 0), (0, 1), (1, 0), (1, 1)}
+    gaps = [min(np.hypot(*(o[:16] - [(a + 0.5) / 4, (b + 0.5) / 4]).T)) for a in range(4) for b in range(4)]
+    assert max(gaps) < 0.25 * math.sqrt(2)
+
+
 @pytest.mark.parametrize("samples", [4, 9, 16, 3])
 def test_colour_of_a_linear_ramp_is_its_value_at_the_pixel_centre(space_cache, samples):
     """A wall at constant depth seen head-on, shaded by chart position: the colour is linear in

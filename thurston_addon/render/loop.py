@@ -104,7 +104,27 @@ def sample_offsets(n):
             ja, jb = rng.random(2)
             offsets[i] = ((a + ja) / m, (b + jb) / m)
             offsets[mirror] = ((m - 1 - a + 1 - ja) / m, (m - 1 - b + 1 - jb) / m)
-    return offsets
+    return _spread_order(offsets)
+
+
+def _spread_order(offsets):
+    """The same offsets in an order whose every prefix spreads over the pixel (adaptive sampling and
+    the time limit stop a pixel after a prefix): the centre first where there is one, then the
+    mirror pairs, each the one farthest from those before it (farthest-point order, the pair's
+    nearer member counting), so that an even prefix still averages to the centre."""
+    points = np.array(offsets, float)
+    where = {tuple(np.round(p, 12)): i for i, p in enumerate(points)}
+    firsts = [i for i, p in enumerate(points) if i <= where[tuple(np.round(1.0 - p, 12))]]
+    mirrors = [where[tuple(np.round(1.0 - points[i], 12))] for i in firsts]
+    a, b = points[firsts], points[mirrors]
+    start = next((k for k, (i, j) in enumerate(zip(firsts, mirrors)) if i == j), 0)  # the centre
+    order, nearest = [start], np.full(len(firsts), np.inf)
+    for _ in range(len(firsts) - 1):
+        for q in (a[order[-1]], b[order[-1]]):
+            nearest = np.minimum(nearest, np.minimum(np.sum((a - q) ** 2, axis=1), np.sum((b - q) ** 2, axis=1)))
+        nearest[order] = -1.0
+        order.append(int(np.argmax(nearest)))
+    return [offsets[i] for k in order for i in dict.fromkeys((firsts[k], mirrors[k]))]
 
 
 def render(
@@ -169,7 +189,7 @@ def _render(space, scene, settings, camera, progress, tracer) -> Result:
     _, _, w, h = settings.window  # the pixels rendered
     pixel_angle = PROJECTIONS[settings.projection].width_angle(camera) / W
     tolerances = settings.tolerances(space, pixel_angle)
-    map_texels = settings.map_texels(space, pixel_angle, len(scene.lights))
+    map_texels = settings.map_texels(space, pixel_angle, len(scene.lights) if scene else 1)
     shade = settings.shading == "lambert"
     # (jitter, shade, is colour sample): the centre pass first where no colour sample gives it
     jobs = [(o, shade, True) for o in offsets]
