@@ -178,6 +178,7 @@ class KernelTracer final : public Tracer {
   }
 
   void prepare(const TraceOptions& options) override {
+    if (!options.shade) return;  // unshaded rays (a render's centre pass and re-trace) need no maps
     const MapKey key{options.visibility_map, options.tolerance, options.tolerance_per_distance,
                      options.max_crossings, options.skip_empty};
     if (key == map_key_) return;

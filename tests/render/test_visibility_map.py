@@ -92,3 +92,16 @@ def test_light_map_settings():
     for bad in (-1, 1.5, render.MAX_MAP_TEXELS + 1):
         with pytest.raises(render.RenderError, match="light map must be a whole number"):
             render.Settings(light_map=bad).check()
+
+
+def test_a_second_render_with_the_same_tracer_reuses_the_texels():
+    """The texels are kept across renders with the same tolerances and crossing limit (the viewport's
+    one-sample renders, animations): the unshaded re-trace that measures a render's error must not
+    start them afresh. The second render traces none and is the first's image."""
+    space = spaces.load("poincare")
+    scene = default_scene(space)
+    tracer = render.make_tracer(space, scene, threads=2)
+    settings = render.Settings(width=32, height=18, quality="draft", threads=2)
+    first, second = (render.render(space, scene, settings, tracer=tracer) for _ in range(2))
+    assert first.stats["map_texels"] > 0 and second.stats["map_texels"] == 0
+    np.testing.assert_array_equal(first.passes["color"], second.passes["color"])
